@@ -1,0 +1,149 @@
+// Backward: the closed-form sub-triangle splat.
+//
+// Moving the surface changes a voxel's average only through the part of the
+// surface inside it. Each triangle is clipped in full 3D against the voxels
+// (vertical triangles included) and every piece P in voxel v adds
+//   g[v] / |voxel| * area(P) * nhat * beta_m(centroid of P)
+// to corner m. Barycentric coordinates are carried through the clipping as
+// linear attributes, so area(P) * beta_m(centroid) is integrated exactly over
+// the fan of P. Only the cotangent values of voxels that pieces fall in are
+// read. Triangles are independent: each writes its own three corners.
+#pragma once
+
+#include "clip.h"
+#include "common.h"
+#include "forward.h"
+
+namespace voxax {
+
+// Corner gradients of triangles [t0, t1) of one batch item into out (F, 3, 3).
+template <typename T>
+void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
+                           int64_t t0, int64_t t1, T* out) {
+  const double inv_vol = 1.0 / g.cell_volume();
+  const int64_t ny = g.n[1], nz = g.n[2];
+  Poly<5> P, Px, Pxy, Pz;
+  for (int64_t t = t0; t < t1; ++t) {
+    const int32_t* f = F + 3 * t;
+    double p[3][3];
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < 3; ++a) p[c][a] = static_cast<double>(V[3 * int64_t(f[c]) + a]);
+    double e1[3], e2[3], N[3];
+    for (int a = 0; a < 3; ++a) {
+      e1[a] = p[1][a] - p[0][a];
+      e2[a] = p[2][a] - p[0][a];
+    }
+    N[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    N[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    N[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+    double acc[3] = {0, 0, 0};  // integral of g * beta_m over the surface / |voxel|
+    if (len > 0 && std::isfinite(len)) {
+      const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
+      P.count = 3;
+      for (int c = 0; c < 3; ++c) {
+        for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
+        P.v[c][3] = c == 1 ? 1.0 : 0.0;  // beta_1
+        P.v[c][4] = c == 2 ? 1.0 : 0.0;  // beta_2
+      }
+      int64_t i0, i1, j0, j1, k0, k1;
+      if (cell_range(g, 0, P.min(0), P.max(0), &i0, &i1) &&
+          cell_range(g, 1, P.min(1), P.max(1), &j0, &j1) &&
+          cell_range(g, 2, P.min(2), P.max(2), &k0, &k1)) {
+        for (int64_t i = i0; i <= i1; ++i) {
+          clip_slab<5>(P, 0, g.plane(0, i), g.plane(0, i + 1), &Px);
+          if (Px.count < 3) continue;
+          if (!cell_range(g, 1, Px.min(1), Px.max(1), &j0, &j1)) continue;
+          for (int64_t j = j0; j <= j1; ++j) {
+            clip_slab<5>(Px, 1, g.plane(1, j), g.plane(1, j + 1), &Pxy);
+            if (Pxy.count < 3) continue;
+            if (!cell_range(g, 2, Pxy.min(2), Pxy.max(2), &k0, &k1)) continue;
+            const T* Gcol = G + (i * ny + j) * nz;
+            for (int64_t k = k0; k <= k1; ++k) {
+              const double gv = static_cast<double>(Gcol[k]);
+              if (gv == 0.0) continue;
+              clip_slab<5>(Pxy, 2, g.plane(2, k), g.plane(2, k + 1), &Pz);
+              if (Pz.count < 3) continue;
+              double A = 0, B1 = 0, B2 = 0;
+              const double* q0 = Pz.v[0];
+              for (int m = 1; m + 1 < Pz.count; ++m) {
+                const double* q1 = Pz.v[m];
+                const double* q2 = Pz.v[m + 1];
+                double u[3], w[3];
+                for (int a = 0; a < 3; ++a) {
+                  u[a] = q1[a] - q0[a];
+                  w[a] = q2[a] - q0[a];
+                }
+                double area = 0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) +
+                                     nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+                                     nh[2] * (u[0] * w[1] - u[1] * w[0]));
+                A += area;
+                B1 += area * (q0[3] + q1[3] + q2[3]) * (1.0 / 3.0);
+                B2 += area * (q0[4] + q1[4] + q2[4]) * (1.0 / 3.0);
+              }
+              const double s = gv * inv_vol;
+              acc[0] += s * (A - B1 - B2);
+              acc[1] += s * B1;
+              acc[2] += s * B2;
+            }
+          }
+        }
+      }
+      for (int c = 0; c < 3; ++c)
+        for (int a = 0; a < 3; ++a) out[(t * 3 + c) * 3 + a] = static_cast<T>(acc[c] * nh[a]);
+      continue;
+    }
+    for (int c = 0; c < 9; ++c) out[t * 9 + c] = static_cast<T>(0);
+  }
+}
+
+// Corner gradients of segments [s0, s1) of one batch item into out (F, 2, 2).
+template <typename T>
+void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
+                          int64_t s0, int64_t s1, T* out) {
+  const double inv_area = 1.0 / g.cell_volume();
+  const int64_t ny = g.n[1];
+  Poly<3> S, Sx, Sy;
+  for (int64_t s = s0; s < s1; ++s) {
+    const int32_t* f = F + 2 * s;
+    double p[2][2];
+    for (int c = 0; c < 2; ++c)
+      for (int a = 0; a < 2; ++a) p[c][a] = static_cast<double>(V[2 * int64_t(f[c]) + a]);
+    const double dx = p[1][0] - p[0][0], dy = p[1][1] - p[0][1];
+    const double len = std::sqrt(dx * dx + dy * dy);
+    double acc[2] = {0, 0};
+    if (len > 0 && std::isfinite(len)) {
+      const double nh[2] = {dy / len, -dx / len};
+      S.count = 2;
+      for (int c = 0; c < 2; ++c) {
+        S.v[c][0] = p[c][0];
+        S.v[c][1] = p[c][1];
+        S.v[c][2] = c == 1 ? 1.0 : 0.0;  // beta_1
+      }
+      int64_t i0, i1, j0, j1;
+      if (cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) {
+        for (int64_t i = i0; i <= i1; ++i) {
+          if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
+          if (!cell_range(g, 1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
+          for (int64_t j = j0; j <= j1; ++j) {
+            const double gv = static_cast<double>(G[i * ny + j]);
+            if (gv == 0.0) continue;
+            if (!clip_segment(Sx, 1, g.plane(1, j), g.plane(1, j + 1), &Sy)) continue;
+            const double ex = Sy.v[1][0] - Sy.v[0][0], ey = Sy.v[1][1] - Sy.v[0][1];
+            const double L = ex * (dx / len) + ey * (dy / len);  // signed length along the segment
+            const double b1 = 0.5 * (Sy.v[0][2] + Sy.v[1][2]);
+            const double w = gv * inv_area * L;
+            acc[0] += w * (1.0 - b1);
+            acc[1] += w * b1;
+          }
+        }
+      }
+      for (int c = 0; c < 2; ++c)
+        for (int a = 0; a < 2; ++a) out[(s * 2 + c) * 2 + a] = static_cast<T>(acc[c] * nh[a]);
+      continue;
+    }
+    for (int c = 0; c < 4; ++c) out[s * 4 + c] = static_cast<T>(0);
+  }
+}
+
+}  // namespace voxax

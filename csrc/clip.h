@@ -1,0 +1,96 @@
+// Convex polygon clipping against axis-aligned planes (Sutherland-Hodgman),
+// with linear attributes carried along.
+#pragma once
+
+#include <cstdint>
+
+namespace voxax {
+
+// A convex polygon with up to kMaxVerts vertices of N doubles each. The first
+// entries of a vertex are its coordinates; the rest are attributes that vary
+// linearly over the polygon (for example barycentric coordinates).
+// A triangle clipped by six planes has at most 9 vertices.
+constexpr int kMaxVerts = 12;
+
+template <int N>
+struct Poly {
+  int count = 0;
+  double v[kMaxVerts][N];
+
+  double min(int a) const {
+    double m = v[0][a];
+    for (int i = 1; i < count; ++i) m = v[i][a] < m ? v[i][a] : m;
+    return m;
+  }
+  double max(int a) const {
+    double m = v[0][a];
+    for (int i = 1; i < count; ++i) m = v[i][a] > m ? v[i][a] : m;
+    return m;
+  }
+};
+
+// Point on the segment p-q where coordinate `a` equals c. The point is
+// computed from the endpoint with the smaller coordinate, so the edge shared
+// by two neighbouring cells is cut at bit-identical points from both sides.
+template <int N>
+inline void cut(const double* p, const double* q, int a, double c, double* out) {
+  if (q[a] < p[a]) {
+    const double* t = p;
+    p = q;
+    q = t;
+  }
+  double t = (c - p[a]) / (q[a] - p[a]);
+  for (int k = 0; k < N; ++k) out[k] = p[k] + t * (q[k] - p[k]);
+  out[a] = c;
+}
+
+// Keeps the part of `in` with coordinate a >= c (keep_above) or a <= c.
+template <int N>
+inline void clip(const Poly<N>& in, int a, double c, bool keep_above, Poly<N>* out) {
+  out->count = 0;
+  const int n = in.count;
+  if (n == 0) return;
+  for (int i = 0; i < n; ++i) {
+    const double* p = in.v[i];
+    const double* q = in.v[(i + 1) % n];
+    bool pin = keep_above ? p[a] >= c : p[a] <= c;
+    bool qin = keep_above ? q[a] >= c : q[a] <= c;
+    if (pin) {
+      if (out->count < kMaxVerts) {
+        for (int k = 0; k < N; ++k) out->v[out->count][k] = p[k];
+        ++out->count;
+      }
+      if (!qin && out->count < kMaxVerts) cut<N>(p, q, a, c, out->v[out->count++]);
+    } else if (qin && out->count < kMaxVerts) {
+      cut<N>(p, q, a, c, out->v[out->count++]);
+    }
+  }
+}
+
+// Keeps the part of `in` with lo <= coordinate a <= hi. Skips the work when
+// the polygon already lies inside.
+template <int N>
+inline void clip_slab(const Poly<N>& in, int a, double lo, double hi, Poly<N>* out) {
+  double mn = in.min(a), mx = in.max(a);
+  if (mn >= lo && mx <= hi) {
+    *out = in;
+    return;
+  }
+  if (mx < lo || mn > hi) {
+    out->count = 0;
+    return;
+  }
+  Poly<N> tmp;
+  if (mn < lo) {
+    clip<N>(in, a, lo, true, &tmp);
+  } else {
+    tmp = in;
+  }
+  if (mx > hi) {
+    clip<N>(tmp, a, hi, false, out);
+  } else {
+    *out = tmp;
+  }
+}
+
+}  // namespace voxax

@@ -1,0 +1,236 @@
+"""The regular grid that voxelizations are computed on."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["Grid"]
+
+
+def _as_float_tuple(x, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in np.asarray(x, dtype=np.float64).reshape(-1))
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"Grid: `{name}` must be a sequence of numbers, got {x!r}") from err
+    return values
+
+
+@dataclasses.dataclass(frozen=True)
+class Grid:
+    """An axis-aligned regular grid of `shape` cells spanning the box `[lower, upper]`.
+
+    Cell `(i, j, k)` spans `lower + (i, j, k) * spacing` to `lower + (i+1, j+1, k+1) * spacing`
+    and its centre is `lower + (i + .5, j + .5, k + .5) * spacing`. Arrays on the grid use
+    `W[i, j, k]` indexing (x, then y, then z; z is the fastest, contiguous axis). In 2D the
+    grid has two axes, x then y.
+
+    A `Grid` is frozen and hashable: pass it as a static argument under `jax.jit`.
+
+    **Arguments:**
+
+    - `lower`: `(d,)` float, the corner with the smallest coordinates.
+    - `upper`: `(d,)` float, the opposite corner; `upper > lower` on every axis.
+    - `shape`: `(d,)` int, the number of cells per axis (any positive count, odd or even).
+
+    **Example:**
+
+    ```python
+    >>> import voxax
+    >>> g = voxax.Grid(lower=(0, 0, 0), upper=(1, 2, 3), shape=(4, 5, 6))
+    >>> g.spacing
+    (0.25, 0.4, 0.5)
+    >>> g.voxel_volume
+    0.05
+    ```
+    """
+
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    shape: tuple[int, ...]
+
+    def __post_init__(self):
+        lower = _as_float_tuple(self.lower, "lower")
+        upper = _as_float_tuple(self.upper, "upper")
+        try:
+            shape = tuple(int(operator_index(s)) for s in np.asarray(self.shape).reshape(-1))
+        except TypeError as err:
+            raise TypeError(f"Grid: `shape` must be a sequence of integers, got {self.shape!r}") from err
+        d = len(shape)
+        if d not in (2, 3):
+            raise ValueError(f"Grid: only 2D and 3D grids are supported, got shape {shape}")
+        if len(lower) != d or len(upper) != d:
+            raise ValueError(
+                f"Grid: `lower`, `upper` and `shape` must have the same length, "
+                f"got {len(lower)}, {len(upper)} and {d}"
+            )
+        if any(s < 1 for s in shape):
+            raise ValueError(f"Grid: every entry of `shape` must be >= 1, got {shape}")
+        if not all(math.isfinite(v) for v in lower + upper):
+            raise ValueError(f"Grid: corners must be finite, got lower={lower}, upper={upper}")
+        if any(u <= l for l, u in zip(lower, upper)):
+            raise ValueError(f"Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
+        if any(not math.isfinite((u - l) / n) or (u - l) / n <= 0 for l, u, n in zip(lower, upper, shape)):
+            raise ValueError("Grid: the cell size underflows or overflows on some axis")
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "shape", shape)
+
+    # -- constructors -------------------------------------------------------------------
+
+    @classmethod
+    def cube(cls, n: int | Sequence[int], dim: int = 3, half_width: float = 1.0) -> "Grid":
+        """The cube `[-half_width, half_width]^dim` split into `n` cells per axis.
+
+        With the defaults this is the grid of the paper: `[-1, 1]^3`.
+
+        **Arguments:**
+
+        - `n`: int (or `(dim,)` ints), the number of cells per axis.
+        - `dim`: 2 or 3.
+        - `half_width`: float, half the side length of the cube.
+
+        **Example:**
+
+        ```python
+        >>> voxax.Grid.cube(64).shape
+        (64, 64, 64)
+        ```
+        """
+        shape = _broadcast_shape(n, dim)
+        h = float(half_width)
+        return cls(lower=(-h,) * dim, upper=(h,) * dim, shape=shape)
+
+    @classmethod
+    def around(cls, vertices, n: int | Sequence[int] = 64, pad: float = 0.05, cubic_cells: bool = True) -> "Grid":
+        """A grid that encloses `vertices` with a margin.
+
+        The bounding box of the vertices is enlarged by `pad` times its largest side on
+        every side. With `cubic_cells=True` (the default) all cells are cubes: `n` is the
+        number of cells along the longest axis and the other axes get as many cells as
+        needed to cover the box (the box grows symmetrically to a whole number of cells).
+
+        **Arguments:**
+
+        - `vertices`: `(..., V, d)` float, the points to enclose (batch axes allowed).
+        - `n`: int or `(d,)` ints, cells along the longest axis (or per axis when
+          `cubic_cells=False`).
+        - `pad`: float >= 0, the margin as a fraction of the longest side.
+        - `cubic_cells`: bool, whether to make every cell a cube.
+
+        **Example:**
+
+        ```python
+        >>> mesh = voxax.data.icosphere(2)
+        >>> g = voxax.Grid.around(mesh.vertices, 32)
+        >>> max(g.shape)
+        32
+        ```
+        """
+        v = np.asarray(vertices, dtype=np.float64)
+        if v.ndim < 2 or v.shape[-1] not in (2, 3) or v.shape[-2] == 0:
+            raise ValueError(f"Grid.around: expected vertices of shape (..., V, 2|3) with V > 0, got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError("Grid.around: vertices contain NaN or Inf")
+        if pad < 0:
+            raise ValueError(f"Grid.around: pad must be >= 0, got {pad}")
+        d = v.shape[-1]
+        pts = v.reshape(-1, d)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        extent = float(np.max(hi - lo))
+        if extent == 0.0:
+            extent = 1.0
+        margin = pad * extent
+        lo, hi = lo - margin, hi + margin
+        if cubic_cells:
+            if not isinstance(n, (int, np.integer)):
+                raise TypeError("Grid.around: with cubic_cells=True, `n` must be a single int")
+            h = (extent + 2 * margin) / int(n)
+            counts = np.maximum(1, np.ceil((hi - lo) / h - 1e-9)).astype(int)
+            centre = 0.5 * (lo + hi)
+            lo = centre - 0.5 * counts * h
+            hi = centre + 0.5 * counts * h
+            shape = tuple(int(c) for c in counts)
+        else:
+            shape = _broadcast_shape(n, d)
+            flat = hi - lo == 0
+            lo = np.where(flat, lo - 0.5, lo)
+            hi = np.where(flat, hi + 0.5, hi)
+        return cls(lower=tuple(lo), upper=tuple(hi), shape=shape)
+
+    # -- derived quantities -------------------------------------------------------------
+
+    @property
+    def dim(self) -> int:
+        """The number of axes (2 or 3)."""
+        return len(self.shape)
+
+    @property
+    def spacing(self) -> tuple[float, ...]:
+        """The cell size per axis, `(upper - lower) / shape`."""
+        return tuple((u - l) / n for l, u, n in zip(self.lower, self.upper, self.shape))
+
+    @property
+    def voxel_volume(self) -> float:
+        """The volume (area in 2D) of one cell."""
+        return float(np.prod(self.spacing))
+
+    @property
+    def size(self) -> int:
+        """The number of cells."""
+        return int(np.prod(self.shape))
+
+    def edges(self, axis: int) -> np.ndarray:
+        """The `shape[axis] + 1` plane coordinates along `axis`, as float64.
+
+        Plane `i` sits at `lower + i * spacing` (the last one is exactly `upper`).
+        """
+        n = self.shape[axis]
+        e = self.lower[axis] + np.arange(n + 1, dtype=np.float64) * self.spacing[axis]
+        e[-1] = self.upper[axis]
+        return e
+
+    def centers(self, dtype=np.float64) -> np.ndarray:
+        """The cell centres, an array of shape `(*shape, d)` in `W[i, j, k]` order.
+
+        **Example:**
+
+        ```python
+        >>> voxax.Grid.cube(2, dim=2).centers()[1, 0]
+        array([ 0.5, -0.5])
+        ```
+        """
+        axes = [
+            self.lower[a] + (np.arange(self.shape[a], dtype=np.float64) + 0.5) * self.spacing[a]
+            for a in range(self.dim)
+        ]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).astype(dtype)
+
+    def nbytes(self, dtype=np.float32) -> int:
+        """Bytes of one array of this grid's shape with the given dtype."""
+        return self.size * np.dtype(dtype).itemsize
+
+    def __repr__(self) -> str:
+        return f"Grid(lower={self.lower}, upper={self.upper}, shape={self.shape})"
+
+
+def operator_index(x) -> int:
+    import operator
+
+    if isinstance(x, (float, np.floating)):
+        raise TypeError("not an integer")
+    return operator.index(x)
+
+
+def _broadcast_shape(n, dim: int) -> tuple[int, ...]:
+    if dim not in (2, 3):
+        raise ValueError(f"Grid: dim must be 2 or 3, got {dim}")
+    if isinstance(n, (int, np.integer)):
+        return (int(n),) * dim
+    shape = tuple(int(operator_index(s)) for s in n)
+    if len(shape) != dim:
+        raise ValueError(f"Grid: expected {dim} cell counts, got {shape}")
+    return shape
