@@ -16,6 +16,14 @@
 
 namespace voxax {
 
+// Cells are half-open, [lo, hi), except the last one along each axis, which is
+// closed. A piece lying flat in the upper plane of cell i (a face exactly on a
+// grid plane) belongs to cell i + 1, so it is counted once.
+template <int N>
+inline bool on_upper_plane(const GridSpec& g, const Poly<N>& P, int a, int64_t i) {
+  return i + 1 < g.n[a] && P.min(a) >= g.plane(a, i + 1);
+}
+
 // Corner gradients of triangles [t0, t1) of one batch item into out (F, 3, 3).
 template <typename T>
 void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
@@ -52,18 +60,18 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
           cell_range(g, 2, P.min(2), P.max(2), &k0, &k1)) {
         for (int64_t i = i0; i <= i1; ++i) {
           clip_slab<5>(P, 0, g.plane(0, i), g.plane(0, i + 1), &Px);
-          if (Px.count < 3) continue;
+          if (Px.count < 3 || on_upper_plane(g, Px, 0, i)) continue;
           if (!cell_range(g, 1, Px.min(1), Px.max(1), &j0, &j1)) continue;
           for (int64_t j = j0; j <= j1; ++j) {
             clip_slab<5>(Px, 1, g.plane(1, j), g.plane(1, j + 1), &Pxy);
-            if (Pxy.count < 3) continue;
+            if (Pxy.count < 3 || on_upper_plane(g, Pxy, 1, j)) continue;
             if (!cell_range(g, 2, Pxy.min(2), Pxy.max(2), &k0, &k1)) continue;
             const T* Gcol = G + (i * ny + j) * nz;
             for (int64_t k = k0; k <= k1; ++k) {
               const double gv = static_cast<double>(Gcol[k]);
               if (gv == 0.0) continue;
               clip_slab<5>(Pxy, 2, g.plane(2, k), g.plane(2, k + 1), &Pz);
-              if (Pz.count < 3) continue;
+              if (Pz.count < 3 || on_upper_plane(g, Pz, 2, k)) continue;
               double A = 0, B1 = 0, B2 = 0;
               const double* q0 = Pz.v[0];
               for (int m = 1; m + 1 < Pz.count; ++m) {
@@ -124,11 +132,13 @@ void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const
       if (cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) {
         for (int64_t i = i0; i <= i1; ++i) {
           if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
+          if (on_upper_plane(g, Sx, 0, i)) continue;
           if (!cell_range(g, 1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
           for (int64_t j = j0; j <= j1; ++j) {
             const double gv = static_cast<double>(G[i * ny + j]);
             if (gv == 0.0) continue;
             if (!clip_segment(Sx, 1, g.plane(1, j), g.plane(1, j + 1), &Sy)) continue;
+            if (on_upper_plane(g, Sy, 1, j)) continue;
             const double ex = Sy.v[1][0] - Sy.v[0][0], ey = Sy.v[1][1] - Sy.v[0][1];
             const double L = ex * (dx / len) + ey * (dy / len);  // signed length along the segment
             const double b1 = 0.5 * (Sy.v[0][2] + Sy.v[1][2]);

@@ -1,0 +1,19 @@
+"""voxax: exact differentiable voxelization of triangle meshes and polylines for JAX.
+
+The public API:
+
+- `voxax.Grid`: the regular grid a voxelization lives on.
+- `voxax.voxelize(vertices, faces, grid)`: box-filtered winding numbers, differentiable
+  in the vertices (closed-form gradient), under jit, grad and vmap.
+- `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
+- `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
+"""
+
+from . import _ffi  # noqa: F401  (registers the kernels with XLA)
+from .grid import Grid
+from .voxelize import voxelize, voxelize_corner_gradients
+from . import data, io, plot, reference
+
+__version__ = "0.1.0"
+
+__all__ = ["Grid", "voxelize", "voxelize_corner_gradients", "data", "io", "plot", "reference", "__version__"]

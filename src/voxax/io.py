@@ -1,0 +1,382 @@
+"""Mesh input and output, trimesh interop, normalisation and a watertightness check.
+
+Meshes follow trimesh's conventions: `vertices (V, 3)` float, `faces (F, 3)` int,
+outward-oriented (counter-clockwise seen from outside); 2D polylines use `vertices (V, 2)`
+and segments `faces (F, 2)`. Functions here return [`voxax.data.Mesh`][voxax.data.Mesh].
+
+>>> from voxax import data, io
+>>> mesh = io.normalise(data.cube(3.0))
+>>> float(abs(mesh.vertices).max())
+0.8
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from .data import Mesh, _fit
+
+__all__ = ["load", "save", "normalise", "normalize", "as_arrays", "is_watertight"]
+
+
+# --------------------------------------------------------------------------------------
+# Conversion
+# --------------------------------------------------------------------------------------
+
+
+def _is_plain(x: Any) -> bool:
+    """True for inputs that we convert to NumPy (NumPy arrays, lists, tuples, scalars)."""
+    return isinstance(x, (np.ndarray, list, tuple, np.generic, int, float))
+
+
+def as_arrays(mesh: Any) -> tuple[Any, Any]:
+    """Return `(vertices, faces)` from a voxax `Mesh`, a `trimesh.Trimesh` or a pair.
+
+    - A voxax [`Mesh`][voxax.data.Mesh] gives its own float64 / int32 arrays.
+    - A `trimesh.Trimesh` (or anything with `.vertices` and `.faces`) gives float64
+      vertices and int32 faces.
+    - A `(vertices, faces)` pair: NumPy arrays and nested lists are converted; floating
+      vertices keep their dtype (float32 stays float32, as the voxelizer's output dtype
+      follows the vertices), integer vertices become float64, and faces become int32.
+      Other array types (JAX arrays, tracers under `jit`/`grad`) are returned unchanged,
+      so differentiation keeps working. Vertices may carry leading batch axes
+      `(..., V, d)`.
+
+    Shapes and, for NumPy faces, index ranges are checked.
+
+    **Arguments:**
+
+    - `mesh`: `Mesh`, `trimesh.Trimesh`, or `(vertices (..., V, d), faces (F, d))`.
+
+    **Returns:** `(vertices (..., V, d), faces (F, d))`.
+
+    **Raises:** `TypeError` for unsupported inputs; `ValueError` for bad shapes or
+    out-of-range face indices.
+
+    >>> import numpy as np
+    >>> v, f = as_arrays(([[0., 0.], [1., 0.], [0., 1.]], [[0, 1], [1, 2], [2, 0]]))
+    >>> v.dtype, f.dtype, f.shape
+    (dtype('float64'), dtype('int32'), (3, 2))
+    """
+    if isinstance(mesh, Mesh):
+        return mesh.vertices, mesh.faces
+    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh.Trimesh and friends
+        m = Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces))
+        return m.vertices, m.faces
+    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+        vertices, faces = mesh
+        if _is_plain(vertices):
+            vertices = np.asarray(vertices)
+            if not np.issubdtype(vertices.dtype, np.floating):
+                if not np.issubdtype(vertices.dtype, np.integer) and vertices.dtype != bool:
+                    raise TypeError(f"vertices must be numeric, got dtype {vertices.dtype}")
+                vertices = vertices.astype(np.float64)
+            vertices = np.ascontiguousarray(vertices)
+        if _is_plain(faces):
+            faces = np.asarray(faces)
+            if faces.size == 0:
+                d = np.shape(vertices)[-1] if np.ndim(vertices) >= 1 else 3
+                faces = faces.astype(np.int32).reshape(0, d)
+            if not np.issubdtype(faces.dtype, np.integer):
+                raise TypeError(f"faces must be an integer array, got dtype {faces.dtype}")
+        v_shape, f_shape = np.shape(vertices), np.shape(faces)
+        if len(v_shape) < 2 or v_shape[-1] not in (2, 3):
+            raise ValueError(f"vertices must have shape (..., V, 2) or (..., V, 3), got {v_shape}")
+        if len(f_shape) != 2 or f_shape[1] != v_shape[-1]:
+            kind = "triangles (F, 3)" if v_shape[-1] == 3 else "segments (F, 2)"
+            raise ValueError(
+                f"{v_shape[-1]}D vertices need faces as {kind}, got faces of shape {f_shape}"
+            )
+        if isinstance(faces, np.ndarray):
+            n = v_shape[-2]
+            if faces.size and (faces.min() < 0 or faces.max() >= n):
+                raise ValueError(
+                    f"face indices must lie in [0, {n}), got range [{faces.min()}, {faces.max()}]"
+                )
+            faces = np.ascontiguousarray(faces.astype(np.int32))
+        return vertices, faces
+    raise TypeError(
+        "expected a voxax Mesh, a trimesh.Trimesh or a (vertices, faces) pair, "
+        f"got {type(mesh).__name__}"
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Watertightness
+# --------------------------------------------------------------------------------------
+
+
+def is_watertight(vertices: Any, faces: Any, *, strict: bool = False) -> bool:
+    """Whether a triangle mesh (3D) or segment polyline (2D) is closed and consistently oriented.
+
+    By default this checks the condition under which winding numbers (and hence the
+    voxelization) are well defined and independent of the ray direction: the mesh has no
+    boundary. In 3D every undirected edge is traversed as often in one direction as in
+    the other by the faces using it; in 2D every vertex has as many incoming as outgoing
+    segments. Open surfaces, holes and faces with inconsistent orientation fail it.
+
+    With `strict=True` the mesh must moreover be manifold along edges: in 3D every edge
+    is shared by exactly two faces, with opposite directions; in 2D every used vertex has
+    exactly one incoming and one outgoing segment. (Several closed meshes touching along
+    an edge or at a vertex pass the default check but not the strict one.)
+
+    Faces that repeat a vertex index (such as the degenerate `(0, 0, 0)` faces used to pad
+    batches) are ignored; a mesh without any other face counts as closed.
+
+    **Arguments:**
+
+    - `vertices`: `(..., V, d)` array; only its shape is used (so tracers are fine).
+    - `faces`: `(F, 3)` triangles or `(F, 2)` segments; must be concrete (not traced).
+    - `strict`: also require manifold edges (3D) / vertices (2D).
+
+    **Returns:** `bool`.
+
+    >>> from voxax import data
+    >>> m = data.cube()
+    >>> is_watertight(m.vertices, m.faces), is_watertight(m.vertices, m.faces[1:])
+    (True, False)
+    """
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] not in (2, 3):
+        raise ValueError(f"faces must have shape (F, 3) or (F, 2), got {faces.shape}")
+    if faces.size and not np.issubdtype(faces.dtype, np.integer):
+        raise TypeError(f"faces must be an integer array, got dtype {faces.dtype}")
+    faces = faces.astype(np.int64)
+    k = faces.shape[1]
+    if vertices is not None:
+        v_shape = np.shape(vertices)
+        if len(v_shape) < 2 or v_shape[-1] != k:
+            raise ValueError(
+                f"vertices of shape {v_shape} do not match faces of shape {faces.shape} "
+                "(triangles need (V, 3) vertices, segments (V, 2))"
+            )
+        n = v_shape[-2]
+        if faces.size and (faces.min() < 0 or faces.max() >= n):
+            raise ValueError(
+                f"face indices must lie in [0, {n}), got range [{faces.min()}, {faces.max()}]"
+            )
+    elif faces.size and faces.min() < 0:
+        raise ValueError("face indices must be non-negative")
+
+    # Drop index-degenerate faces (padding): they have no area and no boundary.
+    if k == 3:
+        keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
+    else:
+        keep = faces[:, 0] != faces[:, 1]
+    faces = faces[keep]
+    if len(faces) == 0:
+        return True
+    n = int(faces.max()) + 1
+
+    if k == 2:
+        out_deg = np.bincount(faces[:, 0], minlength=n)
+        in_deg = np.bincount(faces[:, 1], minlength=n)
+        if not np.array_equal(out_deg, in_deg):
+            return False
+        if strict:
+            used = (out_deg + in_deg) > 0
+            return bool(np.all(out_deg[used] == 1))
+        return True
+
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * n + hi
+    sign = np.where(a < b, 1, -1)
+    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    balance = np.bincount(inverse.reshape(-1), weights=sign, minlength=len(uniq))
+    if np.any(balance != 0):
+        return False
+    if strict:
+        return bool(np.all(counts == 2))
+    return True
+
+
+# --------------------------------------------------------------------------------------
+# Normalisation
+# --------------------------------------------------------------------------------------
+
+
+def normalise(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False):
+    """Centre the bounding box at the origin and scale uniformly so that `max |v| == max_abs`.
+
+    This is the paper's preprocessing (with `max_abs = 0.8` the mesh sits well inside
+    the default grid `[-1, 1]^d`). Orientation and face indices are unchanged.
+
+    **Arguments:**
+
+    - `mesh`: `Mesh`, `trimesh.Trimesh` or `(vertices (V, d), faces (F, d))`.
+    - `max_abs`: the largest absolute coordinate after normalisation (> 0).
+    - `return_transform`: also return `centre (d,)` and `scale` such that
+      `new_vertices = (old_vertices - centre) * scale`.
+
+    **Returns:** the normalised `Mesh`, or `(mesh, centre, scale)` if `return_transform`.
+
+    >>> from voxax import data
+    >>> m, centre, scale = normalise(data.box((0, 0, 0), (2, 1, 1)), 1.0, return_transform=True)
+    >>> m.bounds.tolist(), centre.tolist(), scale
+    ([[-1.0, -0.5, -0.5], [1.0, 0.5, 0.5]], [1.0, 0.5, 0.5], 1.0)
+    """
+    m = mesh if isinstance(mesh, Mesh) else Mesh(*as_arrays(mesh))
+    vertices, centre, scale = _fit(m.vertices, float(max_abs))
+    out = Mesh(vertices, m.faces, m.info)
+    return (out, centre, scale) if return_transform else out
+
+
+normalize = normalise
+
+
+# --------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------
+
+
+def _geometry_arrays(obj) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate every triangle mesh in a trimesh Scene (with transforms) or a Trimesh."""
+    import trimesh
+
+    if isinstance(obj, trimesh.Trimesh):
+        return np.asarray(obj.vertices, dtype=np.float64), np.asarray(obj.faces, dtype=np.int64)
+    if isinstance(obj, trimesh.Scene):
+        vs, fs, offset = [], [], 0
+        for node in obj.graph.nodes_geometry:
+            transform, geom_name = obj.graph[node]
+            geom = obj.geometry.get(geom_name)
+            if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+                continue
+            transform = np.asarray(transform, dtype=np.float64)
+            v = np.asarray(geom.vertices, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
+            f = np.asarray(geom.faces, dtype=np.int64)
+            if np.linalg.det(transform[:3, :3]) < 0:  # a mirroring transform flips orientation
+                f = f[:, ::-1]
+            vs.append(v)
+            fs.append(f + offset)
+            offset += len(v)
+        if vs:
+            return np.concatenate(vs), np.concatenate(fs)
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+
+
+def _merge_exact_duplicates(vertices: np.ndarray, faces: np.ndarray):
+    """Merge bitwise-identical vertices, keeping first-occurrence order."""
+    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return vertices[first[order]], rank[inverse.reshape(-1)][faces]
+
+
+def load(
+    path: str | os.PathLike,
+    process: bool = False,
+    *,
+    merge: bool | None = None,
+    **kwargs: Any,
+) -> Mesh:
+    """Load a triangle mesh from a file with trimesh.
+
+    Any format trimesh reads works (`.obj`, `.ply`, `.stl`, `.off`, `.glb`, ...). A file
+    holding a scene (several meshes, e.g. glTF) is flattened: every triangle mesh in it is
+    transformed to world coordinates and concatenated (not unioned). Non-triangle
+    geometry (paths, point clouds) is ignored.
+
+    **Arguments:**
+
+    - `path`: file path.
+    - `process`: passed to trimesh. `False` (default) keeps the file's vertices and faces
+      exactly; `True` lets trimesh merge vertices and drop degenerate or duplicate faces.
+    - `merge`: merge bitwise-identical vertices. `None` (default) does so only for a
+      triangle soup (no vertex shared between faces, as in STL files), which could never
+      be watertight otherwise; `True` always; `False` never.
+    - `**kwargs`: passed on to `trimesh.load` (e.g. `file_type="obj"`).
+
+    **Returns:** `Mesh` with float64 `vertices (V, 3)` and int32 `faces (F, 3)`.
+
+    **Raises:** `ValueError` if the file contains no triangles.
+
+    >>> import os, tempfile
+    >>> from voxax import data
+    >>> path = os.path.join(tempfile.mkdtemp(), "cube.ply")
+    >>> save(data.cube(), path)
+    >>> load(path).n_faces
+    12
+    """
+    import trimesh
+
+    obj = trimesh.load(os.fspath(path), process=process, **kwargs)
+    vertices, faces = _geometry_arrays(obj)
+    if len(faces) == 0:
+        raise ValueError(
+            f"{os.fspath(path)!r} contains no triangles (loaded a {type(obj).__name__}); "
+            "voxax needs a triangle mesh"
+        )
+    if merge is None:
+        merge = len(np.unique(faces)) == faces.size  # every face has its own vertices
+    if merge:
+        vertices, faces = _merge_exact_duplicates(vertices, faces)
+    return Mesh(vertices, faces)
+
+
+def _write_ply64(vertices: np.ndarray, faces: np.ndarray, path: str) -> None:
+    """Binary little-endian PLY with float64 vertices (trimesh's writer uses float32)."""
+    header = (
+        "ply\n"
+        "format binary_little_endian 1.0\n"
+        "comment written by voxax\n"
+        f"element vertex {len(vertices)}\n"
+        "property double x\nproperty double y\nproperty double z\n"
+        f"element face {len(faces)}\n"
+        "property list uchar int vertex_indices\n"
+        "end_header\n"
+    )
+    packed = np.zeros(len(faces), dtype=np.dtype([("n", "u1"), ("idx", "<i4", (3,))]))
+    packed["n"] = 3
+    packed["idx"] = faces
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
+        fh.write(packed.tobytes())
+
+
+def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
+    """Write a 3D triangle mesh to a file; the format follows the file extension.
+
+    `.ply` files are written as binary PLY with float64 vertices (lossless); `.obj`
+    and `.off` files with 16 decimal places unless `digits` is given; every other format goes
+    through `trimesh.Trimesh.export` (which for some formats, such as STL, stores
+    float32). Vertices and faces are written as they are, in order.
+
+    **Arguments:**
+
+    - `mesh`: `Mesh`, `trimesh.Trimesh` or `(vertices (V, 3), faces (F, 3))`.
+    - `path`: destination file; its extension picks the format.
+    - `**kwargs`: passed to `trimesh.Trimesh.export` (not used for `.ply`).
+
+    >>> import os, tempfile
+    >>> from voxax import data
+    >>> save(data.torus(), os.path.join(tempfile.mkdtemp(), "torus.obj"))
+    """
+    vertices, faces = as_arrays(mesh)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(
+            f"save() writes a single 3D triangle mesh, got vertices of shape {vertices.shape}"
+        )
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".ply" and not kwargs:
+        _write_ply64(vertices, faces, path)
+        return
+    import trimesh
+
+    if ext in (".obj", ".off"):
+        kwargs.setdefault("digits", 16)
+    if ext == ".obj":
+        kwargs.setdefault("include_normals", False)
+    tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+    tm.export(path, **kwargs)
