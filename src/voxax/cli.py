@@ -37,7 +37,7 @@ def _demo(args) -> int:
     print(f"  volume (exact)  {volume_exact:.12f}")
     print(f"  relative error  {rel:.2e}")
     print(f"  W range         [{float(W.min()):.4f}, {float(W.max()):.4f}]")
-    voxax.plot.slices(W, grid, axis=2, count=4, title=f"voxax: '{args.mesh}' at {args.resolution}^3", path=args.output)
+    voxax.plot.slices(W, grid, axis=None, count=4, title=f"voxax: '{args.mesh}' at {args.resolution}^3", path=args.output)
     print(f"  slices written  {args.output}")
     return 0
 

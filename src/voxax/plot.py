@@ -7,7 +7,7 @@ import numpy as np
 __all__ = ["slices"]
 
 
-def slices(W, grid=None, axis: int = 2, count: int = 4, title: str | None = None, path=None, cmap: str = "RdBu_r"):
+def slices(W, grid=None, axis: int | None = None, count: int = 4, title: str | None = None, path=None, cmap: str = "RdBu_r"):
     """Draws `count` evenly spaced slices of a 3D grid (or the whole 2D grid).
 
     Winding numbers and gradients are signed, so a diverging colour map centred on 0 is
@@ -17,7 +17,8 @@ def slices(W, grid=None, axis: int = 2, count: int = 4, title: str | None = None
 
     - `W`: `(nx, ny, nz)` or `(nx, ny)` array, e.g. the output of `voxax.voxelize`.
     - `grid`: the `voxax.Grid` of `W`, for axis extents in world units (optional).
-    - `axis`: the axis the slices are orthogonal to (3D only).
+    - `axis`: the axis the slices are orthogonal to (3D only); `None` picks the axis
+      along which the non-zero part of `W` is thinnest (flat shapes show their outline).
     - `count`: how many slices to draw (3D only).
     - `title`: an optional figure title.
     - `path`: if given, the figure is saved there (PNG, PDF, ... by extension).
@@ -51,15 +52,23 @@ def slices(W, grid=None, axis: int = 2, count: int = 4, title: str | None = None
     if W.ndim not in (2, 3):
         raise ValueError(f"slices: expected a 2D or 3D grid, got shape {W.shape}")
     vmax = max(float(np.max(np.abs(W))), 1e-12)
+    if W.ndim == 3 and axis is None:
+        extents = []
+        for a in range(3):
+            nz = np.nonzero(np.abs(W).max(axis=tuple(b for b in range(3) if b != a)) > 1e-12)[0]
+            extents.append((nz[-1] - nz[0] + 1) / W.shape[a] if nz.size else 1.0)
+        axis = int(np.argmin(extents))
     names = "xyz"
     if W.ndim == 2:
         panels = [(W, "", (0, 1))]
     else:
-        n = W.shape[axis]
-        idx = np.unique(np.linspace(0, n - 1, count + 2)[1:-1].round().astype(int))
+        # Spread the slices over the occupied range along `axis` (the whole axis if empty).
+        occupied = np.nonzero(np.abs(W).max(axis=tuple(a for a in range(3) if a != axis)) > 1e-12)[0]
+        first, last = (occupied[0], occupied[-1]) if occupied.size else (0, W.shape[axis] - 1)
+        idx = np.unique(np.linspace(first, last, count + 2)[1:-1].round().astype(int))
         rest = tuple(a for a in range(3) if a != axis)
         panels = [(np.take(W, int(i), axis=axis), f"{names[axis]} index {int(i)}", rest) for i in idx]
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels) + 0.8, 3.4), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels) + 0.8, 3.4), squeeze=False, layout="constrained")
     im = None
     for ax, (img, label, (a0, a1)) in zip(axes[0], panels):
         extent = None

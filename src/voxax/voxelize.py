@@ -12,7 +12,7 @@ import numpy as np
 from . import _ffi
 from .grid import Grid
 
-__all__ = ["voxelize", "voxelize_corner_gradients"]
+__all__ = ["voxelize", "voxelize_corner_gradients", "use_host_callback"]
 
 _INT32_MAX = np.iinfo(np.int32).max
 # Largest coordinate magnitude accepted (the kernels check the same bound).
@@ -71,7 +71,16 @@ def voxelize(vertices, faces, grid: Grid) -> jax.Array:
     ```
     """
     vertices, faces = _check(vertices, faces, grid)
-    return _voxelize(vertices, faces, grid)
+    try:
+        return _voxelize(vertices, faces, grid)
+    except TypeError as err:
+        if "forward-mode" in str(err):
+            raise TypeError(
+                "voxax.voxelize supports reverse-mode differentiation only (jax.grad, jax.vjp, "
+                "jax.jacrev, jax.value_and_grad); forward mode (jax.jvp, jax.jacfwd, jax.linearize) "
+                "is not implemented. Use reverse mode instead."
+            ) from err
+        raise
 
 
 # -- validation ----------------------------------------------------------------------------
@@ -181,12 +190,51 @@ def _lead(vertices, faces):
 
 def _forward_call(vertices, faces, grid: Grid):
     v, f, batch = _lead(vertices, faces)
-    call = jax.ffi.ffi_call(
-        _ffi.FORWARD,
-        jax.ShapeDtypeStruct(batch + grid.shape, v.dtype),
-        vmap_method="expand_dims",
-    )
-    return call(v, f, **_ffi.grid_attributes(grid))
+    return _kernel(_ffi.FORWARD, jax.ShapeDtypeStruct(batch + grid.shape, v.dtype), grid, v, f)
+
+
+# -- running the kernels: XLA FFI on CPU, a host callback elsewhere ------------------------
+
+_FORCE_HOST_CALLBACK = os.environ.get("VOXAX_HOST_CALLBACK", "") == "1"
+
+
+def use_host_callback(enabled: bool) -> None:
+    """Forces (or stops forcing) the host-callback path used on non-CPU backends.
+
+    The kernels are CPU code. On a GPU or TPU default backend, `voxelize` runs them on
+    the host through `jax.pure_callback` (data goes to the host and back). This switch
+    forces that path on a CPU backend too, which is how it is tested; it takes effect
+    for functions traced after the call. The environment variable
+    `VOXAX_HOST_CALLBACK=1` sets it at import.
+    """
+    global _FORCE_HOST_CALLBACK
+    _FORCE_HOST_CALLBACK = bool(enabled)
+
+
+def _kernel(target: str, result: jax.ShapeDtypeStruct, grid: Grid, *args):
+    if not _FORCE_HOST_CALLBACK and jax.default_backend() == "cpu":
+        call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
+        return call(*args, **_ffi.grid_attributes(grid))
+    host = functools.partial(_host_kernel, target, tuple(result.shape[args[0].ndim - 2 :]), grid)
+    return jax.pure_callback(host, result, *args, vmap_method="expand_dims")
+
+
+def _host_kernel(target, trailing, grid, *args):
+    # Runs the FFI kernel on the host CPU device with the arguments as given (a vmap
+    # of the callback adds leading axes, which the kernel treats as batch axes).
+    v, f = args[0], args[1]
+    batch = tuple(np.broadcast_shapes(v.shape[:-2], f.shape[:-2]))
+    result = jax.ShapeDtypeStruct(batch + tuple(trailing), v.dtype)
+    cpu = jax.devices("cpu")[0]
+    with jax.default_device(cpu):
+        out = _host_jit(target, result, grid)(*[jax.device_put(a, cpu) for a in args])
+    return np.asarray(out)
+
+
+@functools.lru_cache(maxsize=64)
+def _host_jit(target, result, grid):
+    call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
+    return jax.jit(lambda *a: call(*a, **_ffi.grid_attributes(grid)))
 
 
 def voxelize_corner_gradients(vertices, faces, cotangent, grid: Grid):
@@ -209,12 +257,7 @@ def voxelize_corner_gradients(vertices, faces, cotangent, grid: Grid):
     v, f, batch = _lead(vertices, faces)
     nf, d = f.shape[-2], f.shape[-1]
     g = jnp.broadcast_to(cotangent.astype(v.dtype), batch + grid.shape)
-    call = jax.ffi.ffi_call(
-        _ffi.BACKWARD,
-        jax.ShapeDtypeStruct(batch + (nf, d, d), v.dtype),
-        vmap_method="expand_dims",
-    )
-    return call(v, f, g, **_ffi.grid_attributes(grid))
+    return _kernel(_ffi.BACKWARD, jax.ShapeDtypeStruct(batch + (nf, d, d), v.dtype), grid, v, f, g)
 
 
 def _sum_corners(corners, vertices, faces):
