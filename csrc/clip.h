@@ -17,6 +17,16 @@ struct Poly {
   int count = 0;
   double v[kMaxVerts][N];
 
+  Poly() = default;
+  Poly(const Poly& o) { *this = o; }
+  // Copies only the vertices in use.
+  Poly& operator=(const Poly& o) {
+    count = o.count;
+    for (int i = 0; i < count; ++i)
+      for (int k = 0; k < N; ++k) v[i][k] = o.v[i][k];
+    return *this;
+  }
+
   double min(int a) const {
     double m = v[0][a];
     for (int i = 1; i < count; ++i) m = v[i][a] < m ? v[i][a] : m;
@@ -63,6 +73,41 @@ inline void clip(const Poly<N>& in, int a, double c, bool keep_above, Poly<N>* o
       if (!qin && out->count < kMaxVerts) cut<N>(p, q, a, c, out->v[out->count++]);
     } else if (qin && out->count < kMaxVerts) {
       cut<N>(p, q, a, c, out->v[out->count++]);
+    }
+  }
+}
+
+// Splits `in` at coordinate a == c into the part below (a <= c) and the part
+// above (a >= c) in one pass.
+template <int N>
+inline void split(const Poly<N>& in, int a, double c, Poly<N>* below, Poly<N>* above) {
+  below->count = 0;
+  above->count = 0;
+  const int n = in.count;
+  for (int i = 0; i < n; ++i) {
+    const double* p = in.v[i];
+    const double* q = in.v[i + 1 == n ? 0 : i + 1];
+    const bool p_lo = p[a] <= c, p_hi = p[a] >= c;
+    if (p_lo && below->count < kMaxVerts) {
+      for (int k = 0; k < N; ++k) below->v[below->count][k] = p[k];
+      ++below->count;
+    }
+    if (p_hi && above->count < kMaxVerts) {
+      for (int k = 0; k < N; ++k) above->v[above->count][k] = p[k];
+      ++above->count;
+    }
+    // The edge crosses the plane strictly: both parts get the crossing point.
+    if ((p[a] < c && q[a] > c) || (p[a] > c && q[a] < c)) {
+      double x[N];
+      cut<N>(p, q, a, c, x);
+      if (below->count < kMaxVerts) {
+        for (int k = 0; k < N; ++k) below->v[below->count][k] = x[k];
+        ++below->count;
+      }
+      if (above->count < kMaxVerts) {
+        for (int k = 0; k < N; ++k) above->v[above->count][k] = x[k];
+        ++above->count;
+      }
     }
   }
 }

@@ -31,19 +31,35 @@ struct GridSpec {
   double lo[3] = {0, 0, 0};
   double hi[3] = {1, 1, 1};
   double h[3] = {1, 1, 1};
+  double inv_h[3] = {1, 1, 1};
+  double slack[3] = {0, 0, 0};  // rounding allowance of span(), in cells
   int64_t n[3] = {1, 1, 1};
+  std::vector<double> planes[3];  // planes[a][i] = plane(a, i), i in [0, n]
 
-  double plane(int a, int64_t i) const {
-    return i >= n[a] ? hi[a] : lo[a] + static_cast<double>(i) * h[a];
-  }
+  double plane(int a, int64_t i) const { return planes[a][i]; }
   // Index of the cell containing coordinate c, clamped to [-1, n] so that it
   // never overflows for huge coordinates. May be off by one near a plane:
   // callers widen ranges by one and let the clipping decide.
   int64_t cell_of(int a, double c) const {
-    double t = std::floor((c - lo[a]) / h[a]);
+    double t = std::floor((c - lo[a]) * inv_h[a]);
     if (!(t >= -1.0)) return -1;
     if (t > static_cast<double>(n[a])) return n[a];
     return static_cast<int64_t>(t);
+  }
+  // A conservative cell range [c0, c1] covering the interval [mn, mx] along
+  // axis a, clamped to the grid: it may include one extra cell on each side
+  // when a bound lies within rounding distance of a plane, never one less.
+  // Callers clip at the actual plane coordinates, so extra cells only cost an
+  // empty piece. Returns false when the interval misses the grid.
+  bool span(int a, double mn, double mx, int64_t* c0, int64_t* c1) const {
+    if (mx < lo[a] || mn > hi[a]) return false;
+    double u0 = (mn - lo[a]) * inv_h[a] - slack[a];
+    double u1 = (mx - lo[a]) * inv_h[a] + slack[a];
+    const double top = static_cast<double>(n[a] - 1);
+    // Clamped to [0, n - 1], so truncation is the floor.
+    *c0 = static_cast<int64_t>(std::min(std::max(u0, 0.0), top));
+    *c1 = static_cast<int64_t>(std::min(std::max(u1, 0.0), top));
+    return true;
   }
   int64_t column_count() const { return dim == 3 ? n[0] * n[1] : n[0]; }
   int64_t column_length() const { return dim == 3 ? n[2] : n[1]; }
@@ -67,7 +83,12 @@ inline ffi::Error make_grid(int dim, double x0, double x1, int64_t nx, double y0
     g->hi[a] = hi[a];
     g->n[a] = n[a];
     g->h[a] = (hi[a] - lo[a]) / static_cast<double>(n[a]);
-    if (!(g->h[a] > 0) || !std::isfinite(g->h[a]))
+    g->inv_h[a] = 1.0 / g->h[a];
+    g->slack[a] = 1e-12 * (1.0 + (std::fabs(lo[a]) + std::fabs(hi[a])) * g->inv_h[a]);
+    g->planes[a].resize(n[a] + 1);
+    for (int64_t i = 0; i < n[a]; ++i) g->planes[a][i] = lo[a] + static_cast<double>(i) * g->h[a];
+    g->planes[a][n[a]] = hi[a];
+    if (!(g->h[a] > 0) || !std::isfinite(g->h[a]) || !std::isfinite(g->inv_h[a]))
       return ffi::Error::InvalidArgument("voxax: grid cell size is not a positive finite number");
   }
   return ffi::Error::Success();

@@ -15,7 +15,12 @@
 #pragma once
 
 #include <cstring>
+#include <type_traits>
 #include <vector>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "clip.h"
 #include "common.h"
@@ -68,83 +73,69 @@ inline bool cell_range(const GridSpec& g, int a, double mn, double mx, int64_t* 
 // ---------------------------------------------------------------------------
 // 3D
 
-// Adds the pieces of polygon P (inside column cell with corner (xc, yc)) to
-// the difference buffer `col` of that column.
+// Signed projected area of Q and the integral of (z - zref) over it, by a fan
+// of triangles in coordinates relative to (xc, yc).
+inline void integrate_3d(const Poly<3>& Q, double xc, double yc, double zref, double* area,
+                         double* zint) {
+  double A = 0, I = 0;
+  const double x0 = Q.v[0][0] - xc, y0 = Q.v[0][1] - yc, f0 = Q.v[0][2] - zref;
+  for (int m = 1; m + 1 < Q.count; ++m) {
+    const double x1 = Q.v[m][0] - xc - x0, y1 = Q.v[m][1] - yc - y0;
+    const double x2 = Q.v[m + 1][0] - xc - x0, y2 = Q.v[m + 1][1] - yc - y0;
+    const double cr = 0.5 * (x1 * y2 - x2 * y1);
+    A += cr;
+    I += cr * (f0 + (Q.v[m][2] - zref) + (Q.v[m + 1][2] - zref)) * (1.0 / 3.0);
+  }
+  *area = A;
+  *zint = I;
+}
+
+// Adds the pieces of polygon P (inside the column cell with corner (xc, yc))
+// to the difference buffer `col` of that column.
 inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double yc,
                           double* col) {
   const int64_t nz = g.n[2];
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
-  const double ztop = g.hi[2];
-  double zmin = P.min(2), zmax = P.max(2);
-  if (zmax <= g.lo[2]) return;  // entirely below the grid
-
-  // Signed projected area and integral of (z - zref) over a polygon, by a fan
-  // of triangles in coordinates relative to the cell corner.
-  auto integrate = [xc, yc](const Poly<3>& Q, double zref, double* area, double* zint) {
-    double A = 0, I = 0;
-    const double x0 = Q.v[0][0] - xc, y0 = Q.v[0][1] - yc, f0 = Q.v[0][2] - zref;
-    for (int m = 1; m + 1 < Q.count; ++m) {
-      double x1 = Q.v[m][0] - xc - x0, y1 = Q.v[m][1] - yc - y0;
-      double x2 = Q.v[m + 1][0] - xc - x0, y2 = Q.v[m + 1][1] - yc - y0;
-      double cr = 0.5 * (x1 * y2 - x2 * y1);
-      A += cr;
-      I += cr * (f0 + (Q.v[m][2] - zref) + (Q.v[m + 1][2] - zref)) * (1.0 / 3.0);
-    }
-    *area = A;
-    *zint = I;
-  };
-
-  if (zmin >= ztop) {  // entirely above: the whole column is in its shadow
-    double A, I;
-    integrate(P, 0.0, &A, &I);
+  const double zbot = g.lo[2], ztop = g.hi[2];
+  const double zmin = P.min(2), zmax = P.max(2);
+  double A, I;
+  if (zmax <= zbot) return;  // entirely below the grid
+  if (zmin >= ztop) {        // entirely above: the whole column is in its shadow
+    integrate_3d(P, xc, yc, 0.0, &A, &I);
     col[nz - 1] += A * inv_area;
     return;
   }
-  int64_t k0, k1;
-  if (!cell_range(g, 2, zmin, zmax, &k0, &k1)) return;
-  Poly<3> rest = P, piece, tmp;
-  bool clipped_low = false;
+  int64_t k0 = 0, k1 = -1;
+  if (!g.span(2, zmin, zmax, &k0, &k1)) return;
+  Poly<3> rest, piece, upper;
+  const Poly<3>* cur = &P;
+  if (zmin < g.plane(2, k0)) {
+    split<3>(P, 2, g.plane(2, k0), &piece, &rest);  // drop the part below the grid
+    cur = &rest;
+  }
   for (int64_t k = k0; k <= k1; ++k) {
     const double zl = g.plane(2, k), zh = g.plane(2, k + 1);
-    if (rest.count < 3) break;
-    if (!clipped_low && rest.min(2) < zl) {
-      clip<3>(rest, 2, zl, true, &tmp);
-      rest = tmp;
-      if (rest.count < 3) break;
-    }
-    clipped_low = true;
-    const Poly<3>* Q = &rest;
-    bool more = rest.max(2) > zh;
-    if (more) {
-      clip<3>(rest, 2, zh, false, &piece);
+    const Poly<3>* Q = cur;
+    bool last = cur->max(2) <= zh;
+    if (!last) {
+      split<3>(*cur, 2, zh, &piece, &upper);
       Q = &piece;
     }
     if (Q->count >= 3) {
-      double A, I;
-      integrate(*Q, zl, &A, &I);
-      double b = I * inv_vol, tau = A * inv_area;
+      integrate_3d(*Q, xc, yc, zl, &A, &I);
+      const double b = I * inv_vol, tau = A * inv_area;
       col[k] += b;
       if (k > 0) col[k - 1] += tau - b;
     }
-    if (!more) {
-      rest.count = 0;
-      break;
-    }
-    clip<3>(rest, 2, zh, true, &tmp);
-    rest = tmp;
+    if (last) return;
+    rest = upper;
+    cur = &rest;
+    if (cur->count < 3) return;
   }
-  if (rest.count >= 3 && rest.max(2) > ztop) {
-    if (rest.min(2) < ztop) {
-      clip<3>(rest, 2, ztop, true, &tmp);
-      rest = tmp;
-    }
-    if (rest.count >= 3) {
-      double A, I;
-      integrate(rest, 0.0, &A, &I);
-      col[nz - 1] += A * inv_area;
-    }
-  }
+  // What is left lies above the grid's top.
+  integrate_3d(*cur, xc, yc, 0.0, &A, &I);
+  col[nz - 1] += A * inv_area;
 }
 
 // Loads triangle t of a batch item as a polygon; returns false when it has no
@@ -160,73 +151,200 @@ inline bool load_triangle(const T* V, const int32_t* F, int64_t t, Poly<3>* P) {
   return nz != 0.0;
 }
 
-template <typename T>
-void bin_triangles_3d(const GridSpec& g, const Tiling& tl, const T* V, const int32_t* F,
-                      int64_t nf, Bins* bins) {
-  bins->start.assign(tl.count() + 1, 0);
-  auto visit = [&](auto&& emit) {
-    Poly<3> P;
-    for (int64_t t = 0; t < nf; ++t) {
-      if (!load_triangle(V, F, t, &P)) continue;
-      if (P.max(2) <= g.lo[2]) continue;
-      int64_t i0, i1, j0, j1;
-      if (!cell_range(g, 0, P.min(0), P.max(0), &i0, &i1)) continue;
-      if (!cell_range(g, 1, P.min(1), P.max(1), &j0, &j1)) continue;
-      for (int64_t ti = i0 / tl.tx; ti <= i1 / tl.tx; ++ti)
-        for (int64_t tj = j0 / tl.ty; tj <= j1 / tl.ty; ++tj) emit(ti * tl.nty + tj, t);
+// Bins faces to tiles. `ranges(f, r)` fills r = {ti0, ti1, tj0, tj1} with the
+// tile range of face f, or returns false when the face contributes nothing.
+// Faces are counted and filled in parallel over fixed chunks (independent of
+// the thread count), so every tile lists its faces in ascending order.
+template <typename Ranges>
+bool bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ranges,
+               Bins* bins) {
+  const int64_t tiles = tl.count();
+  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(32, nf / 8192));
+  const int64_t per = (nf + chunks - 1) / chunks;
+  std::vector<int64_t> counts(chunks * tiles, 0);
+  bool ok = ParallelFor::run(pool, chunks, [&](int64_t c) {
+    int64_t* cnt = counts.data() + c * tiles;
+    int32_t r[4];
+    for (int64_t f = c * per; f < std::min(nf, (c + 1) * per); ++f) {
+      if (!ranges(f, r)) continue;
+      for (int32_t ti = r[0]; ti <= r[1]; ++ti)
+        for (int32_t tj = r[2]; tj <= r[3]; ++tj) ++cnt[ti * tl.nty + tj];
     }
-  };
-  visit([&](int64_t tile, int64_t) { ++bins->start[tile + 1]; });
-  for (int64_t i = 0; i < tl.count(); ++i) bins->start[i + 1] += bins->start[i];
-  bins->items.resize(bins->start[tl.count()]);
-  std::vector<int64_t> fill(bins->start.begin(), bins->start.end() - 1);
-  visit([&](int64_t tile, int64_t t) { bins->items[fill[tile]++] = static_cast<int32_t>(t); });
+  });
+  if (!ok) return false;
+  bins->start.assign(tiles + 1, 0);
+  for (int64_t t = 0; t < tiles; ++t) {
+    int64_t s = bins->start[t];
+    for (int64_t c = 0; c < chunks; ++c) {
+      int64_t n = counts[c * tiles + t];
+      counts[c * tiles + t] = s;  // becomes this chunk's fill position
+      s += n;
+    }
+    bins->start[t + 1] = s;
+  }
+  bins->items.resize(bins->start[tiles]);
+  // The second pass recomputes the ranges (cheaper than storing them).
+  return ParallelFor::run(pool, chunks, [&](int64_t c) {
+    int64_t* pos = counts.data() + c * tiles;
+    int32_t r[4];
+    for (int64_t f = c * per; f < std::min(nf, (c + 1) * per); ++f) {
+      if (!ranges(f, r)) continue;
+      for (int32_t ti = r[0]; ti <= r[1]; ++ti)
+        for (int32_t tj = r[2]; tj <= r[3]; ++tj)
+          bins->items[pos[ti * tl.nty + tj]++] = static_cast<int32_t>(f);
+    }
+  });
+}
+
+template <typename T>
+bool bin_triangles_3d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
+                      const int32_t* F, int64_t nf, Bins* bins) {
+  return bin_faces(pool, tl, nf, [&](int64_t t, int32_t* r) {
+    Poly<3> P;
+    if (!load_triangle(V, F, t, &P)) return false;
+    if (P.max(2) <= g.lo[2]) return false;
+    int64_t i0, i1, j0, j1;
+    if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) return false;
+    if (!g.span(1, P.min(1), P.max(1), &j0, &j1)) return false;
+    r[0] = static_cast<int32_t>(i0 / tl.tx);
+    r[1] = static_cast<int32_t>(i1 / tl.tx);
+    r[2] = static_cast<int32_t>(j0 / tl.ty);
+    r[3] = static_cast<int32_t>(j1 / tl.ty);
+    return true;
+  }, bins);
+}
+
+// Turns columns of differences into reverse prefix sums in place:
+// col[k] <- sum of col[k'] for k' >= k, accumulated in double. A prefix sum is
+// a chain of dependent additions, so four columns run interleaved to keep the
+// floating-point adder busy; the order of additions within a column is fixed,
+// so the result does not depend on the interleaving.
+inline void prefix_sums(double* cols, int64_t ncols, int64_t n) {
+  int64_t c = 0;
+  for (; c + 4 <= ncols; c += 4) {
+    double* a0 = cols + c * n;
+    double* a1 = a0 + n;
+    double* a2 = a1 + n;
+    double* a3 = a2 + n;
+    double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+    for (int64_t k = n - 1; k >= 0; --k) {
+      s0 += a0[k];
+      s1 += a1[k];
+      s2 += a2[k];
+      s3 += a3[k];
+      a0[k] = s0;
+      a1[k] = s1;
+      a2[k] = s2;
+      a3[k] = s3;
+    }
+  }
+  for (; c < ncols; ++c) {
+    double* a = cols + c * n;
+    double s = 0;
+    for (int64_t k = n - 1; k >= 0; --k) {
+      s += a[k];
+      a[k] = s;
+    }
+  }
+}
+
+// Copies a column to the output, converting to T. Large outputs use streaming
+// stores, which skip reading the destination into the cache.
+template <typename T>
+inline void write_column(const double* col, int64_t n, T* out, bool stream) {
+  int64_t k = 0;
+#if defined(__SSE2__)
+  if (stream) {
+    if constexpr (std::is_same_v<T, float>) {
+      for (; k < n && (reinterpret_cast<uintptr_t>(out + k) & 15); ++k) out[k] = static_cast<float>(col[k]);
+      for (; k + 4 <= n; k += 4) {
+        __m128 lo = _mm_cvtpd_ps(_mm_loadu_pd(col + k));
+        __m128 hi = _mm_cvtpd_ps(_mm_loadu_pd(col + k + 2));
+        _mm_stream_ps(out + k, _mm_movelh_ps(lo, hi));
+      }
+    } else {
+      for (; k < n && (reinterpret_cast<uintptr_t>(out + k) & 15); ++k) out[k] = col[k];
+      for (; k + 2 <= n; k += 2) _mm_stream_pd(out + k, _mm_loadu_pd(col + k));
+    }
+  }
+#else
+  (void)stream;
+#endif
+  for (; k < n; ++k) out[k] = static_cast<T>(col[k]);
+}
+
+inline void stream_fence() {
+#if defined(__SSE2__)
+  _mm_sfence();
+#endif
 }
 
 template <typename T>
 void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out) {
+                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out,
+                     bool stream) {
   const int64_t ti = tile / tl.nty, tj = tile % tl.nty;
   const int64_t ia = ti * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ja = tj * tl.ty, jb = std::min(g.n[1], ja + tl.ty);
   const int64_t nz = g.n[2], wy = jb - ja;
   buf.assign((ib - ia) * wy * nz, 0.0);
 
-  Poly<3> P, Px, Pxy;
+  Poly<3> P, left, right, Pxy, front, back, rowrest, colrest;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     load_triangle(V, F, bins.items[e], &P);
-    int64_t i0, i1;
-    if (!cell_range(g, 0, P.min(0), P.max(0), &i0, &i1)) continue;
+    int64_t i0, i1, j0, j1;
+    if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) continue;
     i0 = std::max(i0, ia);
     i1 = std::min(i1, ib - 1);
-    for (int64_t i = i0; i <= i1; ++i) {
-      const double xl = g.plane(0, i);
-      clip_slab<3>(P, 0, xl, g.plane(0, i + 1), &Px);
-      if (Px.count < 3) continue;
-      int64_t j0, j1;
-      if (!cell_range(g, 1, Px.min(1), Px.max(1), &j0, &j1)) continue;
-      j0 = std::max(j0, ja);
-      j1 = std::min(j1, jb - 1);
-      for (int64_t j = j0; j <= j1; ++j) {
-        const double yl = g.plane(1, j);
-        clip_slab<3>(Px, 1, yl, g.plane(1, j + 1), &Pxy);
-        if (Pxy.count < 3) continue;
-        add_column_3d(g, Pxy, xl, yl, buf.data() + ((i - ia) * wy + (j - ja)) * nz);
+    if (i0 > i1) continue;
+    // Sweep the x slabs left to right, splitting off one slab at a time.
+    const Poly<3>* row = &P;
+    if (P.min(0) < g.plane(0, i0)) {
+      split<3>(P, 0, g.plane(0, i0), &left, &rowrest);
+      row = &rowrest;
+    }
+    for (int64_t i = i0; i <= i1 && row->count >= 3; ++i) {
+      const double xl = g.plane(0, i), xh = g.plane(0, i + 1);
+      const Poly<3>* Px = row;
+      bool last_x = row->max(0) <= xh || i == i1;
+      if (row->max(0) > xh) {
+        split<3>(*row, 0, xh, &left, &right);
+        Px = &left;
       }
+      if (Px->count >= 3 && g.span(1, Px->min(1), Px->max(1), &j0, &j1)) {
+        j0 = std::max(j0, ja);
+        j1 = std::min(j1, jb - 1);
+        const Poly<3>* cell = Px;
+        if (j0 <= j1 && Px->min(1) < g.plane(1, j0)) {
+          split<3>(*Px, 1, g.plane(1, j0), &front, &colrest);
+          cell = &colrest;
+        }
+        for (int64_t j = j0; j <= j1 && cell->count >= 3; ++j) {
+          const double yl = g.plane(1, j), yh = g.plane(1, j + 1);
+          const Poly<3>* Q = cell;
+          bool last_y = cell->max(1) <= yh;
+          if (!last_y) {
+            split<3>(*cell, 1, yh, &front, &back);
+            Q = &front;
+          }
+          if (Q->count >= 3)
+            add_column_3d(g, *Q, xl, yl, buf.data() + ((i - ia) * wy + (j - ja)) * nz);
+          if (last_y) break;
+          Pxy = back;
+          cell = &Pxy;
+        }
+      }
+      if (last_x) break;
+      rowrest = right;
+      row = &rowrest;
     }
   }
-  // Reverse prefix sums in double; each output voxel is written exactly once.
-  for (int64_t i = ia; i < ib; ++i) {
-    for (int64_t j = ja; j < jb; ++j) {
-      const double* col = buf.data() + ((i - ia) * wy + (j - ja)) * nz;
-      T* o = out + (i * g.n[1] + j) * nz;
-      double s = 0;
-      for (int64_t k = nz - 1; k >= 0; --k) {
-        s += col[k];
-        o[k] = static_cast<T>(s);
-      }
-    }
-  }
+  prefix_sums(buf.data(), (ib - ia) * wy, nz);
+  for (int64_t i = ia; i < ib; ++i)
+    for (int64_t j = ja; j < jb; ++j)
+      write_column(buf.data() + ((i - ia) * wy + (j - ja)) * nz, nz, out + (i * g.n[1] + j) * nz,
+                   stream);
+  if (stream) stream_fence();
 }
 
 // ---------------------------------------------------------------------------
@@ -287,29 +405,26 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, double* col) {
 }
 
 template <typename T>
-void bin_segments_2d(const GridSpec& g, const Tiling& tl, const T* V, const int32_t* F,
-                     int64_t nf, Bins* bins) {
-  bins->start.assign(tl.count() + 1, 0);
-  auto visit = [&](auto&& emit) {
+bool bin_segments_2d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
+                     const int32_t* F, int64_t nf, Bins* bins) {
+  return bin_faces(pool, tl, nf, [&](int64_t s, int32_t* r) {
     Poly<2> S;
-    for (int64_t s = 0; s < nf; ++s) {
-      if (!load_segment(V, F, s, &S)) continue;
-      if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) continue;
-      int64_t i0, i1;
-      if (!cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) continue;
-      for (int64_t ti = i0 / tl.tx; ti <= i1 / tl.tx; ++ti) emit(ti, s);
-    }
-  };
-  visit([&](int64_t tile, int64_t) { ++bins->start[tile + 1]; });
-  for (int64_t i = 0; i < tl.count(); ++i) bins->start[i + 1] += bins->start[i];
-  bins->items.resize(bins->start[tl.count()]);
-  std::vector<int64_t> fill(bins->start.begin(), bins->start.end() - 1);
-  visit([&](int64_t tile, int64_t s) { bins->items[fill[tile]++] = static_cast<int32_t>(s); });
+    if (!load_segment(V, F, s, &S)) return false;
+    if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) return false;
+    int64_t i0, i1;
+    if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) return false;
+    r[0] = static_cast<int32_t>(i0 / tl.tx);
+    r[1] = static_cast<int32_t>(i1 / tl.tx);
+    r[2] = 0;
+    r[3] = 0;
+    return true;
+  }, bins);
 }
 
 template <typename T>
 void forward_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out) {
+                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out,
+                     bool stream) {
   const int64_t ia = tile * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ny = g.n[1];
   buf.assign((ib - ia) * ny, 0.0);
@@ -326,15 +441,9 @@ void forward_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       add_column_2d(g, Sx, buf.data() + (i - ia) * ny);
     }
   }
-  for (int64_t i = ia; i < ib; ++i) {
-    const double* col = buf.data() + (i - ia) * ny;
-    T* o = out + i * ny;
-    double s = 0;
-    for (int64_t k = ny - 1; k >= 0; --k) {
-      s += col[k];
-      o[k] = static_cast<T>(s);
-    }
-  }
+  prefix_sums(buf.data(), ib - ia, ny);
+  for (int64_t i = ia; i < ib; ++i) write_column(buf.data() + (i - ia) * ny, ny, out + i * ny, stream);
+  if (stream) stream_fence();
 }
 
 }  // namespace voxax

@@ -85,22 +85,25 @@ ffi::Error forward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V,
   const int64_t vstride = pb.nv * pb.dim, fstride = pb.nf * pb.dim;
   const Tiling tl = make_tiling(g);
   std::vector<Bins> bins(B);
-  bool ok = ParallelFor::run(pool, B, [&](int64_t b) {
+  for (int64_t b = 0; b < B; ++b) {
     const T* Vb = V + pb.batch.vsrc(b) * vstride;
     const int32_t* Fb = F + pb.batch.fsrc(b) * fstride;
-    if (pb.dim == 3) bin_triangles_3d(g, tl, Vb, Fb, pb.nf, &bins[b]);
-    else bin_segments_2d(g, tl, Vb, Fb, pb.nf, &bins[b]);
-  });
-  if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory while binning faces");
+    const bool binned = pb.dim == 3 ? bin_triangles_3d(pool, g, tl, Vb, Fb, pb.nf, &bins[b])
+                                    : bin_segments_2d(pool, g, tl, Vb, Fb, pb.nf, &bins[b]);
+    if (!binned)
+      return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory while binning faces");
+  }
+  // Streaming stores for outputs well beyond the caches.
+  const bool stream = B * g.cell_count() * static_cast<int64_t>(sizeof(T)) > (int64_t{64} << 20);
   const int64_t tiles = tl.count();
-  ok = ParallelFor::run(pool, B * tiles, [&](int64_t task) {
+  bool ok = ParallelFor::run(pool, B * tiles, [&](int64_t task) {
     thread_local std::vector<double> buf;
     const int64_t b = task / tiles, tile = task % tiles;
     const T* Vb = V + pb.batch.vsrc(b) * vstride;
     const int32_t* Fb = F + pb.batch.fsrc(b) * fstride;
     T* ob = out + b * g.cell_count();
-    if (pb.dim == 3) forward_tile_3d(g, tl, tile, Vb, Fb, bins[b], buf, ob);
-    else forward_tile_2d(g, tl, tile, Vb, Fb, bins[b], buf, ob);
+    if (pb.dim == 3) forward_tile_3d(g, tl, tile, Vb, Fb, bins[b], buf, ob, stream);
+    else forward_tile_2d(g, tl, tile, Vb, Fb, bins[b], buf, ob, stream);
   });
   if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the forward kernel");
   return ffi::Error::Success();
