@@ -214,9 +214,31 @@ def use_host_callback(enabled: bool) -> None:
 def _kernel(target: str, result: jax.ShapeDtypeStruct, grid: Grid, *args):
     if not _FORCE_HOST_CALLBACK and jax.default_backend() == "cpu":
         call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
-        return call(*args, **_ffi.grid_attributes(grid))
-    host = functools.partial(_host_kernel, target, tuple(result.shape[args[0].ndim - 2 :]), grid)
-    return jax.pure_callback(host, result, *args, vmap_method="expand_dims")
+        out = call(*args, **_ffi.grid_attributes(grid))
+    else:
+        host = functools.partial(_host_kernel, target, tuple(result.shape[args[0].ndim - 2 :]), grid)
+        out = jax.pure_callback(host, result, *args, vmap_method="expand_dims")
+    return _vary_like(out, *args)
+
+
+def _varying_axes(x) -> frozenset:
+    aval = jax.typeof(x)
+    mat = getattr(aval, "mat", None)
+    if mat is not None:
+        return frozenset(getattr(mat, "varying", ()))
+    return frozenset(getattr(aval, "vma", ()))
+
+
+def _vary_like(out, *args):
+    """Types `out` as varying over the mesh axes (inside `shard_map`) its inputs vary over.
+
+    Kernel outputs are typed as invariant across mesh axes, which would make JAX treat a
+    per-device result as replicated (and sum its cotangents across devices).
+    """
+    axes = frozenset().union(*(_varying_axes(a) for a in args)) - _varying_axes(out)
+    if not axes:
+        return out
+    return jax.lax.pcast(out, tuple(sorted(axes)), to="varying")
 
 
 def _host_kernel(target, trailing, grid, *args):
