@@ -16,12 +16,33 @@
 
 namespace voxax {
 
-// Cells are half-open, [lo, hi), except the last one along each axis, which is
-// closed. A piece lying flat in the upper plane of cell i (a face exactly on a
-// grid plane) belongs to cell i + 1, so it is counted once.
-template <int N>
-inline bool on_upper_plane(const GridSpec& g, const Poly<N>& P, int a, int64_t i) {
-  return i + 1 < g.n[a] && P.min(a) >= g.plane(a, i + 1);
+// Sweeps polygon P across the cells [c0, c1] along axis a, calling
+// visit(i, piece) with the part of P in each cell. Cells are half-open,
+// [lo, hi), except the last one along each axis, which is closed: a piece
+// lying flat in the upper plane of cell i (a face exactly on a grid plane)
+// belongs to cell i + 1, so it is counted once.
+template <int N, typename Visit>
+inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_t c1,
+                  Visit&& visit) {
+  Poly<N> rest, piece, upper;
+  const Poly<N>* cur = &P;
+  if (P.min(a) < g.plane(a, c0)) {
+    split<N>(P, a, g.plane(a, c0), &piece, &rest);
+    cur = &rest;
+  }
+  for (int64_t i = c0; i <= c1 && cur->count >= 3; ++i) {
+    const double hi = g.plane(a, i + 1);
+    const double mn = cur->min(a), mx = cur->max(a);
+    if (mn >= hi && i + 1 < g.n[a]) continue;  // entirely in later cells
+    if (mx <= hi) {
+      visit(i, *cur);
+      return;
+    }
+    split<N>(*cur, a, hi, &piece, &upper);
+    if (piece.count >= 3) visit(i, piece);
+    rest = upper;
+    cur = &rest;
+  }
 }
 
 // Corner gradients of triangles [t0, t1) of one batch item into out (F, 3, 3).
@@ -30,7 +51,7 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
                            int64_t t0, int64_t t1, T* out) {
   const double inv_vol = 1.0 / g.cell_volume();
   const int64_t ny = g.n[1], nz = g.n[2];
-  Poly<5> P, Px, Pxy, Pz;
+  Poly<5> P;
   for (int64_t t = t0; t < t1; ++t) {
     const int32_t* f = F + 3 * t;
     double p[3][3];
@@ -44,64 +65,61 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
     N[0] = e1[1] * e2[2] - e1[2] * e2[1];
     N[1] = e1[2] * e2[0] - e1[0] * e2[2];
     N[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
-    double acc[3] = {0, 0, 0};  // integral of g * beta_m over the surface / |voxel|
-    if (len > 0 && std::isfinite(len)) {
-      const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
-      P.count = 3;
-      for (int c = 0; c < 3; ++c) {
-        for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
-        P.v[c][3] = c == 1 ? 1.0 : 0.0;  // beta_1
-        P.v[c][4] = c == 2 ? 1.0 : 0.0;  // beta_2
-      }
-      int64_t i0, i1, j0, j1, k0, k1;
-      if (cell_range(g, 0, P.min(0), P.max(0), &i0, &i1) &&
-          cell_range(g, 1, P.min(1), P.max(1), &j0, &j1) &&
-          cell_range(g, 2, P.min(2), P.max(2), &k0, &k1)) {
-        for (int64_t i = i0; i <= i1; ++i) {
-          clip_slab<5>(P, 0, g.plane(0, i), g.plane(0, i + 1), &Px);
-          if (Px.count < 3 || on_upper_plane(g, Px, 0, i)) continue;
-          if (!cell_range(g, 1, Px.min(1), Px.max(1), &j0, &j1)) continue;
-          for (int64_t j = j0; j <= j1; ++j) {
-            clip_slab<5>(Px, 1, g.plane(1, j), g.plane(1, j + 1), &Pxy);
-            if (Pxy.count < 3 || on_upper_plane(g, Pxy, 1, j)) continue;
-            if (!cell_range(g, 2, Pxy.min(2), Pxy.max(2), &k0, &k1)) continue;
-            const T* Gcol = G + (i * ny + j) * nz;
-            for (int64_t k = k0; k <= k1; ++k) {
-              const double gv = static_cast<double>(Gcol[k]);
-              if (gv == 0.0) continue;
-              clip_slab<5>(Pxy, 2, g.plane(2, k), g.plane(2, k + 1), &Pz);
-              if (Pz.count < 3 || on_upper_plane(g, Pz, 2, k)) continue;
-              double A = 0, B1 = 0, B2 = 0;
-              const double* q0 = Pz.v[0];
-              for (int m = 1; m + 1 < Pz.count; ++m) {
-                const double* q1 = Pz.v[m];
-                const double* q2 = Pz.v[m + 1];
-                double u[3], w[3];
-                for (int a = 0; a < 3; ++a) {
-                  u[a] = q1[a] - q0[a];
-                  w[a] = q2[a] - q0[a];
-                }
-                double area = 0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) +
-                                     nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                                     nh[2] * (u[0] * w[1] - u[1] * w[0]));
-                A += area;
-                B1 += area * (q0[3] + q1[3] + q2[3]) * (1.0 / 3.0);
-                B2 += area * (q0[4] + q1[4] + q2[4]) * (1.0 / 3.0);
-              }
-              const double s = gv * inv_vol;
-              acc[0] += s * (A - B1 - B2);
-              acc[1] += s * B1;
-              acc[2] += s * B2;
-            }
-          }
-        }
-      }
-      for (int c = 0; c < 3; ++c)
-        for (int a = 0; a < 3; ++a) out[(t * 3 + c) * 3 + a] = static_cast<T>(acc[c] * nh[a]);
+    const double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+    T* o = out + t * 9;
+    if (!(len > 0) || !std::isfinite(len)) {
+      for (int c = 0; c < 9; ++c) o[c] = static_cast<T>(0);
       continue;
     }
-    for (int c = 0; c < 9; ++c) out[t * 9 + c] = static_cast<T>(0);
+    const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
+    P.count = 3;
+    for (int c = 0; c < 3; ++c) {
+      for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
+      P.v[c][3] = c == 1 ? 1.0 : 0.0;  // beta_1
+      P.v[c][4] = c == 2 ? 1.0 : 0.0;  // beta_2
+    }
+    // Integrals over the surface of g * beta_m / |voxel|, m = 0, 1, 2.
+    double acc[3] = {0, 0, 0};
+    int64_t i0, i1, j0, j1, k0, k1;
+    if (g.span(0, P.min(0), P.max(0), &i0, &i1) && g.span(1, P.min(1), P.max(1), &j0, &j1) &&
+        g.span(2, P.min(2), P.max(2), &k0, &k1)) {
+      sweep<5>(g, P, 0, i0, i1, [&](int64_t i, const Poly<5>& Px) {
+        int64_t ja, jb;
+        if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
+        sweep<5>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<5>& Pxy) {
+          int64_t ka, kb;
+          if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
+          const T* Gcol = G + (i * ny + j) * nz;
+          sweep<5>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<5>& Q) {
+            const double gv = static_cast<double>(Gcol[k]);
+            if (gv == 0.0) return;
+            double A = 0, B1 = 0, B2 = 0;
+            const double* q0 = Q.v[0];
+            for (int m = 1; m + 1 < Q.count; ++m) {
+              const double* q1 = Q.v[m];
+              const double* q2 = Q.v[m + 1];
+              double u[3], w[3];
+              for (int a = 0; a < 3; ++a) {
+                u[a] = q1[a] - q0[a];
+                w[a] = q2[a] - q0[a];
+              }
+              const double area = 0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) +
+                                         nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+                                         nh[2] * (u[0] * w[1] - u[1] * w[0]));
+              A += area;
+              B1 += area * (q0[3] + q1[3] + q2[3]) * (1.0 / 3.0);
+              B2 += area * (q0[4] + q1[4] + q2[4]) * (1.0 / 3.0);
+            }
+            const double s = gv * inv_vol;
+            acc[0] += s * (A - B1 - B2);
+            acc[1] += s * B1;
+            acc[2] += s * B2;
+          });
+        });
+      });
+    }
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < 3; ++a) o[c * 3 + a] = static_cast<T>(acc[c] * nh[a]);
   }
 }
 
@@ -132,13 +150,13 @@ void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const
       if (cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) {
         for (int64_t i = i0; i <= i1; ++i) {
           if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
-          if (on_upper_plane(g, Sx, 0, i)) continue;
+          if (i + 1 < g.n[0] && Sx.min(0) >= g.plane(0, i + 1)) continue;
           if (!cell_range(g, 1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
           for (int64_t j = j0; j <= j1; ++j) {
             const double gv = static_cast<double>(G[i * ny + j]);
             if (gv == 0.0) continue;
             if (!clip_segment(Sx, 1, g.plane(1, j), g.plane(1, j + 1), &Sy)) continue;
-            if (on_upper_plane(g, Sy, 1, j)) continue;
+            if (j + 1 < g.n[1] && Sy.min(1) >= g.plane(1, j + 1)) continue;
             const double ex = Sy.v[1][0] - Sy.v[0][0], ey = Sy.v[1][1] - Sy.v[0][1];
             const double L = ex * (dx / len) + ey * (dy / len);  // signed length along the segment
             const double b1 = 0.5 * (Sy.v[0][2] + Sy.v[1][2]);
