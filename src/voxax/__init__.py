@@ -6,14 +6,30 @@ The public API:
 - `voxax.voxelize(vertices, faces, grid)`: box-filtered winding numbers, differentiable
   in the vertices (closed-form gradient), under jit, grad and vmap.
 - `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
+- `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
+  tiling, ARAP, ...); `voxax.minimise`: an optimistix/optax minimisation driver.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
 from . import _ffi  # noqa: F401  (registers the kernels with XLA)
 from .grid import Grid
 from .voxelize import voxelize, voxelize_corner_gradients
-from . import data, io, plot, reference
+from . import data, energies, io, plot, reference
+from .solve import MinimiseResult, StopRules, minimise
 
 __version__ = "0.1.0"
 
-__all__ = ["Grid", "voxelize", "voxelize_corner_gradients", "data", "io", "plot", "reference", "__version__"]
+__all__ = [
+    "Grid",
+    "voxelize",
+    "voxelize_corner_gradients",
+    "minimise",
+    "MinimiseResult",
+    "StopRules",
+    "data",
+    "energies",
+    "io",
+    "plot",
+    "reference",
+    "__version__",
+]

@@ -1,0 +1,65 @@
+"""Pure-JAX energies on voxel grids and meshes, for optimising shapes through `voxax.voxelize`.
+
+Grid energies take the output `W` of `voxax.voxelize` (box-filtered winding numbers,
+`W[..., i, j, k]` indexed x, y, z):
+
+- `self_intersection(W, eps)`: voxels covered more than once (paper, Sec. 4.2).
+- `mellowmax`, `silhouettes`, `cut_shape`, `bandsaw_cut` (alias `bandsaw`): the bandsaw
+  cut energy (paper, Sec. 4.3).
+- `fold_periodic`, `tiling`: the space-filling energy (paper, Sec. 4.4).
+- `volume(W, grid)`, `interpenetration(W_a, W_b)`: enclosed volume; overlap of two shapes.
+
+Mesh energies:
+
+- `arap(vertices, rest_vertices, faces)`: as-rigid-as-possible regulariser (spokes and
+  rims, cotangent weights, SVD rotations held fixed), with `cotangent_weights` and
+  `arap_rotations`.
+
+Every function is pure JAX: it works under `jax.jit`, `jax.grad` and `jax.vmap`.
+Solvers (`voxax.minimise`, optimistix) want objectives shaped `fn(y, args) -> scalar`;
+write them as lambdas, or combine named terms with `objective`:
+
+```python
+grid = voxax.Grid.cube(64)
+
+def fn(V, args):
+    W = voxax.voxelize(V, F, grid)
+    e_sect = voxax.energies.self_intersection(W)
+    e_arap = voxax.energies.arap(V, V0, F)
+    return e_sect + 0.005 * e_arap, {"sect": e_sect, "arap": e_arap, "max_w": W.max()}
+
+result = voxax.minimise(fn, V0, has_aux=True, stop=voxax.StopRules(max_w_threshold=1.001))
+```
+"""
+
+from ._arap import arap, arap_rotations, cotangent_weights
+from ._grid import (
+    bandsaw,
+    bandsaw_cut,
+    cut_shape,
+    fold_periodic,
+    interpenetration,
+    mellowmax,
+    self_intersection,
+    silhouettes,
+    tiling,
+    volume,
+)
+from ._objective import objective
+
+__all__ = [
+    "mellowmax",
+    "silhouettes",
+    "cut_shape",
+    "bandsaw_cut",
+    "bandsaw",
+    "self_intersection",
+    "fold_periodic",
+    "tiling",
+    "volume",
+    "interpenetration",
+    "cotangent_weights",
+    "arap_rotations",
+    "arap",
+    "objective",
+]

@@ -1,0 +1,63 @@
+"""Combining energies into an optimistix-shaped objective `fn(y, args) -> scalar`."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax.numpy as jnp
+
+__all__ = ["objective"]
+
+
+def objective(terms: dict, weights: dict | None = None, extras: Callable | None = None) -> Callable:
+    """Builds `fn(y, args) -> (total, aux)` from named energy terms, for `voxax.minimise`.
+
+    Each term is a function `term(y, args) -> scalar`. The objective returns the weighted
+    sum of the terms and an aux dict holding every (unweighted) term by name, which
+    `voxax.minimise(..., has_aux=True)` records in its history. `extras(y, args) -> dict`
+    may add more aux entries (e.g. `"max_w"` for the `max_w_threshold` stopping rule).
+
+    Terms that share work (one voxelization feeding several grid energies) are better
+    written as one hand-made function; this helper is for the simple cases. Any energy
+    can be given the `fn(y, args)` shape with a lambda or `functools.partial`, e.g.
+    `lambda y, args: voxax.energies.arap(y, rest, faces)`.
+
+    **Arguments:**
+
+    - `terms`: `{name: term}` with `term(y, args) -> scalar`.
+    - `weights`: optional `{name: float}`; missing names weigh 1.
+    - `extras`: optional `extras(y, args) -> dict` of more aux entries.
+
+    **Returns:**
+
+    `fn(y, args) -> (scalar, dict)`, to be used with `has_aux=True`.
+
+    **Example:**
+
+    ```python
+    >>> grid = voxax.Grid.cube(64)
+    >>> fn = voxax.energies.objective(
+    ...     {"sect": lambda V, a: voxax.energies.self_intersection(voxax.voxelize(V, F, grid)),
+    ...      "arap": lambda V, a: voxax.energies.arap(V, V0, F)},
+    ...     weights={"arap": 0.005})
+    >>> result = voxax.minimise(fn, V0, has_aux=True)
+    ```
+    """
+    terms = dict(terms)
+    weights = dict(weights or {})
+    unknown = set(weights) - set(terms)
+    if unknown:
+        raise ValueError(f"objective: weights given for unknown terms {sorted(unknown)}")
+
+    def fn(y, args=None):
+        aux = {}
+        total = 0.0
+        for name, term in terms.items():
+            value = jnp.asarray(term(y, args))
+            aux[name] = value
+            total = total + weights.get(name, 1.0) * value
+        if extras is not None:
+            aux.update(extras(y, args))
+        return jnp.asarray(total), aux
+
+    return fn
