@@ -289,11 +289,38 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
   const int64_t nz = g.n[2], wy = jb - ja;
   buf.assign((ib - ia) * wy * nz, 0.0);
 
+  const double inv_area = 1.0 / (g.h[0] * g.h[1]);
+  const double inv_vol = inv_area / g.h[2];
   Poly<3> P, left, right, Pxy, front, back, rowrest, colrest;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     load_triangle(V, F, bins.items[e], &P);
     int64_t i0, i1, j0, j1;
-    if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) continue;
+    const double x0 = P.min(0), x1 = P.max(0);
+    if (!g.span(0, x0, x1, &i0, &i1)) continue;
+    // Fast path: the triangle lies in one voxel of this tile (common on fine
+    // meshes). Its own share and pass-through value need no clipping.
+    if (i0 == i1 && i0 >= ia && i0 < ib && x0 >= g.plane(0, i0) && x1 <= g.plane(0, i0 + 1)) {
+      const double y0 = P.min(1), y1 = P.max(1);
+      int64_t k0, k1;
+      if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb &&
+          y0 >= g.plane(1, j0) && y1 <= g.plane(1, j0 + 1)) {
+        const double z0 = P.min(2), z1 = P.max(2);
+        double* col = buf.data() + ((i0 - ia) * wy + (j0 - ja)) * nz;
+        if (g.span(2, z0, z1, &k0, &k1) && k0 == k1 && z0 >= g.plane(2, k0) &&
+            z1 <= g.plane(2, k0 + 1)) {
+          const double(*q)[3] = P.v;
+          const double A = 0.5 * ((q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) -
+                                  (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]));
+          const double zl = g.plane(2, k0);
+          const double b = A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
+          col[k0] += b;
+          if (k0 > 0) col[k0 - 1] += A * inv_area - b;
+        } else {
+          add_column_3d(g, P, g.plane(0, i0), g.plane(1, j0), col);
+        }
+        continue;
+      }
+    }
     i0 = std::max(i0, ia);
     i1 = std::min(i1, ib - 1);
     if (i0 > i1) continue;

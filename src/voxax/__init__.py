@@ -6,6 +6,9 @@ The public API:
 - `voxax.voxelize(vertices, faces, grid)`: box-filtered winding numbers, differentiable
   in the vertices (closed-form gradient), under jit, grad and vmap.
 - `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
+- `voxax.winding_number`: exact generalised winding numbers at points;
+  `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
+  `voxax.box_filter`: integer-scaled box filters of a voxelization.
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
   tiling, ARAP, ...); `voxax.minimise`: an optimistix/optax minimisation driver.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
@@ -14,7 +17,9 @@ The public API:
 from . import _ffi  # noqa: F401  (registers the kernels with XLA)
 from .grid import Grid
 from .voxelize import voxelize, voxelize_corner_gradients
-from . import data, energies, io, plot, reference
+from . import baselines, curves, data, energies, io, plot, reference
+from .filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
+from .winding import winding_number
 from .solve import MinimiseResult, StopRules, minimise
 
 __version__ = "0.1.0"
@@ -23,9 +28,17 @@ __all__ = [
     "Grid",
     "voxelize",
     "voxelize_corner_gradients",
+    "winding_number",
+    "voxelize_mc",
+    "voxelize_mc_tangent",
+    "box_filter",
+    "Box",
+    "Gaussian",
     "minimise",
     "MinimiseResult",
     "StopRules",
+    "baselines",
+    "curves",
     "data",
     "energies",
     "io",
