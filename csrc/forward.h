@@ -15,12 +15,7 @@
 #pragma once
 
 #include <cstring>
-#include <type_traits>
 #include <vector>
-
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 
 #include "clip.h"
 #include "common.h"
@@ -90,10 +85,24 @@ inline void integrate_3d(const Poly<3>& Q, double xc, double yc, double zref, do
   *zint = I;
 }
 
+// A column of the tile's difference buffer, with the range of entries written
+// so far: untouched entries stay zero, so finishing the column only needs to
+// read [lo, hi].
+struct Column {
+  double* d;
+  int64_t* lo;
+  int64_t* hi;
+  void add(int64_t k, double v) const {
+    d[k] += v;
+    if (k < *lo) *lo = k;
+    if (k > *hi) *hi = k;
+  }
+};
+
 // Adds the pieces of polygon P (inside the column cell with corner (xc, yc))
 // to the difference buffer `col` of that column.
 inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double yc,
-                          double* col) {
+                          const Column& col) {
   const int64_t nz = g.n[2];
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
@@ -103,7 +112,7 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
   if (zmax <= zbot) return;  // entirely below the grid
   if (zmin >= ztop) {        // entirely above: the whole column is in its shadow
     integrate_3d(P, xc, yc, 0.0, &A, &I);
-    col[nz - 1] += A * inv_area;
+    col.add(nz - 1, A * inv_area);
     return;
   }
   int64_t k0 = 0, k1 = -1;
@@ -125,8 +134,8 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
     if (Q->count >= 3) {
       integrate_3d(*Q, xc, yc, zl, &A, &I);
       const double b = I * inv_vol, tau = A * inv_area;
-      col[k] += b;
-      if (k > 0) col[k - 1] += tau - b;
+      col.add(k, b);
+      if (k > 0) col.add(k - 1, tau - b);
     }
     if (last) return;
     rest = upper;
@@ -135,7 +144,7 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
   }
   // What is left lies above the grid's top.
   integrate_3d(*cur, xc, yc, 0.0, &A, &I);
-  col[nz - 1] += A * inv_area;
+  col.add(nz - 1, A * inv_area);
 }
 
 // Loads triangle t of a batch item as a polygon; returns false when it has no
@@ -214,80 +223,64 @@ bool bin_triangles_3d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl
   }, bins);
 }
 
-// Turns columns of differences into reverse prefix sums in place:
-// col[k] <- sum of col[k'] for k' >= k, accumulated in double. A prefix sum is
-// a chain of dependent additions, so four columns run interleaved to keep the
-// floating-point adder busy; the order of additions within a column is fixed,
-// so the result does not depend on the interleaving.
-inline void prefix_sums(double* cols, int64_t ncols, int64_t n) {
-  int64_t c = 0;
-  for (; c + 4 <= ncols; c += 4) {
-    double* a0 = cols + c * n;
-    double* a1 = a0 + n;
-    double* a2 = a1 + n;
-    double* a3 = a2 + n;
-    double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-    for (int64_t k = n - 1; k >= 0; --k) {
-      s0 += a0[k];
-      s1 += a1[k];
-      s2 += a2[k];
-      s3 += a3[k];
-      a0[k] = s0;
-      a1[k] = s1;
-      a2[k] = s2;
-      a3[k] = s3;
-    }
-  }
-  for (; c < ncols; ++c) {
-    double* a = cols + c * n;
-    double s = 0;
-    for (int64_t k = n - 1; k >= 0; --k) {
-      s += a[k];
-      a[k] = s;
-    }
-  }
-}
-
-// Copies a column to the output, converting to T. Large outputs use streaming
-// stores, which skip reading the destination into the cache.
+// Stores [first, last) of a column: out[k] = T(src ? src[k] : value). Plain
+// stores: the output is a fresh allocation whose pages the OS zeroes into the
+// cache on first touch, so streaming stores would only add memory traffic.
 template <typename T>
-inline void write_column(const double* col, int64_t n, T* out, bool stream) {
-  int64_t k = 0;
-#if defined(__SSE2__)
-  if (stream) {
-    if constexpr (std::is_same_v<T, float>) {
-      for (; k < n && (reinterpret_cast<uintptr_t>(out + k) & 15); ++k) out[k] = static_cast<float>(col[k]);
-      for (; k + 4 <= n; k += 4) {
-        __m128 lo = _mm_cvtpd_ps(_mm_loadu_pd(col + k));
-        __m128 hi = _mm_cvtpd_ps(_mm_loadu_pd(col + k + 2));
-        _mm_stream_ps(out + k, _mm_movelh_ps(lo, hi));
-      }
-    } else {
-      for (; k < n && (reinterpret_cast<uintptr_t>(out + k) & 15); ++k) out[k] = col[k];
-      for (; k + 2 <= n; k += 2) _mm_stream_pd(out + k, _mm_loadu_pd(col + k));
-    }
+inline void store_range(T* out, int64_t first, int64_t last, const double* src, double value) {
+  if (src) {
+    for (int64_t k = first; k < last; ++k) out[k] = static_cast<T>(src[k]);
+  } else {
+    const T v = static_cast<T>(value);
+    for (int64_t k = first; k < last; ++k) out[k] = v;
   }
-#else
-  (void)stream;
-#endif
-  for (; k < n; ++k) out[k] = static_cast<T>(col[k]);
 }
 
-inline void stream_fence() {
-#if defined(__SSE2__)
-  _mm_sfence();
-#endif
+// Finishes a column of differences whose non-zero entries lie in [lo, hi]:
+// writes the reverse prefix sums W[k] = sum of col[k'] for k' >= k (in double)
+// to out, and leaves col all zero again for the next tile. Above hi W is 0;
+// below lo it is the column total.
+template <typename T>
+inline void finish_column(double* col, int64_t lo, int64_t hi, int64_t n, T* out) {
+  if (hi < lo) {
+    store_range<T>(out, 0, n, nullptr, 0.0);
+    return;
+  }
+  double s = 0;
+  for (int64_t k = hi; k >= lo; --k) {
+    s += col[k];
+    col[k] = s;
+  }
+  store_range<T>(out, 0, lo, nullptr, s);
+  store_range<T>(out, lo, hi + 1, col, 0.0);
+  store_range<T>(out, hi + 1, n, nullptr, 0.0);
+  std::fill(col + lo, col + hi + 1, 0.0);
 }
+
+// Per-thread scratch of a tile: the difference buffer (all zero between
+// tiles) and each column's written range.
+struct TileScratch {
+  std::vector<double> buf;
+  std::vector<int64_t> lo, hi;
+  void prepare(int64_t columns, int64_t length) {
+    if (static_cast<int64_t>(buf.size()) < columns * length) buf.resize(columns * length, 0.0);
+    lo.assign(columns, length);
+    hi.assign(columns, -1);
+  }
+  Column column(int64_t c, int64_t length) {
+    return Column{buf.data() + c * length, lo.data() + c, hi.data() + c};
+  }
+};
+
 
 template <typename T>
 void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out,
-                     bool stream) {
+                     const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
   const int64_t ti = tile / tl.nty, tj = tile % tl.nty;
   const int64_t ia = ti * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ja = tj * tl.ty, jb = std::min(g.n[1], ja + tl.ty);
   const int64_t nz = g.n[2], wy = jb - ja;
-  buf.assign((ib - ia) * wy * nz, 0.0);
+  scratch.prepare((ib - ia) * wy, nz);
 
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
@@ -305,7 +298,7 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb &&
           y0 >= g.plane(1, j0) && y1 <= g.plane(1, j0 + 1)) {
         const double z0 = P.min(2), z1 = P.max(2);
-        double* col = buf.data() + ((i0 - ia) * wy + (j0 - ja)) * nz;
+        const Column col = scratch.column((i0 - ia) * wy + (j0 - ja), nz);
         if (g.span(2, z0, z1, &k0, &k1) && k0 == k1 && z0 >= g.plane(2, k0) &&
             z1 <= g.plane(2, k0 + 1)) {
           const double(*q)[3] = P.v;
@@ -313,8 +306,8 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
                                   (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]));
           const double zl = g.plane(2, k0);
           const double b = A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
-          col[k0] += b;
-          if (k0 > 0) col[k0 - 1] += A * inv_area - b;
+          col.add(k0, b);
+          if (k0 > 0) col.add(k0 - 1, A * inv_area - b);
         } else {
           add_column_3d(g, P, g.plane(0, i0), g.plane(1, j0), col);
         }
@@ -355,7 +348,7 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
             Q = &front;
           }
           if (Q->count >= 3)
-            add_column_3d(g, *Q, xl, yl, buf.data() + ((i - ia) * wy + (j - ja)) * nz);
+            add_column_3d(g, *Q, xl, yl, scratch.column((i - ia) * wy + (j - ja), nz));
           if (last_y) break;
           Pxy = back;
           cell = &Pxy;
@@ -366,12 +359,13 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       row = &rowrest;
     }
   }
-  prefix_sums(buf.data(), (ib - ia) * wy, nz);
-  for (int64_t i = ia; i < ib; ++i)
-    for (int64_t j = ja; j < jb; ++j)
-      write_column(buf.data() + ((i - ia) * wy + (j - ja)) * nz, nz, out + (i * g.n[1] + j) * nz,
-                   stream);
-  if (stream) stream_fence();
+  for (int64_t i = ia; i < ib; ++i) {
+    for (int64_t j = ja; j < jb; ++j) {
+      const int64_t c = (i - ia) * wy + (j - ja);
+      finish_column(scratch.buf.data() + c * nz, scratch.lo[c], scratch.hi[c], nz,
+                    out + (i * g.n[1] + j) * nz);
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------
@@ -402,7 +396,7 @@ inline bool clip_segment(const Poly<N>& S, int a, double lo, double hi, Poly<N>*
   return true;
 }
 
-inline void add_column_2d(const GridSpec& g, const Poly<2>& S, double* col) {
+inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col) {
   const int64_t ny = g.n[1];
   const double inv_len = 1.0 / g.h[0];
   const double inv_area = inv_len / g.h[1];
@@ -410,7 +404,7 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, double* col) {
   if (ymax <= g.lo[1]) return;
   // Signed x-extent: positive for segments running in -x (top of a CCW loop).
   if (ymin >= g.hi[1]) {
-    col[ny - 1] += (S.v[0][0] - S.v[1][0]) * inv_len;
+    col.add(ny - 1, (S.v[0][0] - S.v[1][0]) * inv_len);
     return;
   }
   int64_t k0, k1;
@@ -423,11 +417,11 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, double* col) {
     if (a == 0.0) continue;
     double ybar = 0.5 * ((piece.v[0][1] - yl) + (piece.v[1][1] - yl));
     double b = a * ybar * inv_area, tau = a * inv_len;
-    col[k] += b;
-    if (k > 0) col[k - 1] += tau - b;
+    col.add(k, b);
+    if (k > 0) col.add(k - 1, tau - b);
   }
   if (ymax > g.hi[1] && clip_segment(S, 1, g.hi[1], std::max(ymax, g.hi[1]), &piece)) {
-    col[ny - 1] += (piece.v[0][0] - piece.v[1][0]) * inv_len;
+    col.add(ny - 1, (piece.v[0][0] - piece.v[1][0]) * inv_len);
   }
 }
 
@@ -450,11 +444,10 @@ bool bin_segments_2d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl,
 
 template <typename T>
 void forward_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                     const int32_t* F, const Bins& bins, std::vector<double>& buf, T* out,
-                     bool stream) {
+                     const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
   const int64_t ia = tile * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ny = g.n[1];
-  buf.assign((ib - ia) * ny, 0.0);
+  scratch.prepare(ib - ia, ny);
   Poly<2> S, Sx;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     load_segment(V, F, bins.items[e], &S);
@@ -465,12 +458,12 @@ void forward_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
     for (int64_t i = i0; i <= i1; ++i) {
       if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
       if (Sx.v[0][0] == Sx.v[1][0]) continue;
-      add_column_2d(g, Sx, buf.data() + (i - ia) * ny);
+      add_column_2d(g, Sx, scratch.column(i - ia, ny));
     }
   }
-  prefix_sums(buf.data(), ib - ia, ny);
-  for (int64_t i = ia; i < ib; ++i) write_column(buf.data() + (i - ia) * ny, ny, out + i * ny, stream);
-  if (stream) stream_fence();
+  for (int64_t i = ia; i < ib; ++i)
+    finish_column(scratch.buf.data() + (i - ia) * ny, scratch.lo[i - ia], scratch.hi[i - ia], ny,
+                  out + i * ny);
 }
 
 }  // namespace voxax

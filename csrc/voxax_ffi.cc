@@ -93,17 +93,15 @@ ffi::Error forward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V,
     if (!binned)
       return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory while binning faces");
   }
-  // Streaming stores for outputs well beyond the caches.
-  const bool stream = B * g.cell_count() * static_cast<int64_t>(sizeof(T)) > (int64_t{64} << 20);
   const int64_t tiles = tl.count();
   bool ok = ParallelFor::run(pool, B * tiles, [&](int64_t task) {
-    thread_local std::vector<double> buf;
+    thread_local TileScratch scratch;
     const int64_t b = task / tiles, tile = task % tiles;
     const T* Vb = V + pb.batch.vsrc(b) * vstride;
     const int32_t* Fb = F + pb.batch.fsrc(b) * fstride;
     T* ob = out + b * g.cell_count();
-    if (pb.dim == 3) forward_tile_3d(g, tl, tile, Vb, Fb, bins[b], buf, ob, stream);
-    else forward_tile_2d(g, tl, tile, Vb, Fb, bins[b], buf, ob, stream);
+    if (pb.dim == 3) forward_tile_3d(g, tl, tile, Vb, Fb, bins[b], scratch, ob);
+    else forward_tile_2d(g, tl, tile, Vb, Fb, bins[b], scratch, ob);
   });
   if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the forward kernel");
   return ffi::Error::Success();
