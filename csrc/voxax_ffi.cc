@@ -7,6 +7,7 @@
 // Leading axes are batch axes; each is 1 (broadcast) or the output's size.
 
 #include <new>
+#include <utility>
 #include <vector>
 
 #include "backward.h"
@@ -190,42 +191,39 @@ ffi::Error Backward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffe
   }
 }
 
+// The grid attributes shared by both handlers, in the order the handlers take them.
+template <typename Binding>
+auto with_grid(Binding binding) {
+  return std::move(binding)
+      .template Attr<double>("x0")
+      .template Attr<double>("x1")
+      .template Attr<int64_t>("nx")
+      .template Attr<double>("y0")
+      .template Attr<double>("y1")
+      .template Attr<int64_t>("ny")
+      .template Attr<double>("z0")
+      .template Attr<double>("z1")
+      .template Attr<int64_t>("nz");
+}
+
 }  // namespace
 }  // namespace voxax
 
 #pragma GCC visibility push(default)
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_forward, voxax::Forward,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::AnyBuffer>()
-                                  .Attr<double>("x0")
-                                  .Attr<double>("x1")
-                                  .Attr<int64_t>("nx")
-                                  .Attr<double>("y0")
-                                  .Attr<double>("y1")
-                                  .Attr<int64_t>("ny")
-                                  .Attr<double>("z0")
-                                  .Attr<double>("z1")
-                                  .Attr<int64_t>("nz"));
+                              voxax::with_grid(xla::ffi::Ffi::Bind()
+                                                   .Ctx<xla::ffi::ThreadPool>()
+                                                   .Arg<xla::ffi::AnyBuffer>()
+                                                   .Arg<xla::ffi::AnyBuffer>()
+                                                   .Ret<xla::ffi::AnyBuffer>()));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_backward, voxax::Backward,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::AnyBuffer>()
-                                  .Attr<double>("x0")
-                                  .Attr<double>("x1")
-                                  .Attr<int64_t>("nx")
-                                  .Attr<double>("y0")
-                                  .Attr<double>("y1")
-                                  .Attr<int64_t>("ny")
-                                  .Attr<double>("z0")
-                                  .Attr<double>("z1")
-                                  .Attr<int64_t>("nz"));
+                              voxax::with_grid(xla::ffi::Ffi::Bind()
+                                                   .Ctx<xla::ffi::ThreadPool>()
+                                                   .Arg<xla::ffi::AnyBuffer>()
+                                                   .Arg<xla::ffi::AnyBuffer>()
+                                                   .Arg<xla::ffi::AnyBuffer>()
+                                                   .Ret<xla::ffi::AnyBuffer>()));
 
 #pragma GCC visibility pop
