@@ -11,6 +11,8 @@ The public API:
   `voxax.box_filter`: integer-scaled box filters of a voxelization.
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
   tiling, ARAP, ...); `voxax.minimise`: an optimistix/optax minimisation driver.
+- `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
+  `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
@@ -18,6 +20,7 @@ from . import _ffi  # noqa: F401  (registers the kernels with XLA)
 from .grid import Grid
 from .voxelize import voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
+from . import apps, fabricate
 from .filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from .winding import winding_number
 from .solve import MinimiseResult, StopRules, minimise
@@ -37,6 +40,8 @@ __all__ = [
     "minimise",
     "MinimiseResult",
     "StopRules",
+    "apps",
+    "fabricate",
     "baselines",
     "curves",
     "data",

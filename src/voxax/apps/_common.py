@@ -1,0 +1,253 @@
+"""Shared pieces of the applications: mesh input, normalisation, reports, plotting."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..data import Mesh
+from ..grid import Grid
+from .. import io as _io
+from .. import solve
+
+
+def as_mesh(mesh: Any) -> Mesh:
+    """A 3D voxax `Mesh` from a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair."""
+    if isinstance(mesh, Mesh):
+        out = mesh
+    else:
+        vertices, faces = _io.as_arrays(mesh)
+        out = Mesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
+    if out.dim != 3:
+        raise ValueError(f"the applications need a 3D triangle mesh, got a {out.dim}D mesh")
+    if out.n_faces == 0:
+        raise ValueError("the mesh has no faces")
+    if not np.all(np.isfinite(out.vertices)):
+        raise ValueError("the mesh has NaN or Inf vertex coordinates")
+    return out
+
+
+def warn_if_open(mesh: Mesh, where: str) -> None:
+    if not _io.is_watertight(mesh.vertices, mesh.faces):
+        warnings.warn(
+            f"{where}: the mesh is not closed (it has boundary edges or inconsistently oriented "
+            "faces), so its voxelization depends on the +z ray direction; results may be "
+            "meaningless. Repair the mesh first (e.g. trimesh's fill_holes / fix_normals).",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+
+
+def float_dtype(dtype=None):
+    """The working float dtype: `dtype`, or float64 when x64 is enabled, else float32."""
+    if dtype is not None:
+        dtype = np.dtype(dtype)
+        if dtype not in (np.float32, np.float64):
+            raise TypeError(f"dtype must be float32 or float64, got {dtype}")
+        if dtype == np.float64 and not jax.config.jax_enable_x64:
+            raise ValueError(
+                "dtype=float64 needs 64-bit JAX: call jax.config.update('jax_enable_x64', True) first"
+            )
+        return dtype
+    return np.dtype(np.float64) if jax.config.jax_enable_x64 else np.dtype(np.float32)
+
+
+def check_resolution(resolution: int, multiple: int = 1, name: str = "resolution") -> int:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
+        raise TypeError(f"{name} must be an int, got {type(resolution).__name__}")
+    resolution = int(resolution)
+    if resolution < max(2, multiple):
+        raise ValueError(f"{name} must be at least {max(2, multiple)}, got {resolution}")
+    if resolution % multiple:
+        raise ValueError(f"{name} must be a multiple of {multiple}, got {resolution}")
+    return resolution
+
+
+def check_positive(value: float, name: str, allow_zero: bool = False) -> float:
+    value = float(value)
+    ok = value >= 0 if allow_zero else value > 0
+    if not (ok and math.isfinite(value)):
+        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
+    return value
+
+
+def prepare(mesh: Mesh, normalise: bool, max_abs: float, grid: Grid, where: str):
+    """Normalises (or checks) a mesh for optimisation on `grid`.
+
+    Returns `(working mesh, centre, scale)` with `working = (mesh - centre) * scale`.
+    """
+    if normalise:
+        work, centre, scale = _io.normalise(mesh, max_abs, return_transform=True)
+    else:
+        work, centre, scale = mesh, np.zeros(3), 1.0
+        lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+        if np.any(work.vertices < lo) or np.any(work.vertices > hi):
+            warnings.warn(
+                f"{where}: parts of the mesh lie outside the grid {lo.tolist()}..{hi.tolist()}; "
+                "they are not penalised. Pass normalise=True to fit the mesh in the grid.",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+    return work, np.asarray(centre, dtype=np.float64), float(scale)
+
+
+def restore(vertices, centre: np.ndarray, scale: float) -> np.ndarray:
+    """Maps working-frame vertices back to the input mesh's frame."""
+    return np.asarray(vertices, dtype=np.float64) / scale + centre
+
+
+def history_dict(history: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    return {str(k): np.asarray(v) for k, v in dict(history or {}).items()}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Report:
+    """What an optimisation did: the fields shared by every application's report.
+
+    - `energy_history`: `(steps,)` total energy per step.
+    - `history`: every recorded series by name (the energy terms, `"max_w"`, ...),
+      as returned by `voxax.solve.minimise`.
+    - `steps`: optimisation steps taken.
+    - `stop_reason`: why the optimisation stopped (from `voxax.solve.minimise`).
+    - `energy`: the final total energy.
+    - `resolution`: cells per axis of the `[-1, 1]^3` grid used.
+    """
+
+    energy_history: np.ndarray
+    history: Mapping[str, np.ndarray]
+    steps: int
+    stop_reason: str
+    energy: float
+    resolution: int
+
+    def summary(self) -> str:
+        """A few human-readable lines: every scalar field of the report."""
+        lines = [f"{type(self).__name__}:"]
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, (bool, np.bool_)):
+                lines.append(f"  {f.name:<24} {bool(value)}")
+            elif isinstance(value, (int, np.integer)):
+                lines.append(f"  {f.name:<24} {int(value)}")
+            elif isinstance(value, (float, np.floating)):
+                lines.append(f"  {f.name:<24} {float(value):.6g}")
+            elif isinstance(value, str):
+                lines.append(f"  {f.name:<24} {value}")
+        return "\n".join(lines)
+
+    def to_dict(self, exclude: tuple[str, ...] = ("cell",)) -> dict:
+        """The report as JSON-serialisable Python values (arrays become nested lists).
+
+        **Arguments:**
+
+        - `exclude`: field names to leave out (by default the large `cell` grid of a
+          tiling report).
+        """
+
+        def plain(x):
+            if isinstance(x, np.ndarray):
+                return x.tolist()
+            if isinstance(x, (np.bool_, bool)):
+                return bool(x)
+            if isinstance(x, np.integer):
+                return int(x)
+            if isinstance(x, np.floating):
+                return float(x)
+            if isinstance(x, Mapping):
+                return {str(k): plain(v) for k, v in x.items()}
+            return x
+
+        return {
+            f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name not in exclude
+        } | {"type": type(self).__name__}
+
+    def plot_history(self, path=None, title: str | None = None):
+        """Plots every recorded series (energy terms, `max_w`, step size) against the step.
+
+        One panel per series; series spanning more than two decades get a log scale.
+
+        **Arguments:**
+
+        - `path`: if given, the figure is saved there (PNG, PDF, ... by extension).
+        - `title`: an optional figure title.
+
+        **Returns:** the matplotlib `Figure`.
+        """
+        plt = pyplot()
+        series = {"energy": np.asarray(self.energy_history)}
+        series.update({k: v for k, v in self.history.items() if k not in ("energy", "time")})
+        series = {k: np.asarray(v, dtype=np.float64).reshape(-1) for k, v in series.items() if np.size(v)}
+        n = max(len(series), 1)
+        fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.6 * n + 0.8), sharex=True, squeeze=False)
+        for ax, (name, values) in zip(axes[:, 0], series.items()):
+            steps = np.arange(1, values.size + 1)
+            ax.plot(steps, values, lw=1.2)
+            finite = values[np.isfinite(values)]
+            if finite.size and finite.min() > 0 and finite.max() / finite.min() > 100:
+                ax.set_yscale("log")
+                ax.set_ylim(bottom=max(finite.min(), finite.max() * 1e-6) * 0.8)
+            ax.set_ylabel(name, fontsize="small")
+            ax.grid(alpha=0.3)
+        axes[-1, 0].set_xlabel("step")
+        fig.suptitle(title or f"{type(self).__name__}: {self.steps} steps ({self.stop_reason})")
+        fig.tight_layout()
+        if path is not None:
+            fig.savefig(path, dpi=110)
+        return fig
+
+
+def pyplot():
+    """matplotlib.pyplot with a non-interactive backend unless one is already in use."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
+        try:
+            import IPython  # noqa: F401
+
+            if IPython.get_ipython() is None:
+                matplotlib.use("Agg")
+        except ImportError:
+            matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def to_jax(x, dtype):
+    return jnp.asarray(np.asarray(x), dtype=dtype)
+
+
+def run_minimise(fn, y0, *, solver, learning_rate, progress, callback, step_size_fn=None, **stop):
+    """Runs `voxax.solve.minimise` on `fn(y, args) -> (energy, aux)` with the given stop rules.
+
+    Returns `voxax.solve.MinimiseResult` (`y`, `steps`, `stop_reason`, `history`, `energy`).
+    """
+    rules = solve.StopRules(**{k: v for k, v in stop.items() if v is not None})
+    kwargs = {} if step_size_fn is None else {"step_size_fn": step_size_fn}
+    return solve.minimise(
+        fn,
+        y0,
+        None,
+        solver=solver,
+        learning_rate=learning_rate,
+        stop=rules,
+        has_aux=True,
+        progress=progress,
+        callback=callback,
+        **kwargs,
+    )
+
+
+def energy_series(result) -> np.ndarray:
+    hist = dict(getattr(result, "history", {}) or {})
+    for key in ("energy", "value", "loss", "f"):
+        if key in hist:
+            return np.asarray(hist[key], dtype=np.float64).reshape(-1)
+    return np.zeros(0)
