@@ -46,12 +46,15 @@ inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_
 }
 
 // Corner gradients of triangles [t0, t1) of one batch item into out (F, 3, 3).
+// For a piece P, area(P) * beta_m(centroid of P) is the integral of beta_m
+// over P; beta is affine, so it is evaluated at the piece's area centroid
+// through the triangle's barycentric map beta_m(p) = r_m . (p - a).
 template <typename T>
 void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
                            int64_t t0, int64_t t1, T* out) {
   const double inv_vol = 1.0 / g.cell_volume();
   const int64_t ny = g.n[1], nz = g.n[2];
-  Poly<5> P;
+  Poly<3> P;
   for (int64_t t = t0; t < t1; ++t) {
     const int32_t* f = F + 3 * t;
     double p[3][3];
@@ -72,28 +75,37 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
       continue;
     }
     const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
-    P.count = 3;
-    for (int c = 0; c < 3; ++c) {
-      for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
-      P.v[c][3] = c == 1 ? 1.0 : 0.0;  // beta_1
-      P.v[c][4] = c == 2 ? 1.0 : 0.0;  // beta_2
+    // Rows of the barycentric map: beta_1 = r1 . (p - a), beta_2 = r2 . (p - a).
+    const double d00 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    const double d01 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
+    const double d11 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    const double inv_den = 1.0 / (d00 * d11 - d01 * d01);
+    double r1[3], r2[3];
+    for (int a = 0; a < 3; ++a) {
+      r1[a] = (d11 * e1[a] - d01 * e2[a]) * inv_den;
+      r2[a] = (d00 * e2[a] - d01 * e1[a]) * inv_den;
     }
+    const double* a0 = p[0];
+    P.count = 3;
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
     // Integrals over the surface of g * beta_m / |voxel|, m = 0, 1, 2.
     double acc[3] = {0, 0, 0};
     int64_t i0, i1, j0, j1, k0, k1;
     if (g.span(0, P.min(0), P.max(0), &i0, &i1) && g.span(1, P.min(1), P.max(1), &j0, &j1) &&
         g.span(2, P.min(2), P.max(2), &k0, &k1)) {
-      sweep<5>(g, P, 0, i0, i1, [&](int64_t i, const Poly<5>& Px) {
+      sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
         int64_t ja, jb;
         if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
-        sweep<5>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<5>& Pxy) {
+        sweep<3>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<3>& Pxy) {
           int64_t ka, kb;
           if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
           const T* Gcol = G + (i * ny + j) * nz;
-          sweep<5>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<5>& Q) {
+          sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) {
             const double gv = static_cast<double>(Gcol[k]);
             if (gv == 0.0) return;
-            double A = 0, B1 = 0, B2 = 0;
+            // Area and first moment (relative to a) of the piece, by a fan.
+            double A = 0, M[3] = {0, 0, 0};
             const double* q0 = Q.v[0];
             for (int m = 1; m + 1 < Q.count; ++m) {
               const double* q1 = Q.v[m];
@@ -107,9 +119,11 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
                                          nh[1] * (u[2] * w[0] - u[0] * w[2]) +
                                          nh[2] * (u[0] * w[1] - u[1] * w[0]));
               A += area;
-              B1 += area * (q0[3] + q1[3] + q2[3]) * (1.0 / 3.0);
-              B2 += area * (q0[4] + q1[4] + q2[4]) * (1.0 / 3.0);
+              for (int a = 0; a < 3; ++a)
+                M[a] += area * ((q0[a] - a0[a]) + (q1[a] - a0[a]) + (q2[a] - a0[a])) * (1.0 / 3.0);
             }
+            const double B1 = r1[0] * M[0] + r1[1] * M[1] + r1[2] * M[2];
+            const double B2 = r2[0] * M[0] + r2[1] * M[1] + r2[2] * M[2];
             const double s = gv * inv_vol;
             acc[0] += s * (A - B1 - B2);
             acc[1] += s * B1;

@@ -109,7 +109,8 @@ ffi::Error forward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V,
 }
 
 template <typename T>
-ffi::Error backward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V,
+ffi::Error backward_impl(ffi::ThreadPool* pool, const Problem& pb,
+                         const std::vector<int64_t>& gdim, const T* V,
                          const int32_t* F, const T* G, T* out) {
   const GridSpec& g = pb.grid;
   const int64_t B = pb.batch.size();
@@ -122,7 +123,7 @@ ffi::Error backward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V,
     const int64_t t0 = c * kChunk, t1 = std::min(pb.nf, t0 + kChunk);
     const T* Vb = V + pb.batch.vsrc(b) * vstride;
     const int32_t* Fb = F + pb.batch.fsrc(b) * fstride;
-    const T* Gb = G + b * g.cell_count();
+    const T* Gb = G + Batch::source(pb.batch.out, gdim, b) * g.cell_count();
     T* ob = out + b * ostride;
     if (pb.dim == 3) backward_triangles_3d(g, Vb, Fb, Gb, t0, t1, ob);
     else backward_segments_2d(g, Vb, Fb, Gb, t0, t1, ob);
@@ -170,20 +171,23 @@ ffi::Error Backward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffe
                                        dims_str(od));
   if (gd.size() != nb + static_cast<size_t>(pb.dim))
     return ffi::Error::InvalidArgument("voxax: cotangent " + dims_str(gd) + " has the wrong rank");
+  // The cotangent's batch axes broadcast like the inputs' (a vmap of a
+  // gradient passes a size-1 axis when the cotangent does not vary).
+  std::vector<int64_t> gdim(gd.begin(), gd.begin() + nb);
   for (size_t a = 0; a < nb; ++a)
-    if (gd[a] != pb.batch.out[a])
+    if (gdim[a] != 1 && gdim[a] != pb.batch.out[a])
       return ffi::Error::InvalidArgument("voxax: cotangent batch axes " + dims_str(gd) +
-                                         " do not match the output");
+                                         " do not broadcast to the output");
   for (int a = 0; a < pb.dim; ++a)
     if (gd[nb + a] != pb.grid.n[a])
       return ffi::Error::InvalidArgument("voxax: cotangent shape " + dims_str(gd) +
                                          " does not match the grid");
   try {
     if (vertices.element_type() == ffi::DataType::F32)
-      return backward_impl<float>(&pool, pb, vertices.typed_data<float>(),
+      return backward_impl<float>(&pool, pb, gdim, vertices.typed_data<float>(),
                                   faces.typed_data<int32_t>(), cotangent.typed_data<float>(),
                                   out->typed_data<float>());
-    return backward_impl<double>(&pool, pb, vertices.typed_data<double>(),
+    return backward_impl<double>(&pool, pb, gdim, vertices.typed_data<double>(),
                                  faces.typed_data<int32_t>(), cotangent.typed_data<double>(),
                                  out->typed_data<double>());
   } catch (const std::bad_alloc&) {

@@ -367,3 +367,14 @@ def test_optax_adam_loop_compiles_once():
     assert all(b <= a for a, b in zip(values[:5], values[1:6])), values
     # The volume went down towards the target, i.e. the mesh shrank.
     assert float(voxax.voxelize(x, faces, g).sum()) < float(voxax.voxelize(x0, faces, g).sum())
+
+
+def test_vmap_of_grad_of_linear_energy():
+    """A cotangent that does not vary over the batch reaches the kernel with a size-1 axis."""
+    mesh = voxax.data.icosphere(1)
+    grid = voxax.Grid.cube(12)
+    vb = jnp.stack([jnp.asarray(mesh.vertices) * s for s in (0.5, 0.7, 0.9)])
+    energy = lambda v: voxax.voxelize(v, mesh.faces, grid).sum()  # noqa: E731
+    expected = np.stack([np.asarray(jax.grad(energy)(v)) for v in vb])
+    np.testing.assert_array_equal(jax.vmap(jax.grad(energy))(vb), expected)
+    np.testing.assert_array_equal(jax.jit(jax.vmap(jax.grad(energy)))(vb), expected)

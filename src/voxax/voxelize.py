@@ -278,7 +278,9 @@ def voxelize_corner_gradients(vertices, faces, cotangent, grid: Grid):
     """
     v, f, batch = _lead(vertices, faces)
     nf, d = f.shape[-2], f.shape[-1]
-    g = jnp.broadcast_to(cotangent.astype(v.dtype), batch + grid.shape)
+    g = jnp.asarray(cotangent, v.dtype)
+    if g.shape[: g.ndim - grid.dim] != batch:
+        g = jnp.broadcast_to(g, batch + grid.shape)
     return _kernel(_ffi.BACKWARD, jax.ShapeDtypeStruct(batch + (nf, d, d), v.dtype), grid, v, f, g)
 
 
