@@ -119,7 +119,10 @@ def arap_rotations(vertices, rest_vertices, faces, weights=None):
     **Example:**
 
     ```python
-    >>> R = voxax.energies.arap_rotations(V, m.vertices, m.faces)   # (V, 3, 3)
+    >>> m = voxax.data.icosphere(1)
+    >>> R = voxax.energies.arap_rotations(m.vertices * 2.0, m.vertices, m.faces)   # (V, 3, 3)
+    >>> R.shape, bool(jnp.allclose(R, jnp.eye(3), atol=1e-9))   # scaling rotates nothing
+    ((42, 3, 3), True)
     ```
     """
     vertices = _as_float(vertices)
@@ -185,7 +188,11 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
     ```python
     >>> m = voxax.data.get("torus")
     >>> e = voxax.energies.arap(m.vertices * 1.1, m.vertices, m.faces)   # > 0: scaling
-    >>> g = jax.grad(voxax.energies.arap)(V, m.vertices, m.faces)
+    >>> bool(e > 0)
+    True
+    >>> g = jax.grad(voxax.energies.arap)(jnp.asarray(m.vertices * 1.1), m.vertices, m.faces)
+    >>> g.shape == m.vertices.shape
+    True
     ```
     """
     vertices = _as_float(vertices)

@@ -86,8 +86,11 @@ def silhouettes(W, w: float = 1000.0):
     **Example:**
 
     ```python
-    >>> W = voxax.voxelize(mesh.vertices, mesh.faces, voxax.Grid.cube(64))
+    >>> mesh = voxax.data.hand()
+    >>> W = voxax.voxelize(mesh.vertices, mesh.faces, voxax.Grid.cube(32))
     >>> Sx, Sy, Sz = voxax.energies.silhouettes(W)
+    >>> Sx.shape, Sy.shape, Sz.shape
+    ((32, 32), (32, 32), (32, 32))
     ```
     """
     _check_3d(W, "silhouettes")
@@ -113,7 +116,11 @@ def cut_shape(W, w: float = 1000.0):
     **Example:**
 
     ```python
-    >>> S = voxax.energies.cut_shape(W)     # S >= W (approximately) wherever W is in [0, 1]
+    >>> mesh = voxax.data.hand()
+    >>> W = voxax.voxelize(mesh.vertices, mesh.faces, voxax.Grid.cube(32))
+    >>> S = voxax.energies.cut_shape(W)     # ~1 inside the shape, and more material around it
+    >>> S.shape, bool(jnp.all(S[W > 0.999] > 0.98)), bool(S.sum() > W.sum())
+    ((32, 32, 32), True, True)
     ```
     """
     Sx, Sy, Sz = silhouettes(W, w)
@@ -141,8 +148,12 @@ def bandsaw_cut(W, w: float = 1000.0):
     **Example:**
 
     ```python
-    >>> e = voxax.energies.bandsaw_cut(voxax.voxelize(V, F, voxax.Grid.cube(64)))
-    >>> g = jax.grad(lambda V: voxax.energies.bandsaw_cut(voxax.voxelize(V, F, grid)))(V)
+    >>> V, F = voxax.data.hand()
+    >>> grid = voxax.Grid.cube(32)
+    >>> e = voxax.energies.bandsaw_cut(voxax.voxelize(V, F, grid))
+    >>> g = jax.grad(lambda V: voxax.energies.bandsaw_cut(voxax.voxelize(V, F, grid)))(jnp.asarray(V))
+    >>> g.shape == V.shape
+    True
     ```
     """
     W = jnp.asarray(W)
@@ -247,8 +258,15 @@ def tiling(W_instances, blocks: int = 3, normalize: bool = False):
     **Example:**
 
     ```python
-    >>> Ws = jax.vmap(lambda V: voxax.voxelize(V, F, voxax.Grid.cube(48)))(Vs)  # (27, 48, 48, 48)
-    >>> e = voxax.energies.tiling(Ws)
+    >>> V, F = voxax.data.icosphere(2, radius=0.2)
+    >>> shifts = jnp.stack(jnp.meshgrid(*[jnp.array([-2, 0, 2]) / 3] * 3, indexing="ij"), -1).reshape(27, 1, 3)
+    >>> Vs = V + shifts                                     # 27 spheres, one per block
+    >>> Ws = jax.vmap(lambda V: voxax.voxelize(V, F, voxax.Grid.cube(24)))(Vs)
+    >>> Ws.shape
+    (27, 24, 24, 24)
+    >>> e = voxax.energies.tiling(Ws)   # the cell is 8^3 voxels, mostly left empty
+    >>> bool(e > 0)
+    True
     ```
     """
     cell = fold_periodic(W_instances, blocks)
@@ -276,8 +294,11 @@ def volume(W, grid):
     **Example:**
 
     ```python
+    >>> V, F = voxax.data.box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.25))
     >>> grid = voxax.Grid.cube(32)
     >>> vol = voxax.energies.volume(voxax.voxelize(V, F, grid), grid)
+    >>> round(float(vol), 9)
+    0.75
     ```
     """
     W = jnp.asarray(W)
@@ -311,8 +332,12 @@ def interpenetration(W_a, W_b):
     **Example:**
 
     ```python
+    >>> Va, Fa = voxax.data.box((-0.5, -0.5, -0.5), (0.25, 0.5, 0.5))
+    >>> Vb, Fb = voxax.data.box((0.0, -0.5, -0.5), (0.5, 0.5, 0.5))
     >>> grid = voxax.Grid.cube(32)
     >>> e = voxax.energies.interpenetration(voxax.voxelize(Va, Fa, grid), voxax.voxelize(Vb, Fb, grid))
+    >>> round(float(e) * 8, 9)                    # overlap volume 0.25 (the grid's volume is 8)
+    0.25
     ```
     """
     W_a = jnp.asarray(W_a)

@@ -35,12 +35,15 @@ def objective(terms: dict, weights: dict | None = None, extras: Callable | None 
     **Example:**
 
     ```python
-    >>> grid = voxax.Grid.cube(64)
+    >>> V0, F = voxax.io.normalise(voxax.data.bent_bar())
+    >>> grid = voxax.Grid.cube(32)
     >>> fn = voxax.energies.objective(
     ...     {"sect": lambda V, a: voxax.energies.self_intersection(voxax.voxelize(V, F, grid)),
     ...      "arap": lambda V, a: voxax.energies.arap(V, V0, F)},
     ...     weights={"arap": 0.005})
-    >>> result = voxax.minimise(fn, V0, has_aux=True)
+    >>> result = voxax.minimise(fn, V0, has_aux=True, progress=False, stop=voxax.StopRules(max_steps=5))
+    >>> sorted(result.history)
+    ['arap', 'energy', 'sect', 'step_size', 'time']
     ```
     """
     terms = dict(terms)
