@@ -75,16 +75,13 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
       continue;
     }
     const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
-    // Rows of the barycentric map: beta_1 = r1 . (p - a), beta_2 = r2 . (p - a).
-    const double d00 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
-    const double d01 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
-    const double d11 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
-    const double inv_den = 1.0 / (d00 * d11 - d01 * d01);
-    double r1[3], r2[3];
-    for (int a = 0; a < 3; ++a) {
-      r1[a] = (d11 * e1[a] - d01 * e2[a]) * inv_den;
-      r2[a] = (d00 * e2[a] - d01 * e1[a]) * inv_den;
-    }
+    // Rows of the barycentric map: beta_1 = r1 . (p - a), beta_2 = r2 . (p - a),
+    // r1 = (e2 x N) / |N|^2 and r2 = (N x e1) / |N|^2 (exact for slivers too).
+    const double inv_nn = 1.0 / (len * len);
+    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn, (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
+                          (e2[0] * N[1] - e2[1] * N[0]) * inv_nn};
+    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn, (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
+                          (N[0] * e1[1] - N[1] * e1[0]) * inv_nn};
     const double* a0 = p[0];
     P.count = 3;
     for (int c = 0; c < 3; ++c)

@@ -19,9 +19,9 @@ namespace voxax {
 
 namespace ffi = xla::ffi;
 
-// The largest coordinate magnitude the kernels accept. Products of two
-// coordinates stay far from overflow in double precision.
-constexpr double kMaxAbsCoordinate = 1e150;
+// The largest coordinate magnitude the kernels accept: squared lengths of
+// triangle normals (fourth powers of coordinates) stay finite in double.
+constexpr double kMaxAbsCoordinate = 1e75;
 
 // An axis-aligned regular grid of n[a] cells per axis. Plane i along axis a
 // sits at lo[a] + i * h[a], and the last plane is exactly hi[a]; the Python
@@ -75,8 +75,8 @@ inline ffi::Error make_grid(int dim, double x0, double x1, int64_t nx, double y0
   const double lo[3] = {x0, y0, z0}, hi[3] = {x1, y1, z1};
   const int64_t n[3] = {nx, ny, nz};
   for (int a = 0; a < dim; ++a) {
-    if (n[a] < 1)
-      return ffi::Error::InvalidArgument("voxax: grid shape must be positive on every axis");
+    if (n[a] < 1 || n[a] > (int64_t{1} << 31))
+      return ffi::Error::InvalidArgument("voxax: grid shape must be in [1, 2^31] on every axis");
     if (!std::isfinite(lo[a]) || !std::isfinite(hi[a]) || !(hi[a] > lo[a]))
       return ffi::Error::InvalidArgument("voxax: grid corners must be finite with upper > lower");
     g->lo[a] = lo[a];
@@ -91,6 +91,9 @@ inline ffi::Error make_grid(int dim, double x0, double x1, int64_t nx, double y0
     if (!(g->h[a] > 0) || !std::isfinite(g->h[a]) || !std::isfinite(g->inv_h[a]))
       return ffi::Error::InvalidArgument("voxax: grid cell size is not a positive finite number");
   }
+  const double vol = g->cell_volume();
+  if (!(vol >= 1e-300) || !(vol <= 1e300))
+    return ffi::Error::InvalidArgument("voxax: grid cell volume must lie in [1e-300, 1e300]");
   return ffi::Error::Success();
 }
 

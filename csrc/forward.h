@@ -413,6 +413,8 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col
   for (int64_t k = k0; k <= k1; ++k) {
     const double yl = g.plane(1, k), yh = g.plane(1, k + 1);
     if (!clip_segment(S, 1, yl, yh, &piece)) continue;
+    // Half-open cells: a piece lying on the upper line belongs to the cell above.
+    if (k + 1 < ny && std::min(piece.v[0][1], piece.v[1][1]) >= yh) continue;
     double a = piece.v[0][0] - piece.v[1][0];
     if (a == 0.0) continue;
     double ybar = 0.5 * ((piece.v[0][1] - yl) + (piece.v[1][1] - yl));

@@ -20,7 +20,7 @@ ffi::Error check_vertices(const T* V, int64_t count, int64_t batch_item) {
     }
     if (std::fabs(x) > kMaxAbsCoordinate) {
       return ffi::Error::InvalidArgument(
-          "voxax: vertex coordinate magnitude exceeds 1e150 (batch item " +
+          "voxax: vertex coordinate magnitude exceeds 1e75 (batch item " +
           std::to_string(batch_item) + ", flat index " + std::to_string(i) + ")");
     }
   }

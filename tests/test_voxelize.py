@@ -303,10 +303,10 @@ def test_bitwise_deterministic_across_runs_and_threads():
     grid = voxax.Grid.cube(40)
     runs = [np.asarray(voxax.voxelize(mesh.vertices, mesh.faces, grid)).tobytes() for _ in range(3)]
     assert runs[0] == runs[1] == runs[2]
-    # One XLA intra-op thread vs the default pool (2+ threads): the same bits.
-    single = _run_determinism({"XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"})
-    default = _run_determinism({})
-    assert single == default
+    # XLA's intra-op pool (which the kernels use) is sized by NPROC: 1 vs 4 threads.
+    single = _run_determinism({"NPROC": "1"})
+    several = _run_determinism({"NPROC": "4"})
+    assert single == several
     assert len(single) == 40**3 * (4 + 8)
 
 
@@ -387,7 +387,7 @@ def _value_case(case):
 VALUE_CASES = [
     ("nan", "NaN or Inf"),
     ("inf", "NaN or Inf"),
-    ("huge", "1e150"),
+    ("huge", "1e75"),
     ("index_high", "out of range"),
     ("index_negative", "(negative|out of range)"),
 ]

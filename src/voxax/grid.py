@@ -75,6 +75,12 @@ class Grid:
             raise ValueError(f"Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
         if any(not math.isfinite((u - l) / n) or (u - l) / n <= 0 for l, u, n in zip(lower, upper, shape)):
             raise ValueError("Grid: the cell size underflows or overflows on some axis")
+        volume = math.prod((u - l) / n for l, u, n in zip(lower, upper, shape))
+        if not (1e-300 <= volume <= 1e300):
+            raise ValueError(
+                f"Grid: the cell volume {volume:.3g} is outside [1e-300, 1e300]; rescale the problem "
+                "(the kernels divide by the cell volume in double precision)"
+            )
         object.__setattr__(self, "lower", lower)
         object.__setattr__(self, "upper", upper)
         object.__setattr__(self, "shape", shape)

@@ -16,7 +16,7 @@ __all__ = ["voxelize", "voxelize_corner_gradients", "use_host_callback"]
 
 _INT32_MAX = np.iinfo(np.int32).max
 # Largest coordinate magnitude accepted (the kernels check the same bound).
-MAX_ABS_COORDINATE = 1e150
+MAX_ABS_COORDINATE = 1e75
 
 
 def voxelize(vertices, faces, grid: Grid) -> jax.Array:
@@ -133,8 +133,8 @@ def _check(vertices, faces, grid):
         if not np.all(np.isfinite(v)):
             raise ValueError("voxelize: `vertices` contain NaN or Inf")
         if v.size and float(np.max(np.abs(v))) > MAX_ABS_COORDINATE:
-            raise ValueError("voxelize: vertex coordinates must have magnitude <= 1e150")
-    if _is_concrete(faces):
+            raise ValueError("voxelize: vertex coordinates must have magnitude <= 1e75")
+    if _is_concrete(faces) and np.size(faces):
         f = np.asarray(faces)
         lo, hi = int(f.min()), int(f.max())
         if lo < 0:
@@ -143,11 +143,13 @@ def _check(vertices, faces, grid):
             raise ValueError(f"voxelize: face index {hi} is out of range for {nv} vertices")
     vertices = jnp.asarray(vertices, dtype=vdtype)
     if fdtype != np.int32:
-        # Indices are checked against V < 2^31 where concrete and in the kernel
-        # otherwise; casting first keeps out-of-range int64 values out of range.
-        faces = jnp.asarray(jnp.clip(faces, -1, _INT32_MAX) if fdtype.itemsize > 4 else faces, dtype=jnp.int32)
-    else:
-        faces = jnp.asarray(faces)
+        if _is_concrete(faces):
+            faces = np.asarray(faces).astype(np.int32)  # in range: checked above
+        else:
+            # Traced indices are checked in the kernel; clipping first keeps values
+            # beyond int32 out of range instead of wrapping them into it.
+            faces = jnp.clip(faces, -1 if fdtype.kind == "i" else 0, _INT32_MAX).astype(jnp.int32)
+    faces = jnp.asarray(faces)
     return vertices, faces
 
 

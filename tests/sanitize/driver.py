@@ -1,0 +1,780 @@
+"""Fuzz driver for the voxax kernels, meant to run under AddressSanitizer and UBSan.
+
+`run_sanitized.py` builds the kernels with `-DVOXAX_SANITIZE=ON` and runs this script with
+the sanitizer runtimes preloaded and `VOXAX_KERNELS` pointing at the sanitized library.
+It can also run on its own (unsanitized) while developing: `python tests/sanitize/driver.py`.
+
+It drives the forward and backward kernels -- eagerly and under `jax.jit`, float32 and
+float64, 2D and 3D, single meshes, `vmap`-ed and leading-axis batches, zero-size batches
+-- on random and adversarial inputs:
+
+- triangle soups / random segments, closed star-shaped meshes and polygons;
+- degenerate (zero-area, collinear, all-equal) and sliver faces, vertical faces;
+- vertices exactly on voxel planes, on the grid's boundary and corners, faces lying in
+  a grid plane, a box exactly on the grid's boundary;
+- huge (1e30, up to the accepted 1e75) and tiny (1e-30) coordinates, meshes far
+  outside the grid (above, below, beside it);
+- 1-voxel, very thin and extreme-aspect grids ((1, 1, 500), (300, 1, 1), ...), grids
+  spanning many kernel tiles, grids at 1e-30 and 1e30 scales;
+- duplicate faces (identical and flipped);
+- invalid inputs (NaN, Inf, |x| > 1e75, out-of-range and negative indices), which must
+  raise the documented errors, and hostile raw FFI calls (bad grid attributes, mismatched
+  shapes and dtypes), which must be rejected by the kernel's own validation.
+
+Every result is checked for being finite and for |W| <= F (a face adds at most 1 to a
+voxel); some results are compared bit for bit across eager/jit and single/batched calls;
+closed meshes inside the grid are checked against the volume identity, and small benign
+cases against the NumPy reference. The script prints how many inputs and kernel calls it
+made. Sanitizer findings abort the process (the runner sets `abort_on_error=1` /
+`halt_on_error=1`); failed checks give exit status 3 (`--artifacts DIR` saves their inputs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import re
+import sys
+import time
+import traceback
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import voxax  # noqa: E402
+from voxax import _ffi, reference  # noqa: E402
+from voxax.grid import Grid  # noqa: E402
+
+# -- bookkeeping ---------------------------------------------------------------------------
+
+COUNTS: collections.Counter = collections.Counter()  # inputs tried, per family
+CALLS = collections.Counter()  # kernel-calling invocations, per mode
+FAILURES: list[str] = []
+TIMES: collections.Counter = collections.Counter()  # seconds per grid
+OBSERVED: dict[str, str] = {}
+
+
+def fail(msg: str) -> None:
+    FAILURES.append(msg)
+    print("CHECK FAILED:", msg, file=sys.stderr, flush=True)
+
+
+# -- grids ---------------------------------------------------------------------------------
+
+GRIDS_3D = {
+    "cube6": Grid.cube(6),
+    "odd": Grid((-0.7, -1.1, -0.9), (0.9, 0.6, 1.3), (5, 7, 3)),
+    "one_voxel": Grid((-1, -1, -1), (1, 1, 1), (1, 1, 1)),
+    "z500": Grid((-1, -1, -1), (1, 1, 1), (1, 1, 500)),
+    "x300": Grid((-1, -1, -1), (1, 1, 1), (300, 1, 1)),
+    "thin_y": Grid((-1, -0.01, -1), (1, 0.01, 1), (9, 1, 9)),
+    "flat_z": Grid((-1, -1, -1e-6), (1, 1, 1e-6), (8, 8, 1)),
+    "tiles": Grid((-1, -1, -1), (1, 1, 1), (33, 37, 64)),  # 6 kernel tiles
+    "long_columns": Grid((-1, -1, -1), (1, 1, 1), (1, 2, 16400)),  # 1 column per tile
+    "tiny": Grid((-1e-30,) * 3, (1e-30,) * 3, (4, 3, 5)),
+    "huge": Grid((-1e30,) * 3, (1e30,) * 3, (3, 4, 5)),
+    "offset": Grid((1e6, -1e6, 1e6), (1e6 + 1, -1e6 + 2, 1e6 + 3), (4, 5, 6)),
+}
+GRIDS_2D = {
+    "square7": Grid.cube(7, dim=2),
+    "odd": Grid((-0.7, -1.1), (0.9, 0.6), (5, 9)),
+    "one_pixel": Grid((-1, -1), (1, 1), (1, 1)),
+    "x500": Grid((-1, -1), (1, 1), (500, 1)),
+    "y500": Grid((-1, -1), (1, 1), (1, 500)),
+    "tiles": Grid((-1, -1), (1, 1), (100, 1000)),  # 4 kernel tiles
+    "tiny": Grid((-1e-30,) * 2, (1e-30,) * 2, (4, 3)),
+    "huge": Grid((-1e30,) * 2, (1e30,) * 2, (3, 4)),
+}
+# Grids on which the (slow) NumPy reference is cheap enough to compare with.
+REFERENCE_GRIDS = {"cube6", "odd", "one_voxel", "thin_y", "flat_z", "square7", "one_pixel"}
+# Padded sizes (V, F): inputs are padded with copies of vertex 0 and degenerate faces
+# (which contribute nothing) so that every jitted function compiles once per bucket.
+BUCKETS = {3: [(192, 256)], 2: [(128, 128)]}
+
+
+# -- input families ------------------------------------------------------------------------
+
+
+def box_of(grid: Grid, rng, pad=0.3):
+    lo, hi = np.array(grid.lower), np.array(grid.upper)
+    ext = hi - lo
+    return lo - pad * ext, hi + pad * ext
+
+
+def closed_star(rng, dim, center, scale):
+    if dim == 3:
+        n_theta, n_phi = int(rng.integers(3, 7)), int(rng.integers(2, 6))
+        verts = [(0.0, 0.0, 1.0)]
+        for i in range(1, n_phi):
+            phi = np.pi * i / n_phi
+            for j in range(n_theta):
+                th = 2 * np.pi * j / n_theta
+                verts.append((np.sin(phi) * np.cos(th), np.sin(phi) * np.sin(th), np.cos(phi)))
+        verts.append((0.0, 0.0, -1.0))
+        v = np.array(verts)
+        v = v * (1.0 + 0.4 * (rng.random(len(v)) - 0.5))[:, None]
+        faces = [(0, 1 + j, 1 + (j + 1) % n_theta) for j in range(n_theta)]
+        for i in range(n_phi - 2):
+            a0, b0 = 1 + i * n_theta, 1 + (i + 1) * n_theta
+            for j in range(n_theta):
+                j1 = (j + 1) % n_theta
+                faces += [(a0 + j, b0 + j, b0 + j1), (a0 + j, b0 + j1, a0 + j1)]
+        last, bottom = 1 + (n_phi - 2) * n_theta, len(v) - 1
+        faces += [(bottom, last + (j + 1) % n_theta, last + j) for j in range(n_theta)]
+        f = np.array(faces)
+    else:
+        n = int(rng.integers(3, 14))
+        th = np.sort(rng.random(n)) * 2 * np.pi
+        r = 1.0 + 0.5 * (rng.random(n) - 0.5)
+        v = np.stack([r * np.cos(th), r * np.sin(th)], axis=1)
+        f = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
+    return v * scale + center, f
+
+
+def soup(rng, dim, grid, nf=None):
+    lo, hi = box_of(grid, rng)
+    nf = nf or int(rng.integers(1, 20))
+    v = rng.uniform(lo, hi, size=(nf * dim, dim))
+    return v, np.arange(nf * dim).reshape(nf, dim)
+
+
+def snap_to_planes(rng, v, grid, p=0.7):
+    """Moves coordinates exactly onto grid planes (including the boundary planes)."""
+    v = v.copy()
+    for a in range(grid.dim):
+        e = grid.edges(a)
+        idx = np.clip(np.round((v[:, a] - e[0]) / (e[-1] - e[0]) * (len(e) - 1)), 0, len(e) - 1).astype(int)
+        mask = rng.random(len(v)) < p
+        v[mask, a] = e[idx[mask]]
+    return v
+
+
+def family_soup(rng, dim, grid):
+    return soup(rng, dim, grid)
+
+
+def family_closed(rng, dim, grid):
+    if rng.random() < 0.5:  # inside the grid
+        lo, hi = np.array(grid.lower), np.array(grid.upper)
+        scale = rng.uniform(0.05, 0.35) * (hi - lo)
+        return closed_star(rng, dim, 0.5 * (lo + hi) + rng.uniform(-0.2, 0.2) * (hi - lo), scale)
+    lo, hi = box_of(grid, rng, pad=0.2)
+    center = rng.uniform(lo, hi)
+    scale = float(np.max(hi - lo)) * rng.uniform(0.05, 0.7)
+    return closed_star(rng, dim, center, scale)
+
+
+def family_on_planes(rng, dim, grid):
+    v, f = soup(rng, dim, grid) if rng.random() < 0.5 else family_closed(rng, dim, grid)
+    return snap_to_planes(rng, v, grid), f
+
+
+def family_in_plane(rng, dim, grid):
+    """Faces lying exactly in a grid plane (horizontal or vertical), and along edges."""
+    v, f = soup(rng, dim, grid)
+    a = int(rng.integers(dim))
+    e = grid.edges(a)
+    for t in range(len(f)):
+        v[f[t], a] = e[int(rng.integers(len(e)))]
+    if rng.random() < 0.5:  # also put some faces on a second plane (along a grid line)
+        b = (a + 1) % dim
+        eb = grid.edges(b)
+        for t in range(0, len(f), 2):
+            v[f[t], b] = eb[int(rng.integers(len(eb)))]
+    return v, f
+
+
+def family_boundary_box(rng, dim, grid):
+    """A box (square) whose faces lie exactly on the grid's boundary or inner planes."""
+    lo, hi = np.array(grid.lower), np.array(grid.upper)
+    if rng.random() < 0.5:
+        for a in range(dim):
+            e = grid.edges(a)
+            i, j = sorted(rng.choice(len(e), size=2, replace=len(e) < 2))
+            if i == j:
+                j = min(i + 1, len(e) - 1)
+                i = j - 1
+            lo[a], hi[a] = e[i], e[j]
+    if dim == 3:
+        m = voxax.data.box(tuple(lo), tuple(hi))
+        return np.asarray(m.vertices, np.float64), np.asarray(m.faces)
+    v = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    return v, np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
+
+
+def family_degenerate(rng, dim, grid):
+    v, f = soup(rng, dim, grid)
+    for t in range(len(f)):
+        kind = rng.integers(4)
+        if kind == 0:  # all corners equal
+            v[f[t]] = v[f[t][0]]
+        elif kind == 1 and dim == 3:  # collinear
+            a, b = v[f[t][0]], v[f[t][1]]
+            v[f[t][2]] = a + rng.uniform(-1, 2) * (b - a)
+        elif kind == 2:  # repeated index
+            f[t][-1] = f[t][0]
+    return v, f
+
+
+def family_sliver(rng, dim, grid):
+    v, f = soup(rng, dim, grid)
+    eps = 10.0 ** rng.uniform(-300, -6)
+    for t in range(len(f)):
+        a = v[f[t][0]]
+        v[f[t][1]] = a + eps * rng.normal(size=dim) * float(np.max(np.abs(a)) + 1)
+        if dim == 3 and rng.random() < 0.5:  # nearly collinear instead of nearly coincident
+            b = v[f[t][2]]
+            v[f[t][1]] = 0.5 * (a + b) + eps * rng.normal(size=dim)
+    return v, f
+
+
+def family_vertical(rng, dim, grid):
+    v, f = soup(rng, dim, grid)
+    for t in range(len(f)):  # no shadow: the projection along the ray axis (z, y in 2D) is degenerate
+        if dim == 3:
+            v[f[t][2], :2] = v[f[t][0], :2] + rng.uniform(-1, 2) * (v[f[t][1], :2] - v[f[t][0], :2])
+        else:
+            v[f[t][1], 0] = v[f[t][0], 0]
+    return v, f
+
+
+def family_huge(rng, dim, grid, dtype):
+    top = 1e30 if dtype == np.float32 else 1e75
+    mag = 10.0 ** rng.uniform(1, np.log10(top))
+    scale = float(np.max(np.abs(grid.upper)) + np.max(np.abs(grid.lower)))
+    if rng.random() < 0.5:  # a closed mesh enclosing (or far from) the grid
+        center = rng.normal(size=dim) * mag * scale * rng.choice([0.0, 1e-3, 1.0])
+        v, f = closed_star(rng, dim, center, mag * scale)
+    else:
+        v, f = soup(rng, dim, grid)
+        mask = rng.random(v.shape) < 0.4
+        v[mask] = rng.choice([-1, 1], size=mask.sum()) * mag * scale * rng.random(mask.sum())
+    if rng.random() < 0.2:
+        v[0, rng.integers(dim)] = rng.choice([-1, 1]) * top
+    return np.clip(v, -top, top), f
+
+
+def family_tiny(rng, dim, grid):
+    eps = 10.0 ** rng.uniform(-300, -20)
+    lo, hi = box_of(grid, rng, pad=0.0)
+    anchor = rng.uniform(lo, hi)
+    if rng.random() < 0.5:  # anchored on a grid plane
+        anchor = snap_to_planes(rng, anchor[None], grid, p=1.0)[0]
+    if rng.random() < 0.5:
+        v, f = closed_star(rng, dim, anchor, eps)
+    else:
+        v, f = soup(rng, dim, grid)
+        v = anchor + (v - v.mean(axis=0)) * eps
+    return v, f
+
+
+def family_far(rng, dim, grid):
+    lo, hi = np.array(grid.lower), np.array(grid.upper)
+    ext = float(np.max(hi - lo))
+    v, f = closed_star(rng, dim, 0.5 * (lo + hi), ext * rng.uniform(0.1, 2.0))
+    shift = np.zeros(dim)
+    a = int(rng.integers(dim))
+    shift[a] = rng.choice([-1, 1]) * ext * 10.0 ** rng.uniform(0.5, 8)
+    if rng.random() < 0.3:
+        shift[(a + 1) % dim] = rng.normal() * ext
+    return v + shift, f
+
+
+def family_duplicates(rng, dim, grid):
+    v, f = family_closed(rng, dim, grid) if rng.random() < 0.5 else soup(rng, dim, grid)
+    kind = rng.integers(3)
+    if kind == 0:
+        f = np.concatenate([f, f])  # duplicated faces: double winding
+    elif kind == 1:
+        f = np.concatenate([f, f[:, ::-1]])  # each face and its flip: cancel
+    else:
+        f = f[rng.integers(0, len(f), size=2 * len(f))]  # random repeats
+    return v, f
+
+
+def family_mixed(rng, dim, grid):
+    parts = [FAMILIES[k](rng, dim, grid) for k in rng.choice(["soup", "closed", "on_planes", "far", "degenerate"], 2)]
+    v = np.concatenate([p[0] for p in parts])
+    f = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])])
+    return v, f
+
+
+FAMILIES = {
+    "soup": family_soup,
+    "closed": family_closed,
+    "on_planes": family_on_planes,
+    "in_plane": family_in_plane,
+    "boundary_box": family_boundary_box,
+    "degenerate": family_degenerate,
+    "sliver": family_sliver,
+    "vertical": family_vertical,
+    "huge": None,  # takes the dtype, see make_input
+    "tiny": family_tiny,
+    "far": family_far,
+    "duplicates": family_duplicates,
+    "mixed": family_mixed,
+}
+BENIGN = {"soup", "closed", "on_planes", "in_plane", "boundary_box", "degenerate", "vertical", "duplicates", "far"}
+
+
+def is_closed(f, dim):
+    """Whether every directed edge is matched by its reverse (segments: in = out degree).
+
+    For such meshes (self-intersecting or not) the volume identity holds: when the mesh
+    lies inside the grid, sum(W) * voxel volume is its signed volume.
+    """
+    f = np.asarray(f, np.int64)
+    if dim == 2:  # every vertex is entered as often as it is left
+        starts, n_out = np.unique(f[:, 0], return_counts=True)
+        ends, n_in = np.unique(f[:, 1], return_counts=True)
+        return bool(np.array_equal(starts, ends) and np.array_equal(n_out, n_in))
+    a = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
+    b = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    key = lambda x, y: x * (int(f.max()) + 1) + y  # noqa: E731
+    fwd, nf = np.unique(key(a, b), return_counts=True)
+    rev, nr = np.unique(key(b, a), return_counts=True)
+    return bool(np.array_equal(fwd, rev) and np.array_equal(nf, nr))
+
+
+def make_input(rng, family, dim, grid, dtype):
+    if family == "huge":
+        v, f = family_huge(rng, dim, grid, dtype)
+    else:
+        v, f = FAMILIES[family](rng, dim, grid)
+    v = np.asarray(v, np.float64)
+    f = np.asarray(f, np.int64)
+    if dtype == np.float32:
+        v = np.clip(v, -1e30, 1e30)
+    nf_real = len(f)
+    # Pad to the smallest bucket that fits (shuffling the face order on the way).
+    f = f[rng.permutation(len(f))]
+    for nv_b, nf_b in BUCKETS[dim]:
+        if len(v) <= nv_b and len(f) <= nf_b:
+            break
+    else:
+        nv_b, nf_b = len(v), len(f)
+    v = np.concatenate([v, np.repeat(v[:1], nv_b - len(v), axis=0)])
+    f = np.concatenate([f, np.zeros((nf_b - len(f), dim), np.int64)])
+    return v.astype(dtype), f.astype(np.int32), nf_real
+
+
+def check_volume(label, W, v, f, nf_real, grid):
+    """The volume identity for closed meshes inside the grid."""
+    v64 = np.asarray(v, np.float64)
+    f = np.asarray(f)[:nf_real]
+    lo, hi = np.array(grid.lower), np.array(grid.upper)
+    if not (is_closed(f, grid.dim) and np.all(v64[np.unique(f)] >= lo) and np.all(v64[np.unique(f)] <= hi)):
+        return
+    W = np.asarray(W)
+    got = float(np.sum(W, dtype=np.float64)) * grid.voxel_volume
+    # Relative to the grid's centre: sum(det(a, b, c)) / 6 cancels badly far from the origin.
+    expected = reference.signed_volume(v64 - 0.5 * (lo + hi), f)
+    box = float(np.prod(hi - lo))
+    tol = (1e-10 if W.dtype == np.float64 else 1e-5) * box * max(1.0, float(np.max(np.abs(W))))
+    if not abs(got - expected) <= tol:
+        fail(f"{label}: volume identity: sum(W) * voxel volume = {got!r}, signed volume = {expected!r}")
+    COUNTS["volume_checks"] += 1
+
+
+# -- running and checking ------------------------------------------------------------------
+
+_JIT: dict = {}
+
+
+def jitted(kind, grid):
+    key = (kind, grid)
+    if key not in _JIT:
+        if kind == "fwd":
+            fn = jax.jit(lambda v, f: voxax.voxelize(v, f, grid))
+        elif kind == "vjp":  # forward and gradient of sum(cot * W)
+
+            def fn(v, f, cot):
+                W, pull = jax.vjp(lambda x: voxax.voxelize(x, f, grid), v)
+                return W, pull(cot)[0]
+
+            fn = jax.jit(fn)
+        elif kind == "corners":
+            fn = jax.jit(lambda v, f, cot: voxax.voxelize_corner_gradients(v, f, cot, grid))
+        elif kind == "vmap_vjp":
+
+            def one(v, f, cot):
+                W, pull = jax.vjp(lambda x: voxax.voxelize(x, f, grid), v)
+                return W, pull(cot)[0]
+
+            fn = jax.jit(jax.vmap(one, in_axes=(0, None, 0)))
+        else:
+            raise KeyError(kind)
+        _JIT[key] = fn
+    return _JIT[key]
+
+
+ARTIFACTS = None  # directory for the inputs of failed checks (--artifacts)
+
+
+def save_failure(label, v, f, grid):
+    if ARTIFACTS is None:
+        return
+    os.makedirs(ARTIFACTS, exist_ok=True)
+    name = os.path.join(ARTIFACTS, f"failure{len(FAILURES):03d}.npz")
+    np.savez(name, vertices=v, faces=f, lower=grid.lower, upper=grid.upper, shape=grid.shape, label=label)
+    print(f"  input saved to {name}", file=sys.stderr, flush=True)
+
+
+def check_result(label, W, grads, nf_real, grid, batch=()):
+    W = np.asarray(W)
+    if W.shape != tuple(batch) + grid.shape:
+        fail(f"{label}: output shape {W.shape}, expected {tuple(batch) + grid.shape}")
+        return
+    if not np.all(np.isfinite(W)):
+        fail(f"{label}: non-finite output ({np.sum(~np.isfinite(W))} cells)")
+        return
+    bound = nf_real * (1 + 1e-6) + 1e-6
+    if W.size and float(np.max(np.abs(W))) > bound:
+        fail(f"{label}: |W| = {float(np.max(np.abs(W))):.6g} exceeds the face count {nf_real}")
+    for g in grads:
+        if not np.all(np.isfinite(np.asarray(g))):
+            fail(f"{label}: non-finite gradient")
+
+
+def run_single(rng, family, dim, grid_name, grid, dtype, mode):
+    v, f, nf = make_input(rng, family, dim, grid, dtype)
+    label = f"{family}/{dim}D/{grid_name}/{np.dtype(dtype).name}/{mode}"
+    before = len(FAILURES)
+    cot = rng.normal(size=grid.shape).astype(dtype)
+    if mode == "eager":
+        W = voxax.voxelize(v, f, grid)
+        C = voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), jnp.asarray(cot), grid)
+        CALLS["eager_forward"] += 1
+        CALLS["eager_backward"] += 1
+        check_result(label, W, [C], nf, grid)
+        if rng.random() < 0.25:  # eager and jit agree bit for bit
+            Wj = jitted("fwd", grid)(v, f)
+            CALLS["jit_forward"] += 1
+            if np.asarray(Wj).tobytes() != np.asarray(W).tobytes():
+                fail(f"{label}: eager and jit results differ")
+    else:
+        W, dv = jitted("vjp", grid)(v, f, cot)
+        CALLS["jit_forward"] += 1
+        CALLS["jit_backward"] += 1
+        check_result(label, W, [dv], nf, grid)
+    COUNTS[family] += 1
+    COUNTS[f"dim{dim}"] += 1
+    COUNTS[np.dtype(dtype).name] += 1
+    COUNTS[mode] += 1
+    check_volume(label, W, v, f, nf, grid)
+    # Small benign float64 cases: compare with the NumPy reference.
+    if (
+        family in BENIGN
+        and dtype == np.float64
+        and grid_name in REFERENCE_GRIDS
+        and nf <= 24
+        and rng.random() < REFERENCE_FRACTION * (3 if family in ("on_planes", "in_plane", "boundary_box") else 1)
+    ):
+        expected = reference.voxelize(v, f[:nf], grid)
+        scale = max(1.0, float(np.max(np.abs(v))) / float(np.max(np.abs(np.array(grid.upper) - grid.lower))))
+        err = float(np.max(np.abs(np.asarray(W) - expected)))
+        if err > 1e-9 * scale * max(1, nf):
+            fail(f"{label}: differs from the reference by {err:.3g}")
+        COUNTS["reference_comparisons"] += 1
+    if len(FAILURES) > before:
+        save_failure(label, v, f, grid)
+
+
+def run_batched(rng, family, dim, grid_name, grid, dtype, B):
+    items = [make_input(rng, family, dim, grid, dtype) for _ in range(B)]
+    # One bucket for the whole batch: re-pad to the largest.
+    nv = max(len(it[0]) for it in items)
+    nfb = max(len(it[1]) for it in items)
+    vs = np.stack([np.concatenate([it[0], np.repeat(it[0][:1], nv - len(it[0]), axis=0)]) for it in items])
+    fs = np.stack([np.concatenate([it[1], np.zeros((nfb - len(it[1]), dim), np.int32)]) for it in items])
+    nf = max(it[2] for it in items)
+    label = f"{family}/{dim}D/{grid_name}/{np.dtype(dtype).name}/batch{B}"
+    cot = rng.normal(size=(B,) + grid.shape).astype(dtype)
+    how = rng.integers(3)
+    if how == 0:  # vmap over vertices (shared faces: use item 0's faces for all)
+        vs_shared = vs
+        W, dv = jitted("vmap_vjp", grid)(vs_shared, fs[0], cot)
+        CALLS["jit_vmap_forward"] += 1
+        CALLS["jit_vmap_backward"] += 1
+        check_result(label + "/vmap", W, [dv], nf, grid, (B,))
+        k = int(rng.integers(B))
+        W1 = jitted("fwd", grid)(vs_shared[k], fs[0])
+        CALLS["jit_forward"] += 1
+        if np.asarray(W1).tobytes() != np.asarray(W)[k].tobytes():
+            fail(f"{label}: vmap item {k} differs from the single call")
+    elif how == 1:  # leading axes on both
+        W = voxax.voxelize(vs, fs, grid)
+        C = voxax.voxelize_corner_gradients(jnp.asarray(vs), jnp.asarray(fs), jnp.asarray(cot), grid)
+        CALLS["eager_batched_forward"] += 1
+        CALLS["eager_batched_backward"] += 1
+        check_result(label + "/leading", W, [C], nf, grid, (B,))
+        k = int(rng.integers(B))
+        W1 = voxax.voxelize(vs[k], fs[k], grid)
+        CALLS["eager_forward"] += 1
+        if np.asarray(W1).tobytes() != np.asarray(W)[k].tobytes():
+            fail(f"{label}: batch item {k} differs from the single call")
+    else:  # broadcast: (B, 1, V, d) vertices against (1, 2, F, d) faces
+        f2 = np.stack([fs[0], fs[-1]])[None]
+        W = jitted("fwd", grid)(vs[:, None], f2)
+        CALLS["jit_batched_forward"] += 1
+        check_result(label + "/broadcast", W, [], nf, grid, (B, 2))
+    COUNTS[family] += B
+    COUNTS[f"dim{dim}"] += B
+    COUNTS[np.dtype(dtype).name] += B
+    COUNTS["batched"] += B
+
+
+def run_zero_size(dim, dtype):
+    """Zero-size batches through every path."""
+    grid = GRIDS_3D["cube6"] if dim == 3 else GRIDS_2D["square7"]
+    v, f, _ = make_input(np.random.default_rng(0), "closed", dim, grid, dtype)
+    v0 = np.zeros((0,) + v.shape, dtype)
+    cases = {
+        "vertices (0, V, d), eager": lambda: voxax.voxelize(v0, f, grid),
+        "vertices (0, V, d), jit": lambda: jitted("fwd", grid)(v0, f),
+        "vertices (2, 0, V, d), eager": lambda: voxax.voxelize(np.zeros((2, 0) + v.shape, dtype), f, grid),
+        "faces (0, F, d), jit": lambda: jitted("fwd", grid)(v, np.zeros((0,) + f.shape, np.int32)),
+        "vmap over 0 items, jit": lambda: jax.jit(jax.vmap(lambda x: voxax.voxelize(x, f, grid)))(v0),
+        "grad through vmap over 0 items": lambda: jax.grad(
+            lambda x: jax.vmap(lambda y: voxax.voxelize(y, f, grid))(x).sum()
+        )(jnp.asarray(v0)),
+        "vjp, jit": lambda: jitted("vjp", grid)(v0, f, np.zeros((0,) + grid.shape, dtype))[1],
+        "corner gradients (0, F, d, d)": lambda: jitted("corners", grid)(v0, f, np.zeros((0,) + grid.shape, dtype)),
+    }
+    for name, fn in cases.items():
+        out = jax.block_until_ready(fn())
+        shape = tuple(np.shape(out))
+        if 0 not in shape:
+            fail(f"zero-size batch {name}: got shape {shape}")
+        OBSERVED[f"zero-size batch {dim}D {np.dtype(dtype).name}: {name}"] = f"shape {shape}"
+        CALLS["zero_size"] += 1
+    # Eagerly, a zero-size *faces* batch is rejected by the Python validation with an
+    # unhelpful NumPy message (see tests/test_robustness.py); record what happens.
+    try:
+        out = voxax.voxelize(v, np.zeros((0,) + f.shape, np.int32), grid)
+        OBSERVED[f"zero-size batch {dim}D {np.dtype(dtype).name}: faces (0, F, d), eager"] = f"shape {out.shape}"
+    except Exception as err:  # noqa: BLE001
+        OBSERVED[f"zero-size batch {dim}D {np.dtype(dtype).name}: faces (0, F, d), eager"] = (
+            f"{type(err).__name__}: {err}"
+        )
+    COUNTS["zero_size"] += len(cases) + 1
+
+
+INVALID = [
+    ("nan", "NaN or Inf"),
+    ("inf", "NaN or Inf"),
+    ("-inf", "NaN or Inf"),
+    ("too_big", "1e75"),
+    ("index_high", "out of range"),
+    ("index_negative", "negative|out of range"),
+    ("index_int32_max", "out of range"),
+]
+
+
+def run_invalid(rng, dim, grid_name, grid, dtype, case, match):
+    v, f, _ = make_input(rng, "closed", dim, grid, dtype)
+    B = int(rng.choice([0, 0, BATCH]))  # also inside a batch item other than the first
+    if B:
+        v = np.stack([v] * B)
+    flat_v = v.reshape(-1)
+    if case in ("nan", "inf", "-inf", "too_big"):
+        per = flat_v.size // max(B, 1)
+        pos = int(rng.integers(per)) + per * max(B - 1, 0)  # in the last batch item
+        value = {"nan": np.nan, "inf": np.inf, "-inf": -np.inf, "too_big": 1e151 if dtype == np.float64 else 3e38}[case]
+        if case == "too_big" and dtype == np.float32:
+            return  # float32 cannot hold a finite value above 1e75
+        flat_v[pos] = value
+    else:
+        pos = tuple(int(rng.integers(s)) for s in f.shape)
+        f[pos] = {"index_high": v.shape[-2] + int(rng.integers(0, 100)), "index_negative": -int(rng.integers(1, 2**31)),
+                  "index_int32_max": 2**31 - 1}[case]
+    cot = np.ones(v.shape[:-2] + grid.shape, dtype)
+    label = f"invalid {case}/{dim}D/{grid_name}/{np.dtype(dtype).name}"
+    paths = {
+        "eager": lambda: voxax.voxelize(v, f, grid),
+        "jit forward": lambda: jitted("fwd", grid)(v, f),
+        "jit backward": lambda: jitted("corners", grid)(v, f, cot),
+        "jit vjp": lambda: jitted("vmap_vjp", grid)(v, f, cot) if B else jitted("vjp", grid)(v, f, cot),
+    }
+    for path, fn in paths.items():
+        try:
+            jax.block_until_ready(fn())
+        except (ValueError, jax.errors.JaxRuntimeError) as err:
+            if not re.search(match, str(err)):
+                fail(f"{label} [{path}]: unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"{label} [{path}]: unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"{label} [{path}]: no error raised")
+        CALLS["invalid"] += 1
+    COUNTS["invalid"] += 1
+
+
+def run_raw_ffi(rng):
+    """Hostile direct FFI calls that bypass the Python checks: the kernel must reject them."""
+    g = GRIDS_3D["odd"]
+    v, f, _ = make_input(rng, "closed", 3, g, np.float64)
+    v, f = jnp.asarray(v), jnp.asarray(f)
+    attrs = _ffi.grid_attributes(g)
+
+    def fwd(vv, ff, shape=g.shape, dtype=jnp.float64, **over):
+        a = dict(attrs)
+        a.update(over)
+        return jax.ffi.ffi_call(_ffi.FORWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, **a)
+
+    def bwd(vv, ff, cot, shape=None, dtype=jnp.float64, **over):
+        a = dict(attrs)
+        a.update(over)
+        shape = shape or (ff.shape[-2], 3, 3)
+        return jax.ffi.ffi_call(_ffi.BACKWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, cot, **a)
+
+    cot = jnp.ones(g.shape)
+    cases = {
+        "nx = 0": lambda: fwd(v, f, nx=np.int64(0)),
+        "nz = -7": lambda: fwd(v, f, nz=np.int64(-7)),
+        "x0 = NaN": lambda: fwd(v, f, x0=np.float64(np.nan)),
+        "y1 = Inf": lambda: fwd(v, f, y1=np.float64(np.inf)),
+        "x1 < x0": lambda: fwd(v, f, x1=np.float64(-5.0)),
+        "x1 == x0": lambda: fwd(v, f, x1=np.float64(attrs["x0"])),
+        "subnormal cell": lambda: fwd(v, f, x0=np.float64(0.0), x1=np.float64(5e-324), nx=np.int64(5)),
+        "output shape != grid": lambda: fwd(v, f, shape=(5, 7, 4)),
+        "output rank too small": lambda: fwd(v, f, shape=(5, 7)),
+        "output dtype != vertices": lambda: fwd(v, f, dtype=jnp.float32),
+        "int64 faces": lambda: fwd(v, f.astype(jnp.int64)),
+        "float faces": lambda: fwd(v, f.astype(jnp.float64)),
+        "int vertices": lambda: fwd(v.astype(jnp.int32), f),
+        "4 coordinates": lambda: fwd(jnp.zeros((8, 4)), jnp.zeros((4, 4), jnp.int32)),
+        "1 coordinate": lambda: fwd(jnp.zeros((8, 1)), jnp.zeros((4, 1), jnp.int32)),
+        "faces of 2 for 3D vertices": lambda: fwd(v, f[:, :2]),
+        "rank-1 vertices": lambda: fwd(v.reshape(-1), f),
+        "batch mismatch": lambda: fwd(jnp.stack([v] * 3), jnp.stack([f] * 2), shape=(3,) + g.shape),
+        "batch axes count mismatch": lambda: fwd(jnp.stack([v] * 3), f, shape=(3,) + g.shape),
+        "out batch mismatch": lambda: fwd(jnp.stack([v] * 3), jnp.stack([f] * 3), shape=(2,) + g.shape),
+        "index out of range": lambda: fwd(v, f.at[3, 1].set(10**6)),
+        "NaN vertex": lambda: fwd(v.at[2, 2].set(jnp.nan), f),
+        "backward: cotangent shape": lambda: bwd(v, f, jnp.ones((5, 7, 4))),
+        "backward: cotangent rank": lambda: bwd(v, f, jnp.ones((5, 7))),
+        "backward: cotangent dtype": lambda: bwd(v, f, jnp.ones(g.shape, jnp.float32)),
+        "backward: output shape": lambda: bwd(v, f, cot, shape=(f.shape[0], 3, 2)),
+        "backward: output rank": lambda: bwd(v, f, cot, shape=(f.shape[0], 9)),
+        "backward: output F": lambda: bwd(v, f, cot, shape=(f.shape[0] + 1, 3, 3)),
+        "backward: cotangent batch": lambda: bwd(jnp.stack([v] * 2), jnp.stack([f] * 2), jnp.ones((3,) + g.shape),
+                                                  shape=(2, f.shape[0], 3, 3)),
+        "backward: index": lambda: bwd(v, f.at[0, 0].set(-3), cot),
+    }
+    for name, fn in cases.items():
+        try:
+            jax.block_until_ready(fn())
+        except Exception:  # noqa: BLE001 - any clean error will do; a crash would abort
+            pass
+        else:
+            fail(f"raw FFI call '{name}' was accepted")
+        CALLS["raw_ffi"] += 1
+    COUNTS["raw_ffi"] += len(cases)
+    # The handlers still work afterwards.
+    W = jax.block_until_ready(fwd(v, f))
+    check_result("raw FFI after errors", W, [], len(f), g)
+
+
+def pool_threads():
+    """Threads of XLA's CPU pool (the one the kernels run on), by name."""
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return "unknown"
+    names = []
+    for t in tasks:
+        try:
+            with open(f"/proc/self/task/{t}/comm") as fh:
+                names.append(fh.read().strip())
+        except OSError:
+            pass
+    return names.count("tf_XLAEigen")
+
+
+REFERENCE_FRACTION = 0.1
+BATCH = 4  # one batch size, so that batched functions compile once per grid
+
+
+def main(argv=None):
+    global REFERENCE_FRACTION, ARTIFACTS
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--inputs", type=int, default=4000, help="single-mesh inputs to try (batched ones add more)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--reference-fraction", type=float, default=0.1)
+    parser.add_argument("--json", help="write the counts to this file")
+    parser.add_argument("--artifacts", help="save the inputs of failed checks in this directory")
+    args = parser.parse_args(argv)
+    REFERENCE_FRACTION = args.reference_fraction
+    ARTIFACTS = args.artifacts
+    t0 = time.perf_counter()
+
+    lib = str(_ffi.library_path())
+    expected = os.environ.get("VOXAX_KERNELS")
+    maps = open("/proc/self/maps").read() if os.path.exists("/proc/self/maps") else ""
+    sanitized = "libasan" in maps
+    print(f"kernels: {lib}; AddressSanitizer runtime loaded: {sanitized}; "
+          f"UBSan runtime loaded: {'libubsan' in maps}; NPROC={os.environ.get('NPROC', '(unset)')}", flush=True)
+    if expected and os.path.realpath(lib) != os.path.realpath(expected):
+        fail(f"loaded {lib}, not VOXAX_KERNELS={expected}")
+
+    rng = np.random.default_rng(args.seed)
+    families = list(FAMILIES)
+    grids = {3: list(GRIDS_3D.items()), 2: list(GRIDS_2D.items())}
+    dtypes = [np.float64, np.float32]
+    i = 0
+    try:
+        for dim in (3, 2):
+            for dtype in dtypes:
+                run_zero_size(dim, dtype)
+        run_raw_ffi(rng)
+        while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
+            dim = 3 if i % 3 else 2
+            family = families[i % len(families)]
+            gname, grid = grids[dim][(i // len(families)) % len(grids[dim])]
+            dtype = dtypes[(i // 7) % 2]
+            r = i % 10
+            t_in = time.perf_counter()
+            if r < 7:
+                run_single(rng, family, dim, gname, grid, dtype, "jit" if r % 2 else "eager")
+            elif r < 9:
+                case, match = INVALID[(i // 10) % len(INVALID)]
+                run_invalid(rng, dim, gname, grid, dtype, case, match)
+            else:
+                run_batched(rng, family, dim, gname, grid, dtype, BATCH)
+            TIMES[f"{dim}D/{gname}"] += time.perf_counter() - t_in
+            i += 1
+    except Exception:  # noqa: BLE001
+        fail("driver raised:\n" + traceback.format_exc())
+
+    elapsed = time.perf_counter() - t0
+    inputs = sum(COUNTS[k] for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size"])
+    print("\nzero-size batches:")
+    for k, val in OBSERVED.items():
+        print(f"  {k}: {val}")
+    print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size"]))
+    print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
+    print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
+    print("kernel invocations: " + ", ".join(f"{k} {v}" for k, v in sorted(CALLS.items())) + f" (total {sum(CALLS.values())})")
+    print(f"jitted functions compiled: {len(_JIT)}; XLA pool threads: {pool_threads()}")
+    print("seconds per grid: " + ", ".join(f"{k} {v:.1f}" for k, v in TIMES.most_common()))
+    print(f"INPUTS TRIED: {inputs} in {elapsed:.1f} s; failed checks: {len(FAILURES)}", flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"inputs": inputs, "seconds": elapsed, "counts": dict(COUNTS), "calls": dict(CALLS),
+                       "failures": FAILURES, "observed": OBSERVED, "sanitized": sanitized}, fh, indent=1)
+    if FAILURES:
+        print(f"\nfirst failed checks ({len(FAILURES)} in all):", file=sys.stderr)
+        for msg in FAILURES[:20]:
+            print("  " + msg.splitlines()[0], file=sys.stderr)
+    return 3 if FAILURES else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
