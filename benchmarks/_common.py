@@ -16,7 +16,7 @@ import sys
 import time
 import traceback
 
-__all__ = ["proc_status_kib", "reset_peak_rss", "trim_memory", "timed", "serve"]
+__all__ = ["proc_status_kib", "reset_peak_rss", "trim_memory", "timed", "op_handlers", "serve"]
 
 
 def proc_status_kib(field: str) -> int | None:
@@ -54,6 +54,36 @@ def timed(fn) -> tuple[float, object]:
     t0 = time.perf_counter()
     out = fn()
     return time.perf_counter() - t0, out
+
+
+def op_handlers(ops: dict, build) -> dict:
+    """The `prepare`/`run`/`release` handlers both workers share.
+
+    `build(op, n)` returns `(pre, fn)`: `pre` (or None) runs untimed before each timed
+    call of `fn`. Prepared ops live in `ops` until released.
+    """
+
+    def prepare(op, n):
+        ops[op] = build(op, n)
+        return {}
+
+    def run(op):
+        pre, fn = ops[op]
+        if pre is not None:
+            pre()
+        seconds, out = timed(fn)
+        del out
+        return {"seconds": seconds}
+
+    def release(op=None):
+        if op is None:
+            ops.clear()
+        else:
+            ops.pop(op, None)
+        trim_memory()
+        return {}
+
+    return {"prepare": prepare, "run": run, "release": release}
 
 
 def serve(handlers: dict) -> None:

@@ -24,7 +24,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from _common import proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
+from _common import op_handlers, proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -126,29 +126,6 @@ def _build(op, n):
     raise ValueError(f"peer worker: unknown op {op!r}")
 
 
-def prepare(op, n):
-    STATE["ops"][op] = _build(op, n)
-    return {}
-
-
-def run(op):
-    pre, fn = STATE["ops"][op]
-    if pre is not None:
-        pre()
-    seconds, out = timed(fn)
-    del out
-    return {"seconds": seconds}
-
-
-def release(op=None):
-    if op is None:
-        STATE["ops"].clear()
-    else:
-        STATE["ops"].pop(op, None)
-    trim_memory()
-    return {}
-
-
 def check(n, prefix):
     """Saves dvx's output exactly as `voxelize` returns it ((z, y, x) order) and the
     gradient of sum(W**2), in float32 (as timed) and in float64, as `{prefix}_W32.npy`,
@@ -225,9 +202,7 @@ if __name__ == "__main__":
         {
             "info": info,
             "load": load,
-            "prepare": prepare,
-            "run": run,
-            "release": release,
+            **op_handlers(STATE["ops"], _build),
             "check": check,
             "peak": peak,
         }

@@ -13,7 +13,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from _common import proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
+from _common import op_handlers, proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -108,29 +108,6 @@ def _build(op, n):
     raise ValueError(f"voxax worker: unknown op {op!r}")
 
 
-def prepare(op, n):
-    STATE["ops"][op] = _build(op, n)
-    return {}
-
-
-def run(op):
-    pre, fn = STATE["ops"][op]
-    if pre is not None:
-        pre()
-    seconds, out = timed(fn)
-    del out
-    return {"seconds": seconds}
-
-
-def release(op=None):
-    if op is None:
-        STATE["ops"].clear()
-    else:
-        STATE["ops"].pop(op, None)
-    trim_memory()
-    return {}
-
-
 def check(n, prefix):
     """Saves W (x, y, z order) and the gradient of sum(W**2), in float32 (as timed) and
     in float64, as `{prefix}_W32.npy`, `_g32`, `_W64`, `_g64`, for the driver to compare."""
@@ -185,9 +162,7 @@ if __name__ == "__main__":
             "info": info,
             "make_mesh": make_mesh,
             "load": load,
-            "prepare": prepare,
-            "run": run,
-            "release": release,
+            **op_handlers(STATE["ops"], _build),
             "check": check,
             "peak": peak,
         }
