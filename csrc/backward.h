@@ -16,35 +16,6 @@
 
 namespace voxax {
 
-// Sweeps polygon P across the cells [c0, c1] along axis a, calling
-// visit(i, piece) with the part of P in each cell. Cells are half-open,
-// [lo, hi), except the last one along each axis, which is closed: a piece
-// lying flat in the upper plane of cell i (a face exactly on a grid plane)
-// belongs to cell i + 1, so it is counted once.
-template <int N, typename Visit>
-inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_t c1,
-                  Visit&& visit) {
-  Poly<N> rest, piece, upper;
-  const Poly<N>* cur = &P;
-  if (P.min(a) < g.plane(a, c0)) {
-    split<N>(P, a, g.plane(a, c0), &piece, &rest);
-    cur = &rest;
-  }
-  for (int64_t i = c0; i <= c1 && cur->count >= 3; ++i) {
-    const double hi = g.plane(a, i + 1);
-    const double mn = cur->min(a), mx = cur->max(a);
-    if (mn >= hi && i + 1 < g.n[a]) continue;  // entirely in later cells
-    if (mx <= hi) {
-      visit(i, *cur);
-      return;
-    }
-    split<N>(*cur, a, hi, &piece, &upper);
-    if (piece.count >= 3) visit(i, piece);
-    rest = upper;
-    cur = &rest;
-  }
-}
-
 // Corner gradients of triangles [t0, t1) of one batch item into out (F, 3, 3).
 // For a piece P, area(P) * beta_m(centroid of P) is the integral of beta_m
 // over P; beta is affine, so it is evaluated at the piece's area centroid
@@ -158,11 +129,11 @@ void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const
         S.v[c][2] = c == 1 ? 1.0 : 0.0;  // beta_1
       }
       int64_t i0, i1, j0, j1;
-      if (cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) {
+      if (g.span(0, S.min(0), S.max(0), &i0, &i1)) {
         for (int64_t i = i0; i <= i1; ++i) {
           if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
           if (i + 1 < g.n[0] && Sx.min(0) >= g.plane(0, i + 1)) continue;
-          if (!cell_range(g, 1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
+          if (!g.span(1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
           for (int64_t j = j0; j <= j1; ++j) {
             const double gv = static_cast<double>(G[i * ny + j]);
             if (gv == 0.0) continue;

@@ -54,29 +54,6 @@ inline void cut(const double* p, const double* q, int a, double c, double* out) 
   out[a] = c;
 }
 
-// Keeps the part of `in` with coordinate a >= c (keep_above) or a <= c.
-template <int N>
-inline void clip(const Poly<N>& in, int a, double c, bool keep_above, Poly<N>* out) {
-  out->count = 0;
-  const int n = in.count;
-  if (n == 0) return;
-  for (int i = 0; i < n; ++i) {
-    const double* p = in.v[i];
-    const double* q = in.v[(i + 1) % n];
-    bool pin = keep_above ? p[a] >= c : p[a] <= c;
-    bool qin = keep_above ? q[a] >= c : q[a] <= c;
-    if (pin) {
-      if (out->count < kMaxVerts) {
-        for (int k = 0; k < N; ++k) out->v[out->count][k] = p[k];
-        ++out->count;
-      }
-      if (!qin && out->count < kMaxVerts) cut<N>(p, q, a, c, out->v[out->count++]);
-    } else if (qin && out->count < kMaxVerts) {
-      cut<N>(p, q, a, c, out->v[out->count++]);
-    }
-  }
-}
-
 // Splits `in` at coordinate a == c into the part below (a <= c) and the part
 // above (a >= c) in one pass.
 template <int N>
@@ -109,32 +86,6 @@ inline void split(const Poly<N>& in, int a, double c, Poly<N>* below, Poly<N>* a
         ++above->count;
       }
     }
-  }
-}
-
-// Keeps the part of `in` with lo <= coordinate a <= hi. Skips the work when
-// the polygon already lies inside.
-template <int N>
-inline void clip_slab(const Poly<N>& in, int a, double lo, double hi, Poly<N>* out) {
-  double mn = in.min(a), mx = in.max(a);
-  if (mn >= lo && mx <= hi) {
-    *out = in;
-    return;
-  }
-  if (mx < lo || mn > hi) {
-    out->count = 0;
-    return;
-  }
-  Poly<N> tmp;
-  if (mn < lo) {
-    clip<N>(in, a, lo, true, &tmp);
-  } else {
-    tmp = in;
-  }
-  if (mx > hi) {
-    clip<N>(tmp, a, hi, false, out);
-  } else {
-    *out = tmp;
   }
 }
 

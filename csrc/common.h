@@ -37,15 +37,6 @@ struct GridSpec {
   std::vector<double> planes[3];  // planes[a][i] = plane(a, i), i in [0, n]
 
   double plane(int a, int64_t i) const { return planes[a][i]; }
-  // Index of the cell containing coordinate c, clamped to [-1, n] so that it
-  // never overflows for huge coordinates. May be off by one near a plane:
-  // callers widen ranges by one and let the clipping decide.
-  int64_t cell_of(int a, double c) const {
-    double t = std::floor((c - lo[a]) * inv_h[a]);
-    if (!(t >= -1.0)) return -1;
-    if (t > static_cast<double>(n[a])) return n[a];
-    return static_cast<int64_t>(t);
-  }
   // A conservative cell range [c0, c1] covering the interval [mn, mx] along
   // axis a, clamped to the grid: it may include one extra cell on each side
   // when a bound lies within rounding distance of a plane, never one less.

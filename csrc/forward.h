@@ -55,14 +55,34 @@ struct Bins {
   std::vector<int32_t> items;
 };
 
-// Cell range [c0, c1] along axis a touched by [mn, mx], widened by one cell
-// and clamped to the grid. Returns false when it misses the grid.
-inline bool cell_range(const GridSpec& g, int a, double mn, double mx, int64_t* c0,
-                       int64_t* c1) {
-  if (mx < g.lo[a] || mn > g.hi[a]) return false;
-  *c0 = std::max<int64_t>(0, g.cell_of(a, mn) - 1);
-  *c1 = std::min<int64_t>(g.n[a] - 1, g.cell_of(a, mx) + 1);
-  return *c0 <= *c1;
+
+// Sweeps polygon P across the cells [c0, c1] along axis a, calling
+// visit(i, piece) with the part of P in each cell. Cells are half-open,
+// [lo, hi), except the last one along each axis, which is closed: a piece
+// lying flat in the upper plane of cell i (a face exactly on a grid plane)
+// belongs to cell i + 1, so it is counted once.
+template <int N, typename Visit>
+inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_t c1,
+                  Visit&& visit) {
+  Poly<N> rest, piece, upper;
+  const Poly<N>* cur = &P;
+  if (P.min(a) < g.plane(a, c0)) {
+    split<N>(P, a, g.plane(a, c0), &piece, &rest);
+    cur = &rest;
+  }
+  for (int64_t i = c0; i <= c1 && cur->count >= 3; ++i) {
+    const double hi = g.plane(a, i + 1);
+    const double mn = cur->min(a), mx = cur->max(a);
+    if (mn >= hi && i + 1 < g.n[a]) continue;  // entirely in later cells
+    if (mx <= hi) {
+      visit(i, *cur);
+      return;
+    }
+    split<N>(*cur, a, hi, &piece, &upper);
+    if (piece.count >= 3) visit(i, piece);
+    rest = upper;
+    cur = &rest;
+  }
 }
 
 // ---------------------------------------------------------------------------
@@ -284,7 +304,7 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
 
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
-  Poly<3> P, left, right, Pxy, front, back, rowrest, colrest;
+  Poly<3> P;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     load_triangle(V, F, bins.items[e], &P);
     int64_t i0, i1, j0, j1;
@@ -314,50 +334,20 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
         continue;
       }
     }
+    // Sweep the slabs of this tile in x, then in y, splitting off one cell at a time.
     i0 = std::max(i0, ia);
     i1 = std::min(i1, ib - 1);
     if (i0 > i1) continue;
-    // Sweep the x slabs left to right, splitting off one slab at a time.
-    const Poly<3>* row = &P;
-    if (P.min(0) < g.plane(0, i0)) {
-      split<3>(P, 0, g.plane(0, i0), &left, &rowrest);
-      row = &rowrest;
-    }
-    for (int64_t i = i0; i <= i1 && row->count >= 3; ++i) {
-      const double xl = g.plane(0, i), xh = g.plane(0, i + 1);
-      const Poly<3>* Px = row;
-      bool last_x = row->max(0) <= xh || i == i1;
-      if (row->max(0) > xh) {
-        split<3>(*row, 0, xh, &left, &right);
-        Px = &left;
-      }
-      if (Px->count >= 3 && g.span(1, Px->min(1), Px->max(1), &j0, &j1)) {
-        j0 = std::max(j0, ja);
-        j1 = std::min(j1, jb - 1);
-        const Poly<3>* cell = Px;
-        if (j0 <= j1 && Px->min(1) < g.plane(1, j0)) {
-          split<3>(*Px, 1, g.plane(1, j0), &front, &colrest);
-          cell = &colrest;
-        }
-        for (int64_t j = j0; j <= j1 && cell->count >= 3; ++j) {
-          const double yl = g.plane(1, j), yh = g.plane(1, j + 1);
-          const Poly<3>* Q = cell;
-          bool last_y = cell->max(1) <= yh;
-          if (!last_y) {
-            split<3>(*cell, 1, yh, &front, &back);
-            Q = &front;
-          }
-          if (Q->count >= 3)
-            add_column_3d(g, *Q, xl, yl, scratch.column((i - ia) * wy + (j - ja), nz));
-          if (last_y) break;
-          Pxy = back;
-          cell = &Pxy;
-        }
-      }
-      if (last_x) break;
-      rowrest = right;
-      row = &rowrest;
-    }
+    sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
+      int64_t ya, yb;
+      if (!g.span(1, Px.min(1), Px.max(1), &ya, &yb)) return;
+      ya = std::max(ya, ja);
+      yb = std::min(yb, jb - 1);
+      if (ya > yb) return;
+      sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Q) {
+        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j), scratch.column((i - ia) * wy + (j - ja), nz));
+      });
+    });
   }
   for (int64_t i = ia; i < ib; ++i) {
     for (int64_t j = ja; j < jb; ++j) {
@@ -408,7 +398,7 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col
     return;
   }
   int64_t k0, k1;
-  if (!cell_range(g, 1, ymin, ymax, &k0, &k1)) return;
+  if (!g.span(1, ymin, ymax, &k0, &k1)) return;
   Poly<2> piece;
   for (int64_t k = k0; k <= k1; ++k) {
     const double yl = g.plane(1, k), yh = g.plane(1, k + 1);
@@ -454,7 +444,7 @@ void forward_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     load_segment(V, F, bins.items[e], &S);
     int64_t i0, i1;
-    if (!cell_range(g, 0, S.min(0), S.max(0), &i0, &i1)) continue;
+    if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) continue;
     i0 = std::max(i0, ia);
     i1 = std::min(i1, ib - 1);
     for (int64_t i = i0; i <= i1; ++i) {
