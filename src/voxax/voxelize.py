@@ -246,8 +246,7 @@ def _vary_like(out, *args):
 def _host_kernel(target, trailing, grid, *args):
     # Runs the FFI kernel on the host CPU device with the arguments as given (a vmap
     # of the callback adds leading axes, which the kernel treats as batch axes).
-    v, f = args[0], args[1]
-    batch = tuple(np.broadcast_shapes(v.shape[:-2], f.shape[:-2]))
+    v, _, batch = _lead(args[0], args[1])
     result = jax.ShapeDtypeStruct(batch + tuple(trailing), v.dtype)
     cpu = jax.devices("cpu")[0]
     with jax.default_device(cpu):
