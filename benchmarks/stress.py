@@ -31,7 +31,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import voxax  # noqa: E402
-from voxax.grid import Grid  # noqa: E402
+from voxax import Grid  # noqa: E402
 
 
 def rss_mib() -> float:

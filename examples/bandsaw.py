@@ -1,7 +1,7 @@
 """Deform a mesh so that a bandsaw can cut it, and write the cutting templates.
 
 The paper's section 4.3: cutting a block along the silhouettes seen from x, y and z leaves
-the *cut shape* `S = Sx * Sy * Sz`, usually much more than the shape itself. Minimising
+the *cut shape* `S = Sx * Sy * Sz`, usually much more than the shape itself. Minimizing
 `E_cut = mean((S - W)^2) + 0.05 * ARAP` (silhouettes by mellowmax with w = 1000) finds a
 small deformation that makes the shape more cuttable, for instance straightening fingers.
 `voxax.fabricate` then turns the shapes into printable SVG templates and exact cut solids.
@@ -10,8 +10,8 @@ small deformation that makes the shape more cuttable, for instance straightening
     python examples/bandsaw.py --resolution 128     # the paper's resolution
     python examples/bandsaw.py my_mesh.obj
 
-Writes `input.ply`, `optimised.ply`, `history.png`, `silhouettes.png` and the folders
-`templates_input/` and `templates_optimised/` (three SVG templates, the cut solid and a
+Writes `input.ply`, `optimized.ply`, `history.png`, `silhouettes.png` and the folders
+`templates_input/` and `templates_optimized/` (three SVG templates, the cut solid and a
 report each) to `--out`.
 """
 
@@ -39,7 +39,7 @@ def plot_silhouettes(before, after, path):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
-    for sil, style, label in ((before, "k--", "input"), (after, "C3-", "optimised")):
+    for sil, style, label in ((before, "k--", "input"), (after, "C3-", "optimized")):
         for axis, ax in enumerate(axes):
             for i, poly in enumerate(sil[axis]):
                 closed = np.vstack([poly, poly[:1]])
@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     mesh = voxax.data.get(args.mesh) if args.mesh in voxax.data.names() else voxax.io.load(args.mesh)
     # Paper defaults: w = 1000, ARAP weight 0.05, Adam with learning rate 1e-3, stop when
     # no vertex moves more than 5e-4 in a step.
-    optimised, report = voxax.apps.optimise_for_bandsaw(
+    optimized, report = voxax.apps.optimize_for_bandsaw(
         mesh, resolution=args.resolution, max_steps=args.max_steps, progress=not args.quiet
     )
     print(report.summary())
@@ -79,14 +79,14 @@ def main(argv=None) -> int:
     os.makedirs(args.out, exist_ok=True)
     before = voxax.fabricate.bandsaw_templates(mesh, os.path.join(args.out, "templates_input"), size_mm=args.size_mm)
     after = voxax.fabricate.bandsaw_templates(
-        optimised, os.path.join(args.out, "templates_optimised"), size_mm=args.size_mm
+        optimized, os.path.join(args.out, "templates_optimized"), size_mm=args.size_mm
     )
-    for label, t in (("input", before), ("optimised", after)):
+    for label, t in (("input", before), ("optimized", after)):
         print(f"{label:>10}: shape volume {t.volume_shape:.4f}, cut solid {t.volume_cut:.4f}, "
               f"waste {t.waste_volume:.4f} ({t.waste_fraction:.1%} of the cut solid)")
 
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
-    voxax.io.save(optimised, os.path.join(args.out, "optimised.ply"))
+    voxax.io.save(optimized, os.path.join(args.out, "optimized.ply"))
     plot_silhouettes(before.silhouettes, after.silhouettes, os.path.join(args.out, "silhouettes.png"))
     import matplotlib.pyplot as plt
 

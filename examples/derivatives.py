@@ -8,7 +8,7 @@ side by side in one PNG (diverging colour map, one colour scale per row):
    (one-voxel box filter), step 1e-6.
 2. "voxax": voxax's closed-form gradient, the full grid by `jax.jacrev`.
 3. "MC box 3": the Monte Carlo derivative of a box filter three voxels wide (Fig. 2), by
-   splatting surface samples (`voxax.filters.voxelize_mc_tangent`, the forward-mode twin of
+   splatting surface samples (`voxax.voxelize_mc_tangent`, the forward-mode twin of
    `voxelize_mc`'s VJP), next to its reference "FD box 3", the FD of the exact forward
    `box_filter(voxelize(...), 3)`.
 4. "point-sampled FD": central finite differences (step 1e-7) of the "discretise, then
@@ -44,7 +44,7 @@ def compute(resolution: int = 64, samples: int = 2048, seed: int = 0) -> dict:
 
     import voxax
     from voxax import baselines, curves
-    from voxax.filters import Box, box_filter, voxelize_mc_tangent
+    from voxax import Box, box_filter, voxelize_mc_tangent
 
     grid = voxax.Grid.cube(resolution, dim=2)
     star = voxax.data.star_polyline(center=(0.031, 0.017))

@@ -1,7 +1,7 @@
 """Resolve the self-intersections of a mesh by an as-rigid-as-possible deformation.
 
 The paper's section 4.2: voxels whose box-filtered winding number exceeds 1 are covered
-twice; minimising `sum of W^2 over those voxels + 0.005 * ARAP` with Adam pushes the
+twice; minimizing `sum of W^2 over those voxels + 0.005 * ARAP` with Adam pushes the
 overlapping parts apart while keeping the shape. The demo input `bent_bar` is a bar bent
 by 1.25 turns, so its ends overlap (W = 2 there).
 
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     mesh = voxax.data.get(args.mesh) if args.mesh in voxax.data.names() else voxax.io.load(args.mesh)
-    # The paper's set-up: normalise to max |v| = 0.8, grid [-1, 1]^3, eps = 1e-3,
+    # The paper's set-up: normalize to max |v| = 0.8, grid [-1, 1]^3, eps = 1e-3,
     # ARAP weight 0.005, Adam with learning rate 1e-2, stop when no voxel exceeds 1 + eps.
     resolved, report = voxax.apps.resolve_self_intersections(
         mesh, resolution=args.resolution, max_steps=args.max_steps, progress=not args.quiet

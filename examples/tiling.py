@@ -4,7 +4,7 @@ The paper's section 4.4: every instance of the mesh gets its own translation, ro
 (yaw, pitch, roll) and vertex offsets. All instances are voxelized on [-1, 1]^3 in one
 batched call, the grid is cut into 27 blocks that are summed into one periodic cell
 (whatever sticks out re-enters on the other side), and `sum (cell - 1)^2 + alpha * ARAP`
-is minimised with Adam: at the optimum every point of space is covered exactly once.
+is minimized with Adam: at the optimum every point of space is covered exactly once.
 
     python examples/tiling.py                              # 27 hands at 48^3 (a few minutes)
     python examples/tiling.py --resolution 192             # the paper's resolution (slow)
@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     parser.add_argument("--resolution", "-n", type=int, default=48, help="cells per axis, a multiple of 3 (paper: 192)")
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--arap-weight", type=float, default=50.0,
-                        help="ARAP weight (paper: 0.005, which barely regularises; see optimise_tiling)")
+                        help="ARAP weight (paper: 0.005, which barely regularises; see optimize_tiling)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", "-o", default="out-tiling", help="output folder")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     # Paper defaults (random initial placement in the cell, Adam with learning rate 1e-3,
     # stop when no vertex moves more than 1e-3 in a step) except for the ARAP weight:
     # the fill energy is a sum over voxels, so the paper's 0.005 lets shapes crumple.
-    placed, report = voxax.apps.optimise_tiling(
+    placed, report = voxax.apps.optimize_tiling(
         meshes, instances=instances, resolution=args.resolution, max_steps=args.max_steps,
         arap_weight=args.arap_weight, seed=args.seed, progress=not args.quiet,
     )

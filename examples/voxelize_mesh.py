@@ -34,7 +34,7 @@ def main(argv=None) -> int:
 
     # 1. A mesh: a built-in demo mesh or a file, centred and scaled into the grid.
     mesh = voxax.data.get(args.mesh) if args.mesh in voxax.data.names() else voxax.io.load(args.mesh)
-    mesh = voxax.io.normalise(mesh, max_abs=0.8)
+    mesh = voxax.io.normalize(mesh, max_abs=0.8)
     if not voxax.io.is_watertight(mesh.vertices, mesh.faces):
         print("warning: the mesh is not closed; its voxelization depends on the ray direction")
     grid = voxax.Grid.cube(args.resolution)  # [-1, 1]^3, n cells per axis

@@ -204,7 +204,7 @@ print(f"{(time.perf_counter() - t0) / 5 * 1e3:.2f} ms per voxelization of {mesh.
 ## Your own meshes
 
 `voxax.io.load` reads anything trimesh reads (`.obj`, `.ply`, `.stl`, `.glb`, ...);
-`voxax.io.normalise` centres a mesh and scales it to `max |v| = 0.8`, well inside
+`voxax.io.normalize` centres a mesh and scales it to `max |v| = 0.8`, well inside
 $[-1, 1]^3$. Here a torus goes through a file and back:
 """),
     code("""
@@ -212,7 +212,7 @@ import tempfile
 
 path = os.path.join(tempfile.mkdtemp(), "torus.obj")
 voxax.io.save(voxax.data.torus(), path)
-loaded = voxax.io.normalise(voxax.io.load(path))
+loaded = voxax.io.normalize(voxax.io.load(path))
 print(loaded, "| closed:", voxax.io.is_watertight(*loaded))
 Wt = voxax.voxelize(loaded.vertices, loaded.faces, grid)
 fig = voxax.plot.slices(Wt, grid, count=3, title="a torus loaded from a file")
@@ -395,7 +395,7 @@ hold values above 1. The paper's energy (section 4.2) penalises exactly those vo
 
 $$E_\text{sect} = \frac{1}{N} \sum_{W_{ijk} > 1 + \varepsilon} W_{ijk}^2,$$
 
-and an as-rigid-as-possible (ARAP) term keeps the shape. Minimising
+and an as-rigid-as-possible (ARAP) term keeps the shape. Minimizing
 $E_\text{sect} + 0.005\,E_\text{ARAP}$ with Adam pushes the overlapping parts apart until
 no voxel exceeds $1 + \varepsilon$: `voxax.apps.resolve_self_intersections` does all of it.
 """),
@@ -408,7 +408,7 @@ MAX_STEPS = 400    # most Adam steps
     code("""
 import voxax.apps
 
-mesh = voxax.io.normalise(voxax.data.bent_bar())  # max |v| = 0.8, as the app does
+mesh = voxax.io.normalize(voxax.data.bent_bar())  # max |v| = 0.8, as the app does
 grid = voxax.Grid.cube(RESOLUTION)
 W = voxax.voxelize(mesh.vertices, mesh.faces, grid)
 overlap = W > 1 + 1e-3
@@ -420,7 +420,7 @@ fig = voxax.plot.slices(W, grid, count=3, title="W (2 where the bar overlaps its
     md("""
 ## Resolve
 
-The app normalises the mesh, optimises on the `[-1, 1]^3` grid, stops as soon as no voxel
+The app normalizes the mesh, optimizes on the `[-1, 1]^3` grid, stops as soon as no voxel
 exceeds `1 + eps` (or after `max_steps`), and maps the result back to the input's frame.
 """),
     code("""
@@ -449,7 +449,7 @@ fig = voxax.plot.mesh(resolved.vertices, resolved.faces, values=displacement, la
     md("""
 ## The same thing by hand
 
-The app is a thin composition of public parts: `voxelize`, two energies and `minimise`
+The app is a thin composition of public parts: `voxelize`, two energies and `minimize`
 (its `max_w_threshold` rule stops as soon as no voxel is covered twice):
 """),
     code("""
@@ -463,7 +463,7 @@ def energy(V, args):
     return e_sect + 0.005 * e_arap, {"sect": e_sect, "arap": e_arap, "max_w": W.max()}
 
 
-result = voxax.minimise(energy, V0, has_aux=True, learning_rate=1e-2, progress=False,
+result = voxax.minimize(energy, V0, has_aux=True, learning_rate=1e-2, progress=False,
                         stop=voxax.StopRules(max_steps=MAX_STEPS, max_w_threshold=1 + 1e-3))
 print(f"{result.steps} steps, stop reason {result.stop_reason!r}, max W {result.history['max_w'][-1]:.4f}")
 """),
@@ -476,7 +476,7 @@ print(f"{result.steps} steps, stop reason {result.stop_reason!r}, max W {result.
 
 BANDSAW = [
     md(r"""
-# Optimising a shape for a bandsaw
+# Optimizing a shape for a bandsaw
 
 A bandsaw cutting a block along x, y and z can only make *cut shapes*: the intersection
 of the three silhouettes, each extruded along its axis. With soft silhouettes
@@ -484,7 +484,7 @@ $S_x, S_y, S_z$ (mellowmax of $W$ along each axis, sharpness $w = 1000$), the cu
 $S = S_x S_y S_z$, and the material that cutting cannot remove is measured by
 $E_\text{cut} = \operatorname{mean}\,(S - W)^2$ (paper, section 4.3). Deforming the shape
 as rigidly as possible to reduce $E_\text{cut}$ makes it cheaper to cut:
-`voxax.apps.optimise_for_bandsaw`. Then `voxax.fabricate` writes printable templates
+`voxax.apps.optimize_for_bandsaw`. Then `voxax.fabricate` writes printable templates
 (SVG) and the exact cut solid.
 """),
     params("""
@@ -498,7 +498,7 @@ OUT_DIR = "bandsaw-output"   # where the templates and cut solids are written
 import voxax.apps
 import voxax.fabricate
 
-mesh = voxax.io.normalise(voxax.data.hand())
+mesh = voxax.io.normalize(voxax.data.hand())
 grid = voxax.Grid.cube(RESOLUTION)
 W = voxax.voxelize(mesh.vertices, mesh.faces, grid)
 S = voxax.energies.cut_shape(W)
@@ -507,20 +507,20 @@ print(f"E_cut = {float(voxax.energies.bandsaw_cut(W)):.3e}; cut shape volume / s
 fig = voxax.plot.silhouettes(W, grid, title="the three silhouettes of the input")
 fig = voxax.plot.slices(S - W, grid, axis=1, count=3, title="S - W: what the cuts leave on (red)")
 """),
-    md("## Optimise"),
+    md("## Optimize"),
     code("""
 t0 = time.perf_counter()
-optimised, report = voxax.apps.optimise_for_bandsaw(mesh, resolution=RESOLUTION, max_steps=MAX_STEPS, progress=False)
+optimized, report = voxax.apps.optimize_for_bandsaw(mesh, resolution=RESOLUTION, max_steps=MAX_STEPS, progress=False)
 print(f"{time.perf_counter() - t0:.1f} s")
 print(report.summary())
 print(f"relative improvement of E_cut: {report.relative_improvement:.1%}")
 """),
     code("""
 fig = voxax.plot.history(report)
-W_opt = voxax.voxelize(optimised.vertices, optimised.faces, grid)
-fig = voxax.plot.silhouettes(W_opt, grid, title="silhouettes after the optimisation")
-fig = voxax.plot.mesh(optimised.vertices, optimised.faces, values=optimised.vertices - mesh.vertices,
-                      label="displacement", title="optimised, coloured by displacement")
+W_opt = voxax.voxelize(optimized.vertices, optimized.faces, grid)
+fig = voxax.plot.silhouettes(W_opt, grid, title="silhouettes after the optimization")
+fig = voxax.plot.mesh(optimized.vertices, optimized.faces, values=optimized.vertices - mesh.vertices,
+                      label="displacement", title="optimized, coloured by displacement")
 """),
     md("""
 ## Templates and the exact cut solid
@@ -532,9 +532,9 @@ its waste volume.
 """),
     code("""
 before = voxax.fabricate.bandsaw_templates(mesh, os.path.join(OUT_DIR, "input"), size_mm=100)
-after = voxax.fabricate.bandsaw_templates(optimised, os.path.join(OUT_DIR, "optimised"), size_mm=100)
+after = voxax.fabricate.bandsaw_templates(optimized, os.path.join(OUT_DIR, "optimized"), size_mm=100)
 print(f"exact waste (cut solid - shape) / cut solid: input {before.waste_fraction:.1%}, "
-      f"optimised {after.waste_fraction:.1%}")
+      f"optimized {after.waste_fraction:.1%}")
 print("written:", *[os.path.relpath(p) for p in after.svg_paths + (after.solid_path,)], sep="\\n  ")
 """),
     code("""
@@ -545,7 +545,7 @@ for path in after.svg_paths:
 """),
     code("""
 fig = plt.figure(figsize=(10, 4.6), layout="constrained")
-for n, (name, t) in enumerate([("input", before), ("optimised", after)]):
+for n, (name, t) in enumerate([("input", before), ("optimized", after)]):
     ax = fig.add_subplot(1, 2, n + 1, projection="3d")
     voxax.plot.mesh(t.cut_solid.vertices, t.cut_solid.faces, ax=ax,
                     title=f"cut solid of the {name} shape: {t.waste_fraction:.0%} waste")
@@ -569,14 +569,14 @@ the middle block re-enters on the opposite side). The energy
 $$E_\text{fill} = \sum_\text{cell voxels} (\text{cell} - 1)^2 + \alpha\, E_\text{ARAP}$$
 
 is zero when every point of space is covered exactly once (paper, section 4.4):
-`voxax.apps.optimise_tiling`.
+`voxax.apps.optimize_tiling`.
 """),
     params("""
 # Parameters (the test suite runs this notebook with smaller values).
 RESOLUTION = 48     # cells per axis of [-1, 1]^3, a multiple of 3 (paper: 192)
 INSTANCES = 27      # copies of the mesh
 MAX_STEPS = 200     # most Adam steps
-ARAP_WEIGHT = 50.0  # paper: 0.005, which lets the shapes crumple (see optimise_tiling's docs)
+ARAP_WEIGHT = 50.0  # paper: 0.005, which lets the shapes crumple (see optimize_tiling's docs)
 MESH = "hand"
 """),
     md("## Folding 27 blocks into one periodic cell"),
@@ -591,10 +591,10 @@ W_blocks = jnp.repeat(jnp.repeat(jnp.repeat(blocks, n, 0), n, 1), n, 2)  # block
 cell = voxax.energies.fold_periodic(W_blocks)
 print(f"the cell is {cell.shape}; every cell voxel is the sum of one voxel of each block: {float(cell[0, 0, 0])} = 0 + 1 + ... + 26")
 """),
-    md("## Optimise"),
+    md("## Optimize"),
     code("""
 t0 = time.perf_counter()
-placed, report = voxax.apps.optimise_tiling(
+placed, report = voxax.apps.optimize_tiling(
     mesh, instances=INSTANCES, resolution=RESOLUTION, max_steps=MAX_STEPS, arap_weight=ARAP_WEIGHT, progress=False
 )
 print(f"{time.perf_counter() - t0:.1f} s")
@@ -605,7 +605,7 @@ print(f"cell voxels covered exactly once: {report.coverage_initial:.1%} -> {repo
 fig = voxax.plot.history(report, keys=["energy"])
 cell_grid = voxax.Grid((report.cell_lower,) * 3, (report.cell_upper,) * 3, report.cell.shape)
 fig = voxax.plot.slices(report.cell - 1.0, cell_grid, axis=2, count=4,
-                        title="cell - 1 after the optimisation (0: covered exactly once)")
+                        title="cell - 1 after the optimization (0: covered exactly once)")
 """),
     code("""
 packed = voxax.data.Mesh.concatenate(*placed)
@@ -633,7 +633,7 @@ BATCHES = [
     md(r"""
 # Batches: `vmap` over a family of shapes, `shard_map` over devices
 
-Optimisations often handle many instances of one mesh (the 27 copies of the tiling, a
+Optimizations often handle many instances of one mesh (the 27 copies of the tiling, a
 family of designs). `voxelize` takes leading batch axes on `vertices` (`(B, V, 3)` with
 shared `faces (F, 3)`), works under `jax.vmap`, and under `shard_map` spreads a batch over
 devices. Here JAX simulates 4 CPU devices (set in the first cell, before JAX starts).

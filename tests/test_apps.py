@@ -15,7 +15,7 @@ from voxax import apps, energies
 
 
 def _working(mesh, report):
-    """The mesh's vertices in the app's working (normalised) frame."""
+    """The mesh's vertices in the app's working (normalized) frame."""
     return (mesh.vertices - report.centre) * report.scale
 
 
@@ -104,7 +104,7 @@ def test_resolve_rejects_bad_arguments():
 
 def test_bandsaw_hand_improves_by_at_least_20_percent():
     mesh = voxax.data.hand()
-    out, report = apps.optimise_for_bandsaw(mesh, resolution=64, progress=False)
+    out, report = apps.optimize_for_bandsaw(mesh, resolution=64, progress=False)
     grid = voxax.Grid.cube(64)
     # Recompute the cut energies independently of the report.
     e0 = float(energies.bandsaw_cut(voxax.voxelize(_working(mesh, report), mesh.faces, grid), 1000.0))
@@ -126,7 +126,7 @@ def test_bandsaw_hand_improves_by_at_least_20_percent():
 
 
 def test_bandsaw_report_is_frozen_and_serialisable():
-    _, report = apps.optimise_for_bandsaw(voxax.data.icosphere(1), resolution=16, max_steps=2, progress=False)
+    _, report = apps.optimize_for_bandsaw(voxax.data.icosphere(1), resolution=16, max_steps=2, progress=False)
     with pytest.raises(dataclasses.FrozenInstanceError):
         report.steps = 5
     data = json.loads(json.dumps(report.to_dict()))
@@ -143,7 +143,7 @@ def test_bandsaw_report_is_frozen_and_serialisable():
 
 def test_tiling_lowers_the_fill_energy_by_30_percent():
     mesh = voxax.data.icosphere(2)
-    placed, report = apps.optimise_tiling(
+    placed, report = apps.optimize_tiling(
         mesh, instances=8, resolution=48, max_steps=60, min_step=None, progress=False
     )
     assert len(placed) == 8 and report.instances == 8 and report.steps == 60
@@ -171,7 +171,7 @@ def test_tiling_lowers_the_fill_energy_by_30_percent():
 
 def test_rigid_tiling_moves_instances_rigidly():
     mesh = voxax.data.box((-0.5, -0.3, -0.2), (0.5, 0.3, 0.2))
-    placed, report = apps.optimise_tiling(
+    placed, report = apps.optimize_tiling(
         mesh, instances=2, resolution=24, max_steps=5, deform=False, init="lattice", progress=False
     )
     rest = mesh.vertices - mesh.vertices.mean(axis=0)
@@ -184,7 +184,7 @@ def test_rigid_tiling_moves_instances_rigidly():
 
 def test_tiling_of_several_meshes_pads_them():
     a, b = voxax.data.icosphere(1), voxax.data.cube()
-    placed, report = apps.optimise_tiling([a, b], instances=(2, 1), resolution=24, max_steps=2, progress=False)
+    placed, report = apps.optimize_tiling([a, b], instances=(2, 1), resolution=24, max_steps=2, progress=False)
     assert [m.n_vertices for m in placed] == [a.n_vertices, a.n_vertices, b.n_vertices]
     np.testing.assert_array_equal(report.mesh_index, [0, 0, 1])
     np.testing.assert_array_equal(placed[2].faces, b.faces)
@@ -193,20 +193,20 @@ def test_tiling_of_several_meshes_pads_them():
     W = sum(voxax.voxelize(m.vertices, m.faces, grid) for m in placed)
     np.testing.assert_allclose(np.asarray(energies.fold_periodic(W)), report.cell, atol=1e-12)
     # A (vertices, faces) pair is one mesh, not two.
-    _, r1 = apps.optimise_tiling((b.vertices, b.faces), instances=2, resolution=12, max_steps=1, progress=False)
+    _, r1 = apps.optimize_tiling((b.vertices, b.faces), instances=2, resolution=12, max_steps=1, progress=False)
     assert r1.instances == 2 and list(r1.mesh_index) == [0, 0]
 
 
 def test_tiling_rejects_bad_arguments():
     m = voxax.data.cube()
     with pytest.raises(ValueError, match="multiple of 3"):
-        apps.optimise_tiling(m, resolution=50, progress=False)
+        apps.optimize_tiling(m, resolution=50, progress=False)
     with pytest.raises(ValueError, match="init"):
-        apps.optimise_tiling(m, resolution=12, init="grid", progress=False)
+        apps.optimize_tiling(m, resolution=12, init="grid", progress=False)
     with pytest.raises(ValueError, match="counts"):
-        apps.optimise_tiling([m, m], instances=(1, 2, 3), resolution=12, progress=False)
+        apps.optimize_tiling([m, m], instances=(1, 2, 3), resolution=12, progress=False)
     with pytest.raises(ValueError, match="translations"):
-        apps.optimise_tiling(m, instances=2, resolution=12, translations=np.zeros((3, 3)), progress=False)
+        apps.optimize_tiling(m, instances=2, resolution=12, translations=np.zeros((3, 3)), progress=False)
 
 
 def test_rotation_matrices():

@@ -115,7 +115,7 @@ def test_gradient_matches_finite_differences_with_fixed_rotations(rng):
     assert scale > 1e-3
     assert np.abs(g - fd_fixed).max() <= 1e-6 * scale
     # The rotations are optimal, so (envelope theorem) this is also the gradient of the
-    # energy minimised over rotations.
+    # energy minimized over rotations.
     assert np.abs(g - fd_full).max() <= 1e-5 * scale
     # With rotations given explicitly the gradient is the same.
     g_fixed = np.asarray(jax.grad(lambda X: E.arap(X, rest, F, rotations=R0))(jnp.asarray(V)))

@@ -53,10 +53,10 @@ def test_bandsaw(tmp_path):
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["steps"] == 20 or report["stop_reason"] == "min_step"
     assert report["relative_improvement"] > 0
-    for name in ("input.ply", "optimised.ply", "history.png", "templates_optimised/template_z.svg",
-                 "templates_input/cut_solid.ply", "templates_optimised/report.json"):
+    for name in ("input.ply", "optimized.ply", "history.png", "templates_optimized/template_z.svg",
+                 "templates_input/cut_solid.ply", "templates_optimized/report.json"):
         assert (tmp_path / name).exists(), name
-    assert 0 <= report["exact_waste_fraction_optimised"] < 1
+    assert 0 <= report["exact_waste_fraction_optimized"] < 1
 
 
 def test_tile(tmp_path):

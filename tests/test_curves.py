@@ -7,7 +7,7 @@ import pytest
 
 import voxax
 from voxax import curves
-from voxax.filters import Box, box_filter
+from voxax import Box, box_filter
 
 GRID = voxax.Grid.cube(32, dim=2)
 KAPPA = 0.5522847498  # cubic Bezier approximation of a quarter circle

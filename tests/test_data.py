@@ -188,7 +188,7 @@ def test_inverted_component(meshes):
     assert m.signed_volume() == pytest.approx(main.signed_volume() + inv.signed_volume())
     assert crossing_count(m.vertices, m.faces, info["center"] + 1e-3) == 1
     assert crossing_count(m.vertices, m.faces, info["inverted_center"] + 1e-3) == -1
-    # Disjoint and inside the paper's normalisation box.
+    # Disjoint and inside the paper's normalization box.
     assert np.abs(m.vertices).max() <= 0.8
     gap = np.linalg.norm(info["inverted_center"] - info["center"]) - info["radius"] - info["inverted_radius"]
     assert gap > 0

@@ -60,7 +60,7 @@ def test_api_reference_covers_every_public_module(site):
     for name in modules:
         if importlib.util.find_spec(name) is not None:
             assert f'id="{name}' in html, f"{name} is missing from the API reference"
-    for name in ("grid.Grid", "voxelize.voxelize", "solve.minimise", "solve.StopRules", "solve.MinimiseResult"):
+    for name in ("grid.Grid", "voxelize.voxelize", "solve.minimize", "solve.StopRules", "solve.MinimizeResult"):
         assert f'id="voxax.{name}"' in html, name
     # Docstring examples are rendered as code.
     assert "&gt;&gt;&gt;" in html

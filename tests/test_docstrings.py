@@ -67,7 +67,7 @@ _TESTS = _doctests()
 
 def test_every_public_module_is_searched():
     modules = set(_modules())
-    for name in ("voxax.grid", "voxax.voxelize", "voxax.data", "voxax.io", "voxax.plot", "voxax.solve",
+    for name in ("voxax._grid", "voxax._voxelize", "voxax._mesh", "voxax.data", "voxax.io", "voxax.plot", "voxax._minimize",
                  "voxax.energies"):
         assert name in modules
     assert len(_TESTS) >= 20

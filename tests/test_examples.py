@@ -39,8 +39,8 @@ def test_self_intersection(tmp_path):
 def test_bandsaw(tmp_path, capsys):
     argv = ["--resolution", "24", "--max-steps", "15", "--out", str(tmp_path), "--quiet"]
     assert _load("bandsaw").main(argv) == 0
-    for name in ("input.ply", "optimised.ply", "silhouettes.png", "history.png",
-                 "templates_input/template_x.svg", "templates_optimised/cut_solid.ply"):
+    for name in ("input.ply", "optimized.ply", "silhouettes.png", "history.png",
+                 "templates_input/template_x.svg", "templates_optimized/cut_solid.ply"):
         assert (tmp_path / name).exists(), name
     assert "relative improvement" in capsys.readouterr().out
 

@@ -27,7 +27,7 @@ import pytest
 from jax.scipy.special import erf
 
 import voxax
-from voxax.filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
+from voxax import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 
 STAR = voxax.data.star_polyline(center=(0.031, 0.017))
 GRID2 = voxax.Grid.cube(24, dim=2)
@@ -44,7 +44,7 @@ def _exact_rect(lo, hi, grid, kernel):
         s = kernel.sigma * grid.spacing[a]
         T = kernel.truncate * s
 
-        def cdf(x):  # CDF of the normal truncated to [-T, T] (renormalised)
+        def cdf(x):  # CDF of the normal truncated to [-T, T] (renormalized)
             return (erf(jnp.clip(x, -T, T) / (s * np.sqrt(2))) + mass) / (2 * mass)
 
         out = out * (cdf(hi[a] - c[..., a]) - cdf(lo[a] - c[..., a]))

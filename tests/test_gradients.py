@@ -22,7 +22,7 @@ from jax.test_util import check_grads
 
 import voxax
 from voxax import reference
-from voxax.grid import Grid
+from voxax import Grid
 
 from conftest import random_polygon, random_star_mesh
 

@@ -1,4 +1,4 @@
-"""Tests for voxax.io: loading, saving, normalising, conversions, watertightness."""
+"""Tests for voxax.io: loading, saving, normalizing, conversions, watertightness."""
 
 from __future__ import annotations
 
@@ -80,30 +80,30 @@ def test_save_rejects_2d(tmp_path):
         io.save(data.polygon_square(), tmp_path / "sq.ply")
 
 
-# ------------------------------------------------------------------------- normalise
+# ------------------------------------------------------------------------- normalize
 
 
 @pytest.mark.parametrize("name", ["torus", "hand", "overlapping_cubes", "star_polyline"])
-def test_normalise(name):
+def test_normalize(name):
     m = data.get(name).translated((0.3, -2.0) if data.get(name).dim == 2 else (0.3, -2.0, 5.0))
-    n, centre, scale = io.normalise(m, return_transform=True)
+    n, centre, scale = io.normalize(m, return_transform=True)
     assert np.abs(n.vertices).max() == pytest.approx(0.8, rel=1e-15)
     np.testing.assert_allclose(n.bounds.sum(axis=0), 0.0, atol=1e-14)
     np.testing.assert_allclose(n.vertices, (m.vertices - centre) * scale, atol=1e-15)
     np.testing.assert_array_equal(n.faces, m.faces)
     assert n.signed_volume() == pytest.approx(m.signed_volume() * scale**m.dim, rel=1e-12)
-    assert np.abs(io.normalise(m, 0.5).vertices).max() == pytest.approx(0.5)
+    assert np.abs(io.normalize(m, 0.5).vertices).max() == pytest.approx(0.5)
 
 
-def test_normalise_accepts_trimesh_and_tuple():
+def test_normalize_accepts_trimesh_and_tuple():
     m = data.box((1, 1, 1), (3, 2, 2))
-    a = io.normalise(m.to_trimesh())
-    b = io.normalise((m.vertices, m.faces))
+    a = io.normalize(m.to_trimesh())
+    b = io.normalize((m.vertices, m.faces))
     np.testing.assert_allclose(a.vertices, b.vertices)
     np.testing.assert_allclose(a.bounds, [[-0.8, -0.4, -0.4], [0.8, 0.4, 0.4]])
-    assert io.normalize is io.normalise
+    assert io.normalize is io.normalize
     with pytest.raises(ValueError):
-        io.normalise((np.ones((3, 3)), np.array([[0, 1, 2]])))
+        io.normalize((np.ones((3, 3)), np.array([[0, 1, 2]])))
 
 
 # ------------------------------------------------------------------------- as_arrays

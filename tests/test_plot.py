@@ -188,7 +188,7 @@ def test_gradient_field_2d_arrows_follow_the_gradient():
 def test_gradient_field_3d_and_bad_shapes():
     m = voxax.data.icosphere(0, radius=0.5)
     g = np.ones_like(m.vertices)
-    fig = plot.gradient_field(m.vertices, m.faces, g, normalise=True)
+    fig = plot.gradient_field(m.vertices, m.faces, g, normalize=True)
     assert fig.axes[0].name == "3d"
     with pytest.raises(ValueError, match="gradient must have"):
         plot.gradient_field(m.vertices, m.faces, g[:-1])
@@ -197,9 +197,9 @@ def test_gradient_field_3d_and_bad_shapes():
 # -- histories ---------------------------------------------------------------------------
 
 
-def test_history_from_minimise_result_dict_and_array(tmp_path):
+def test_history_from_minimize_result_dict_and_array(tmp_path):
     quad = lambda y, args: jnp.sum((y - 1.0) ** 2)  # noqa: E731
-    r = voxax.minimise(quad, jnp.zeros(3), learning_rate=0.1, progress=False, stop=voxax.StopRules(max_steps=30))
+    r = voxax.minimize(quad, jnp.zeros(3), learning_rate=0.1, progress=False, stop=voxax.StopRules(max_steps=30))
     fig = plot.history(r, path=str(tmp_path / "h.png"))
     assert [ax.get_ylabel() for ax in fig.axes] == ["energy", "step_size"]
     x, y = fig.axes[0].lines[0].get_data()

@@ -30,7 +30,7 @@ from hypothesis import strategies as st
 
 import voxax
 from voxax import reference
-from voxax.grid import Grid
+from voxax import Grid
 
 RANDOM = os.environ.get("VOXAX_HYPOTHESIS_RANDOM", "") == "1"
 

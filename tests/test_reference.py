@@ -8,7 +8,7 @@ axis-aligned boxes, the enclosed volume and its gradient, and finite differences
 import numpy as np
 import pytest
 
-from voxax.grid import Grid
+from voxax import Grid
 from voxax.reference import (
     signed_volume,
     volume_gradient,

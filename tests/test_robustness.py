@@ -23,7 +23,7 @@ from conftest import random_star_mesh
 
 import voxax
 from voxax import _ffi, reference
-from voxax.grid import Grid
+from voxax import Grid
 
 GRID = Grid.cube(6)
 
@@ -314,7 +314,7 @@ def test_uint64_faces_are_accepted(jit):
 
 @pytest.mark.parametrize("L", [1e60, 1e70, 1e74, 4.9e74])
 def test_backward_of_huge_triangles_is_not_zero(L):
-    """Coordinates up to 1e75 are accepted (the bound keeps |N|^2 of the unnormalised
+    """Coordinates up to 1e75 are accepted (the bound keeps |N|^2 of the unnormalized
     normal, a fourth power of the coordinates, finite), and both the forward and the
     backward handle a huge triangle crossing the grid exactly: the gradient of a
     horizontal triangle through a unit grid does not depend on its size."""

@@ -1,4 +1,4 @@
-"""`voxax.solve.minimise`: solvers, stopping rules, history, callbacks, compile-once."""
+"""`voxax.minimize`: solvers, stopping rules, history, callbacks, compile-once."""
 
 import dataclasses
 
@@ -11,7 +11,7 @@ from conftest import random_star_mesh
 
 import voxax
 from voxax import energies as E
-from voxax.solve import MinimiseResult, StopRules, minimise
+from voxax import MinimizeResult, StopRules, minimize
 
 
 def rosenbrock(y, args):
@@ -33,9 +33,9 @@ def quadratic_aux(y, args):
 
 
 def test_adam_converges_on_a_quadratic():
-    r = minimise(quadratic, np.zeros((4, 3)), solver="adam", learning_rate=0.05,
+    r = minimize(quadratic, np.zeros((4, 3)), solver="adam", learning_rate=0.05,
                  stop=StopRules(max_steps=2000, min_step=1e-5), progress=False)
-    assert isinstance(r, MinimiseResult)
+    assert isinstance(r, MinimizeResult)
     assert r.stop_reason in ("min_step", "converged")
     np.testing.assert_allclose(np.asarray(r.y), TARGET, atol=1e-3)
     assert r.energy == pytest.approx(float(quadratic(r.y, None)))
@@ -44,7 +44,7 @@ def test_adam_converges_on_a_quadratic():
 
 @pytest.mark.parametrize("solver", ["bfgs", "lbfgs"])
 def test_quasi_newton_converges_on_rosenbrock(solver):
-    r = minimise(rosenbrock, jnp.zeros(4), solver=solver, stop=StopRules(max_steps=500), progress=False)
+    r = minimize(rosenbrock, jnp.zeros(4), solver=solver, stop=StopRules(max_steps=500), progress=False)
     assert r.stop_reason == "converged"
     np.testing.assert_allclose(np.asarray(r.y), 1.0, atol=1e-6)
     assert r.energy == pytest.approx(float(rosenbrock(r.y, None)), abs=1e-14)
@@ -54,20 +54,20 @@ def test_quasi_newton_converges_on_rosenbrock(solver):
 
 
 def test_solver_instances_and_optax_transformations():
-    r = minimise(quadratic, np.zeros((4, 3)), solver=optx.BFGS(rtol=1e-10, atol=1e-12),
+    r = minimize(quadratic, np.zeros((4, 3)), solver=optx.BFGS(rtol=1e-10, atol=1e-12),
                  stop=StopRules(max_steps=200), progress=False)
     assert r.stop_reason == "converged"
     np.testing.assert_allclose(np.asarray(r.y), TARGET, atol=1e-7)
-    r = minimise(quadratic, np.zeros((4, 3)), solver=optax.sgd(0.1), stop=StopRules(max_steps=300), progress=False)
+    r = minimize(quadratic, np.zeros((4, 3)), solver=optax.sgd(0.1), stop=StopRules(max_steps=300), progress=False)
     np.testing.assert_allclose(np.asarray(r.y), TARGET, atol=1e-6)
     with pytest.raises(ValueError, match="unknown solver"):
-        minimise(quadratic, np.zeros((4, 3)), solver="newton", progress=False)
+        minimize(quadratic, np.zeros((4, 3)), solver="newton", progress=False)
     with pytest.raises(TypeError):
-        minimise(quadratic, np.zeros((4, 3)), solver=3, progress=False)
+        minimize(quadratic, np.zeros((4, 3)), solver=3, progress=False)
 
 
 def test_max_steps_and_history():
-    r = minimise(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=1e-3,
+    r = minimize(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=1e-3,
                  stop=StopRules(max_steps=7), progress=False)
     assert r.stop_reason == "max_steps" and r.steps == 7
     assert set(r.history) == {"energy", "step_size", "time", "quad", "max_w"}  # non-scalar aux skipped
@@ -80,32 +80,32 @@ def test_max_steps_and_history():
     assert np.all(np.diff(r.history["time"]) >= 0)
     assert r.energy == pytest.approx(float(quadratic(r.y, None)))
     assert r.aux["quad"] == pytest.approx(r.energy)
-    r0 = minimise(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=0), progress=False)
+    r0 = minimize(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=0), progress=False)
     assert r0.steps == 0 and r0.stop_reason == "max_steps" and len(r0.history["energy"]) == 0
     np.testing.assert_array_equal(np.asarray(r0.y), 0.0)
 
 
 def test_min_step_rule():
     tol = 2e-3
-    r = minimise(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
+    r = minimize(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
                  stop=StopRules(max_steps=1000, min_step=tol), progress=False)
     assert r.stop_reason == "min_step"
     s = r.history["step_size"]
     assert len(s) == r.steps and s[-1] < tol and np.all(s[:-1] >= tol)
     # Step sizes are per-point Euclidean moves for (..., 3) arrays.
-    r1 = minimise(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
+    r1 = minimize(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
                   stop=StopRules(max_steps=1), progress=False)
     moved = np.asarray(r1.y)
     assert r1.history["step_size"][0] == pytest.approx(np.linalg.norm(moved, axis=-1).max())
     # patience: the rule must hold for several consecutive steps.
-    r2 = minimise(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
+    r2 = minimize(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
                   stop=StopRules(max_steps=1000, min_step=tol, patience=3), progress=False)
     assert r2.stop_reason == "min_step" and r2.steps == r.steps + 2
 
 
 def test_max_w_threshold_rule():
     thr = 1.1
-    r = minimise(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=0.01,
+    r = minimize(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=0.01,
                  stop=StopRules(max_steps=1000, max_w_threshold=thr), progress=False)
     assert r.stop_reason == "max_w"
     mw = r.history["max_w"]
@@ -114,17 +114,17 @@ def test_max_w_threshold_rule():
     assert float(quadratic_aux(r.y, None)[1]["max_w"]) == pytest.approx(mw[-1])
     assert r.aux["max_w"] == pytest.approx(mw[-1])
     # The alias `max_w` does the same.
-    r2 = minimise(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=0.01,
+    r2 = minimize(quadratic_aux, np.zeros((4, 3)), has_aux=True, learning_rate=0.01,
                   stop=StopRules(max_steps=1000, max_w=thr), progress=False)
     assert r2.stop_reason == "max_w" and r2.steps == r.steps
     with pytest.raises(ValueError, match="max_w"):
-        minimise(quadratic, np.zeros((4, 3)), stop=StopRules(max_w_threshold=thr), progress=False)
+        minimize(quadratic, np.zeros((4, 3)), stop=StopRules(max_w_threshold=thr), progress=False)
     with pytest.raises(ValueError):
         StopRules(max_w=1.0, max_w_threshold=2.0)
 
 
 def test_energy_tol_rule():
-    r = minimise(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
+    r = minimize(quadratic, np.zeros((4, 3)), solver="sgd", learning_rate=0.05,
                  stop=StopRules(max_steps=1000, energy_tol=1e-6), progress=False)
     assert r.stop_reason == "energy_tol"
     e = r.history["energy"]
@@ -138,7 +138,7 @@ def test_callback_is_called_and_can_stop():
         calls.append((step, np.asarray(y).copy(), dict(info)))
         return step == 5
 
-    r = minimise(quadratic_aux, np.zeros((4, 3)), has_aux=True, callback=callback,
+    r = minimize(quadratic_aux, np.zeros((4, 3)), has_aux=True, callback=callback,
                  stop=StopRules(max_steps=100), progress=False)
     assert r.stop_reason == "callback" and r.steps == 5
     assert [c[0] for c in calls] == [1, 2, 3, 4, 5]
@@ -151,7 +151,7 @@ def test_nonfinite_energy_stops_and_returns_a_finite_iterate():
     def fn(y, args):
         return jnp.where(y[0] < 0.5, jnp.nan, jnp.sum((y - 0.0) ** 2))
 
-    r = minimise(fn, jnp.array([1.0, 1.0]), learning_rate=0.1, stop=StopRules(max_steps=100), progress=False)
+    r = minimize(fn, jnp.array([1.0, 1.0]), learning_rate=0.1, stop=StopRules(max_steps=100), progress=False)
     assert r.stop_reason == "nonfinite"
     assert np.isfinite(r.energy) and float(r.y[0]) >= 0.5
 
@@ -170,7 +170,7 @@ def test_step_compiles_once():
     for steps in (3, 40):
         for solver in ("adam", "bfgs"):
             fn, traces = make_fn()  # a fresh function: no compilation cache from other runs
-            minimise(fn, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=steps), progress=False)
+            minimize(fn, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=steps), progress=False)
             counts[steps, solver] = traces["n"]
     # A handful of traces (shape inference, the step, the final evaluation), the same
     # however many steps run.
@@ -183,11 +183,11 @@ def test_pytree_parameters_and_args():
         return jnp.sum((y["a"] - args["t"]) ** 2) + (y["b"] - 2.0) ** 2
 
     y0 = {"a": jnp.zeros(3), "b": jnp.asarray(0.0)}
-    r = minimise(fn, y0, {"t": jnp.array([1.0, 2.0, 3.0])}, solver="bfgs", progress=False)
+    r = minimize(fn, y0, {"t": jnp.array([1.0, 2.0, 3.0])}, solver="bfgs", progress=False)
     assert r.stop_reason == "converged"
     np.testing.assert_allclose(np.asarray(r.y["a"]), [1, 2, 3], atol=1e-6)
     assert float(r.y["b"]) == pytest.approx(2.0, abs=1e-6)
-    r1 = minimise(fn, y0, {"t": jnp.array([1.0, 2.0, 3.0])}, solver="sgd", learning_rate=0.1,
+    r1 = minimize(fn, y0, {"t": jnp.array([1.0, 2.0, 3.0])}, solver="sgd", learning_rate=0.1,
                   stop=StopRules(max_steps=1), progress=False)
     # Pytrees: the step size is the largest absolute change of any entry.
     assert r1.history["step_size"][0] == pytest.approx(0.6)
@@ -195,16 +195,16 @@ def test_pytree_parameters_and_args():
 
 def test_bad_objectives_are_reported():
     with pytest.raises(ValueError, match="scalar"):
-        minimise(lambda y, a: y * 2, np.zeros(3), progress=False)
+        minimize(lambda y, a: y * 2, np.zeros(3), progress=False)
     with pytest.raises(ValueError, match="has_aux"):
-        minimise(lambda y, a: (jnp.sum(y), {}), np.zeros(3), progress=False)
+        minimize(lambda y, a: (jnp.sum(y), {}), np.zeros(3), progress=False)
 
 
 def test_progress_bar_and_eager_mode(capsys):
-    r = minimise(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=3), progress=True)
+    r = minimize(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=3), progress=True)
     assert r.steps == 3
-    assert "minimise" in capsys.readouterr().err
-    r2 = minimise(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=3), progress=False, jit=False)
+    assert "minimize" in capsys.readouterr().err
+    r2 = minimize(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=3), progress=False, jit=False)
     np.testing.assert_allclose(np.asarray(r2.y), np.asarray(r.y), rtol=1e-12)
 
 
@@ -213,7 +213,7 @@ def test_stop_rules_and_result_are_frozen():
     assert s.max_steps == 1000 and s.max_w_threshold is None and s.min_step is None and s.energy_tol is None
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.max_steps = 3
-    r = minimise(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=1), progress=False)
+    r = minimize(quadratic, np.zeros((4, 3)), stop=StopRules(max_steps=1), progress=False)
     with pytest.raises(dataclasses.FrozenInstanceError):
         r.steps = 3
 
@@ -231,7 +231,7 @@ def test_resolving_an_overlap_through_voxelize(rng):
         e_arap = E.arap(V, V0, F)
         return e_sect + 0.005 * e_arap, {"sect": e_sect, "arap": e_arap, "max_w": W.max()}
 
-    r = minimise(fn, V0, voxax.Grid.cube(16), has_aux=True, learning_rate=2e-2,
+    r = minimize(fn, V0, voxax.Grid.cube(16), has_aux=True, learning_rate=2e-2,
                  stop=StopRules(max_steps=150, max_w_threshold=1 + 1e-3), progress=False)
     assert r.history["sect"][0] > 0
     assert r.stop_reason == "max_w", r.history["max_w"][-5:]
@@ -239,7 +239,7 @@ def test_resolving_an_overlap_through_voxelize(rng):
 
 
 class _FailingAdam(optx.OptaxMinimiser):
-    """An optax minimiser whose own termination check reports a failure after 3 steps."""
+    """An optax minimizer whose own termination check reports a failure after 3 steps."""
 
     def terminate(self, fn, y, args, options, state, tags):
         return state.step >= 3, optx.RESULTS.where(state.step >= 3, optx.RESULTS.nonlinear_divergence,
@@ -248,6 +248,6 @@ class _FailingAdam(optx.OptaxMinimiser):
 
 def test_solver_failures_are_reported():
     solver = _FailingAdam(optax.adam(1e-2), rtol=1e-8, atol=1e-8)
-    r = minimise(quadratic, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=50), progress=False)
+    r = minimize(quadratic, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=50), progress=False)
     assert r.stop_reason.startswith("failed: ") and "diverged" in r.stop_reason
     assert r.steps == 3

@@ -14,7 +14,7 @@ import pytest
 
 import voxax
 from voxax import reference
-from voxax.grid import Grid
+from voxax import Grid
 
 from conftest import random_polygon, random_star_mesh
 
@@ -330,7 +330,7 @@ def test_second_order_raises():
 
 
 # ---------------------------------------------------------------------------------------
-# A jit-compiled optimisation loop with optax
+# A jit-compiled optimization loop with optax
 # ---------------------------------------------------------------------------------------
 
 

@@ -12,7 +12,7 @@ from conftest import random_polygon, random_star_mesh
 
 import voxax
 from voxax import reference
-from voxax.grid import Grid
+from voxax import Grid
 
 TOL = {np.float64: 1e-10, np.float32: 1e-5}
 

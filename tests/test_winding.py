@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import voxax
-from voxax.winding import winding_number
+from voxax import winding_number
 
 
 def _uniform(rng, lo, hi, n, d=3):

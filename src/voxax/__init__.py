@@ -10,25 +10,28 @@ The public API:
   `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
   `voxax.box_filter`: integer-scaled box filters of a voxelization.
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
-  tiling, ARAP, ...); `voxax.minimise`: an optimistix/optax minimisation driver.
+  tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
 from . import _ffi  # noqa: F401  (registers the kernels with XLA)
-from .grid import Grid
-from .voxelize import voxelize, voxelize_corner_gradients
+from ._grid import Grid
+from ._mesh import Mesh
+from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
-from .filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
-from .winding import winding_number
-from .solve import MinimiseResult, StopRules, minimise
+from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
+from ._winding import winding_number
+from ._minimize import MinimizeResult, StopRules, minimize
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Grid",
+    "Mesh",
+    "use_host_callback",
     "voxelize",
     "voxelize_corner_gradients",
     "winding_number",
@@ -37,8 +40,8 @@ __all__ = [
     "box_filter",
     "Box",
     "Gaussian",
-    "minimise",
-    "MinimiseResult",
+    "minimize",
+    "MinimizeResult",
     "StopRules",
     "apps",
     "fabricate",

@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .grid import Grid
-from .winding import winding_number
+from ._grid import Grid
+from ._winding import winding_number
 
 __all__ = ["point_sampled", "interpolate"]
 
@@ -67,7 +67,7 @@ def point_sampled(vertices, faces, grid: Grid, *, supersample: int = 1, points=N
     """Point-sampled winding numbers: the "discretise, then differentiate" baseline.
 
     The sharp winding number `round(w)` (w the generalised winding number of
-    [`voxax.winding_number`][voxax.winding.winding_number], so the integer ray-crossing
+    [`voxax.winding_number`][voxax.winding_number], so the integer ray-crossing
     count of a closed mesh) is sampled at `supersample^d` regularly spaced points per voxel
     (the centres of the voxels of the grid refined `supersample` times per axis; with
     `supersample=1`, the voxel centres) and averaged per voxel. With `points`, the result

@@ -51,8 +51,8 @@ def _voxelize_cmd(args) -> int:
     import voxax
 
     mesh = voxax.io.load(args.mesh) if args.mesh not in voxax.data.names() else voxax.data.get(args.mesh)
-    if args.normalise:
-        mesh = voxax.io.normalise(mesh)
+    if args.normalize:
+        mesh = voxax.io.normalize(mesh)
     if mesh.dim == 3 and not voxax.io.is_watertight(mesh.vertices, mesh.faces):
         print("warning: the mesh is not closed; the result depends on the +z ray direction", file=sys.stderr)
     grid = voxax.Grid.cube(args.resolution, dim=mesh.dim) if not args.fit else voxax.Grid.around(mesh.vertices, args.resolution)
@@ -95,7 +95,7 @@ def _write_json(data, path) -> None:
 
 
 def _projections_before_after(mesh_a, mesh_b, grid, path, title):
-    """Maximum of W along x, y and z for two meshes (e.g. before and after an optimisation)."""
+    """Maximum of W along x, y and z for two meshes (e.g. before and after an optimization)."""
     import numpy as np
 
     import voxax
@@ -138,7 +138,7 @@ def _resolve_cmd(args) -> int:
         arap_weight=args.arap_weight,
         learning_rate=args.learning_rate,
         max_steps=args.max_steps,
-        normalise=not args.no_normalise,
+        normalize=not args.no_normalize,
         progress=not args.quiet,
     )
     print(report.summary())
@@ -149,7 +149,7 @@ def _resolve_cmd(args) -> int:
         from voxax.apps._common import pyplot
 
         pyplot().close(report.plot_history(os.path.join(args.out, "history.png")))
-        work = voxax.io.normalise(mesh) if not args.no_normalise else mesh
+        work = voxax.io.normalize(mesh) if not args.no_normalize else mesh
         after = voxax.data.Mesh((out.vertices - report.centre) * report.scale, out.faces)
         _projections_before_after(work, after, voxax.Grid.cube(args.resolution), os.path.join(args.out, "overlaps.png"),
                                   "largest winding number along each axis (above 1: overlaps)")
@@ -166,7 +166,7 @@ def _bandsaw_cmd(args) -> int:
 
     mesh = _load_mesh(args.mesh)
     os.makedirs(args.out, exist_ok=True)
-    out, report = apps.optimise_for_bandsaw(
+    out, report = apps.optimize_for_bandsaw(
         mesh,
         resolution=args.resolution,
         w=args.w,
@@ -174,20 +174,20 @@ def _bandsaw_cmd(args) -> int:
         learning_rate=args.learning_rate,
         min_step=args.min_step if args.min_step > 0 else None,
         max_steps=args.max_steps,
-        normalise=not args.no_normalise,
+        normalize=not args.no_normalize,
         progress=not args.quiet,
     )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
-    voxax.io.save(out, os.path.join(args.out, "optimised.ply"))
+    voxax.io.save(out, os.path.join(args.out, "optimized.ply"))
     data = report.to_dict()
     if not args.no_templates:
         before = fabricate.bandsaw_templates(mesh, os.path.join(args.out, "templates_input"), size_mm=args.size_mm)
-        after = fabricate.bandsaw_templates(out, os.path.join(args.out, "templates_optimised"), size_mm=args.size_mm)
+        after = fabricate.bandsaw_templates(out, os.path.join(args.out, "templates_optimized"), size_mm=args.size_mm)
         data["exact_waste_fraction_input"] = before.waste_fraction
-        data["exact_waste_fraction_optimised"] = after.waste_fraction
+        data["exact_waste_fraction_optimized"] = after.waste_fraction
         print(f"  exact waste (cut solid - shape) / cut solid: input {before.waste_fraction:.1%}, "
-              f"optimised {after.waste_fraction:.1%}")
+              f"optimized {after.waste_fraction:.1%}")
     _write_json(data, os.path.join(args.out, "report.json"))
     if not args.no_figures:
         from voxax.apps._common import pyplot
@@ -209,7 +209,7 @@ def _tile_cmd(args) -> int:
     meshes = [_load_mesh(m) for m in args.meshes]
     os.makedirs(args.out, exist_ok=True)
     instances = args.instances if len(args.instances) > 1 else args.instances[0]
-    placed, report = apps.optimise_tiling(
+    placed, report = apps.optimize_tiling(
         meshes,
         instances=instances,
         resolution=args.resolution,
@@ -247,9 +247,9 @@ def _add_common(p, resolution: int, learning_rate: float, arap_weight: float, ma
     p.add_argument("--resolution", "-n", type=int, default=resolution, help=f"cells per axis of [-1, 1]^3 (default {resolution})")
     p.add_argument("--learning-rate", "--lr", type=float, default=learning_rate, help=f"Adam learning rate (default {learning_rate:g})")
     p.add_argument("--arap-weight", type=float, default=arap_weight, help=f"weight of the ARAP regulariser (default {arap_weight:g})")
-    p.add_argument("--max-steps", type=int, default=max_steps, help=f"most optimisation steps (default {max_steps})")
+    p.add_argument("--max-steps", type=int, default=max_steps, help=f"most optimization steps (default {max_steps})")
     p.add_argument("--out", "-o", default=out, help=f"output folder (default {out})")
-    p.add_argument("--float32", action="store_true", help="optimise in float32 instead of float64")
+    p.add_argument("--float32", action="store_true", help="optimize in float32 instead of float64")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
 
@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     vox.add_argument("mesh", help="a mesh file readable by trimesh, or a built-in mesh name")
     vox.add_argument("--resolution", "-n", type=int, default=128)
     vox.add_argument("--fit", action="store_true", help="fit the grid around the mesh instead of [-1, 1]^d")
-    vox.add_argument("--normalise", action="store_true", help="centre and scale the mesh so max |v| = 0.8 first")
+    vox.add_argument("--normalize", action="store_true", help="centre and scale the mesh so max |v| = 0.8 first")
     vox.add_argument("--float32", action="store_true")
     vox.add_argument("--output", "-o", default="voxels.npy")
     vox.set_defaults(func=_voxelize_cmd)
@@ -283,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     res.add_argument("mesh", help="a mesh file readable by trimesh, or a built-in mesh name (e.g. bent_bar)")
     _add_common(res, 128, 1e-2, 0.005, 2000, "voxax-resolve")
     res.add_argument("--eps", type=float, default=1e-3, help="voxels above 1 + eps count as overlapping")
-    res.add_argument("--no-normalise", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
+    res.add_argument("--no-normalize", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
     res.set_defaults(func=_resolve_cmd)
 
     saw = sub.add_parser("bandsaw", help="deform a mesh for bandsaw cutting and write templates (paper 4.3)")
@@ -293,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     saw.add_argument("--min-step", type=float, default=5e-4, help="stop when no vertex moves more (0: never)")
     saw.add_argument("--size-mm", type=float, default=100.0, help="largest block side of the printed templates")
     saw.add_argument("--no-templates", action="store_true", help="skip the SVG templates and cut solids")
-    saw.add_argument("--no-normalise", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
+    saw.add_argument("--no-normalize", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
     saw.set_defaults(func=_bandsaw_cmd)
 
     tile = sub.add_parser("tile", help="pack copies of meshes into a periodic space-filling cell (paper 4.4)")

@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .grid import Grid
-from . import filters as _filters
+from ._grid import Grid
+from . import _filters
 
 __all__ = [
     "Curve",
@@ -223,7 +223,7 @@ def voxelize_curve_mc(
     and in `t`, and hashable (a module-level function, not a fresh lambda per call, to
     reuse compilations).
 
-    - Forward: as [`voxax.voxelize_mc`][voxax.filters.voxelize_mc], with the winding number
+    - Forward: as [`voxax.voxelize_mc`][voxax.voxelize_mc], with the winding number
       of the polyline through `segments` points of the curve (a polygonal approximation
       of the forward only: error ~ 1 / segments^2).
     - Backward (`jax.custom_vjp`): the transport-theorem integral (paper Eq. 14) over the

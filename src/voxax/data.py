@@ -1,6 +1,6 @@
 """Procedurally generated demo meshes (no downloads, fully deterministic).
 
-Every generator returns a [`Mesh`][voxax.data.Mesh]: a small frozen container of a
+Every generator returns a [`Mesh`][voxax.Mesh]: a small frozen container of a
 float64 vertex array `(V, d)` and an int32 face array `(F, k)`, following trimesh's
 conventions (see the design notes):
 
@@ -27,16 +27,15 @@ Generators are looked up by name with [`get`][voxax.data.get] and listed by
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import types
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from ._mesh import Mesh, fit, from_manifold
+
 __all__ = [
-    "Mesh",
     "box",
     "cube",
     "icosphere",
@@ -56,195 +55,8 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------------------
-# The container
-# --------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Mesh:
-    """A triangle mesh (3D) or a segment polyline (2D) as plain NumPy arrays.
-
-    The arrays are converted on construction: vertices to C-contiguous float64, faces to
-    C-contiguous int32. Construction checks shapes and that every face index is in range.
-    A `Mesh` unpacks like a tuple, so `vertices, faces = mesh` and `voxelize(*mesh, grid)`
-    both work.
-
-    **Arguments:**
-
-    - `vertices`: `(V, d)` float array, `d` = 2 or 3.
-    - `faces`: `(F, d)` integer array: triangles `(F, 3)` for `d = 3`, segments `(F, 2)`
-      for `d = 2`, outward-oriented (counter-clockwise seen from outside).
-    - `info`: optional read-only metadata, for example the overlap box of
-      [`overlapping_cubes`][voxax.data.overlapping_cubes]. Not part of the geometry.
-
-    >>> import numpy as np
-    >>> m = Mesh(np.array([[0., 0.], [1., 0.], [0., 1.]]), np.array([[0, 1], [1, 2], [2, 0]]))
-    >>> m.dim, m.n_faces, m.signed_volume()
-    (2, 3, 0.5)
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    info: Mapping[str, Any] = dataclasses.field(default_factory=dict, repr=False)
-
-    def __post_init__(self) -> None:
-        vertices = np.ascontiguousarray(np.asarray(self.vertices, dtype=np.float64))
-        if vertices.ndim != 2 or vertices.shape[1] not in (2, 3):
-            raise ValueError(f"vertices must have shape (V, 2) or (V, 3), got {vertices.shape}")
-        d = vertices.shape[1]
-        faces_in = np.asarray(self.faces)
-        if faces_in.size == 0:  # e.g. np.zeros((0, 3)) or [] : an empty mesh
-            faces_in = np.zeros((0, d), dtype=np.int32)
-        if not np.issubdtype(faces_in.dtype, np.integer):
-            raise TypeError(f"faces must be an integer array, got dtype {faces_in.dtype}")
-        if faces_in.ndim != 2 or faces_in.shape[1] != d:
-            kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
-            raise ValueError(f"{d}D vertices need faces as {kind}, got faces of shape {faces_in.shape}")
-        if faces_in.size and (faces_in.min() < 0 or faces_in.max() >= len(vertices)):
-            raise ValueError(
-                f"face indices must lie in [0, {len(vertices)}), got range "
-                f"[{faces_in.min()}, {faces_in.max()}]"
-            )
-        faces = np.ascontiguousarray(faces_in.astype(np.int32))
-        object.__setattr__(self, "vertices", vertices)
-        object.__setattr__(self, "faces", faces)
-        object.__setattr__(self, "info", types.MappingProxyType(dict(self.info)))
-
-    # -- basic properties -------------------------------------------------------------
-
-    @property
-    def dim(self) -> int:
-        """Spatial dimension `d` (2 or 3)."""
-        return int(self.vertices.shape[1])
-
-    @property
-    def n_vertices(self) -> int:
-        """Number of vertices `V`."""
-        return int(self.vertices.shape[0])
-
-    @property
-    def n_faces(self) -> int:
-        """Number of faces `F` (triangles in 3D, segments in 2D)."""
-        return int(self.faces.shape[0])
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """Axis-aligned bounding box as a `(2, d)` array `[lower, upper]`."""
-        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
-
-    def __iter__(self):
-        yield self.vertices
-        yield self.faces
-
-    def __repr__(self) -> str:
-        kind = "triangles" if self.dim == 3 else "segments"
-        return f"Mesh(dim={self.dim}, n_vertices={self.n_vertices}, n_faces={self.n_faces} {kind})"
-
-    # -- geometry ---------------------------------------------------------------------
-
-    def signed_volume(self) -> float:
-        """Exact signed volume (3D) or signed area (2D) enclosed by the mesh.
-
-        Computed with the divergence theorem, `sum over faces det(a, b, c) / 6` in 3D and
-        the shoelace formula `sum (x_a y_b - x_b y_a) / 2` in 2D. Positive for a closed,
-        outward-oriented mesh; it equals the integral of the winding number over space,
-        so overlapping parts count twice and inverted parts negatively.
-
-        **Returns:** a Python float.
-
-        >>> round(cube(2.0).signed_volume(), 12)
-        8.0
-        """
-        v = self.vertices[self.faces]
-        if self.dim == 3:
-            a, b, c = v[:, 0], v[:, 1], v[:, 2]
-            return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
-        a, b = v[:, 0], v[:, 1]
-        return float(np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]) / 2.0)
-
-    def flipped(self) -> "Mesh":
-        """The same mesh with reversed orientation (inward normals).
-
-        Reverses the vertex order of every face, which negates the winding number
-        everywhere (and the signed volume).
-
-        **Returns:** a new `Mesh`.
-
-        >>> cube().flipped().signed_volume()
-        -1.0
-        """
-        return Mesh(self.vertices, self.faces[:, ::-1], self.info)
-
-    def translated(self, offset: Sequence[float]) -> "Mesh":
-        """The mesh moved by `offset` (shape `(d,)`).
-
-        >>> cube().translated((1, 0, 0)).bounds[0].tolist()
-        [0.5, -0.5, -0.5]
-        """
-        offset = np.asarray(offset, dtype=np.float64).reshape(self.dim)
-        return Mesh(self.vertices + offset, self.faces, self.info)
-
-    def to_trimesh(self):
-        """Convert a 3D mesh to a `trimesh.Trimesh` (no processing, no vertex merging).
-
-        **Returns:** `trimesh.Trimesh` sharing this mesh's vertices and faces.
-
-        >>> cube().to_trimesh().is_watertight
-        True
-        """
-        if self.dim != 3:
-            raise ValueError("to_trimesh() needs a 3D triangle mesh; this is a 2D polyline")
-        import trimesh
-
-        return trimesh.Trimesh(
-            vertices=self.vertices.copy(), faces=self.faces.copy(), process=False, validate=False
-        )
-
-    @staticmethod
-    def concatenate(*meshes: "Mesh") -> "Mesh":
-        """Concatenate meshes of one dimension into one (no boolean union).
-
-        Overlapping parts stay overlapping, so their winding numbers add.
-
-        >>> Mesh.concatenate(cube(), cube().translated((2, 0, 0))).n_faces
-        24
-        """
-        if not meshes:
-            raise ValueError("concatenate() needs at least one mesh")
-        dims = {m.dim for m in meshes}
-        if len(dims) != 1:
-            raise ValueError(f"cannot concatenate meshes of different dimensions {sorted(dims)}")
-        offsets = np.cumsum([0] + [m.n_vertices for m in meshes[:-1]])
-        return Mesh(
-            np.concatenate([m.vertices for m in meshes]),
-            np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
-        )
-
-
-# --------------------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------------------
-
-
-def _fit(vertices: np.ndarray, max_abs: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Centre the bounding box at the origin and scale so that max |v| == max_abs.
-
-    Returns `(new_vertices, centre, scale)` with `new = (old - centre) * scale`.
-    """
-    if len(vertices) == 0:
-        raise ValueError("cannot normalise a mesh without vertices")
-    if not np.all(np.isfinite(vertices)):
-        raise ValueError("cannot normalise a mesh with non-finite vertex coordinates")
-    if not max_abs > 0:
-        raise ValueError(f"max_abs must be > 0, got {max_abs}")
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    centre = (lo + hi) / 2.0
-    centred = vertices - centre
-    extent = np.abs(centred).max()
-    if not extent > 0:
-        raise ValueError("cannot normalise a mesh whose vertices all coincide")
-    scale = float(max_abs) / float(extent)
-    return centred * scale, centre, scale
 
 
 def _periodic_grid_faces(n_u: int, n_v: int, periodic_u: bool = True) -> np.ndarray:
@@ -271,18 +83,6 @@ def _periodic_grid_faces(n_u: int, n_v: int, periodic_u: bool = True) -> np.ndar
 def _closed_ring_segments(n: int) -> np.ndarray:
     i = np.arange(n)
     return np.stack([i, (i + 1) % n], axis=1)
-
-
-def _from_manifold(manifold) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex and face arrays of a manifold3d Manifold (float64 where available)."""
-    to_mesh = getattr(manifold, "to_mesh64", None) or manifold.to_mesh
-    mesh = to_mesh()
-    vertices = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-    faces = np.asarray(mesh.tri_verts, dtype=np.int64)
-    # Properties can split vertices; merge exact duplicates so the mesh is index-watertight.
-    uniq, inverse = np.unique(vertices, axis=0, return_inverse=True)
-    faces = inverse.reshape(-1)[faces]
-    return uniq, faces
 
 
 # --------------------------------------------------------------------------------------
@@ -680,8 +480,8 @@ def hand(resolution: int = 16, max_abs: float = 0.75) -> Mesh:
     parts.append(capsule(t1, t2, 0.065))
 
     solid = Manifold.batch_boolean(parts, _manifold_add())
-    vertices, faces = _from_manifold(solid)
-    return Mesh(_fit(vertices, max_abs)[0], faces)
+    vertices, faces = from_manifold(solid)
+    return Mesh(fit(vertices, max_abs)[0], faces)
 
 
 def _manifold_add():
@@ -735,7 +535,7 @@ def large(n_faces_target: int = 100_000, max_abs: float = 0.75) -> Mesh:
         - tube_r * np.sin(s)[None, :, None] * binormal[:, None, :]
     ).reshape(-1, 3)
     faces = _periodic_grid_faces(n_along, n_around)
-    vertices, _, scale = _fit(vertices, max_abs)
+    vertices, _, scale = fit(vertices, max_abs)
     info = {"tube_radius": tube_r * scale, "n_along": n_along, "n_around": n_around}
     return Mesh(vertices, faces, info)
 

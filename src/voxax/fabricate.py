@@ -40,8 +40,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .data import Mesh, _from_manifold
-from .grid import Grid
+from ._mesh import Mesh, from_manifold
+from ._grid import Grid
 
 __all__ = [
     "PLANE_AXES",
@@ -281,7 +281,7 @@ def cut_solid(shape: Any, *, grid: Grid | None = None, threshold: float = 0.5, b
     solid = Manifold.batch_boolean(prisms, OpType.Intersect)
     if solid.is_empty():
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
-    vertices, faces = _from_manifold(solid)
+    vertices, faces = from_manifold(solid)
     return Mesh(vertices, faces)
 
 

@@ -1,11 +1,11 @@
-"""Mesh input and output, trimesh interop, normalisation and a watertightness check.
+"""Mesh input and output, trimesh interop, normalization and a watertightness check.
 
 Meshes follow trimesh's conventions: `vertices (V, 3)` float, `faces (F, 3)` int,
 outward-oriented (counter-clockwise seen from outside); 2D polylines use `vertices (V, 2)`
-and segments `faces (F, 2)`. Functions here return [`voxax.data.Mesh`][voxax.data.Mesh].
+and segments `faces (F, 2)`. Functions here return [`voxax.data.Mesh`][voxax.Mesh].
 
 >>> from voxax import data, io
->>> mesh = io.normalise(data.cube(3.0))
+>>> mesh = io.normalize(data.cube(3.0))
 >>> float(abs(mesh.vertices).max())
 0.8
 """
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from .data import Mesh, _fit
+from ._mesh import Mesh, fit
 
-__all__ = ["load", "save", "normalise", "normalize", "as_arrays", "is_watertight"]
+__all__ = ["load", "save", "normalize", "as_arrays", "is_watertight"]
 
 
 # --------------------------------------------------------------------------------------
@@ -35,7 +35,7 @@ def _is_plain(x: Any) -> bool:
 def as_arrays(mesh: Any) -> tuple[Any, Any]:
     """Return `(vertices, faces)` from a voxax `Mesh`, a `trimesh.Trimesh` or a pair.
 
-    - A voxax [`Mesh`][voxax.data.Mesh] gives its own float64 / int32 arrays.
+    - A voxax [`Mesh`][voxax.Mesh] gives its own float64 / int32 arrays.
     - A `trimesh.Trimesh` (or anything with `.vertices` and `.faces`) gives float64
       vertices and int32 faces.
     - A `(vertices, faces)` pair: NumPy arrays and nested lists are converted; floating
@@ -196,11 +196,11 @@ def is_watertight(vertices: Any, faces: Any, *, strict: bool = False) -> bool:
 
 
 # --------------------------------------------------------------------------------------
-# Normalisation
+# Normalization
 # --------------------------------------------------------------------------------------
 
 
-def normalise(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False):
+def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False):
     """Centre the bounding box at the origin and scale uniformly so that `max |v| == max_abs`.
 
     This is the paper's preprocessing (with `max_abs = 0.8` the mesh sits well inside
@@ -209,24 +209,23 @@ def normalise(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     **Arguments:**
 
     - `mesh`: `Mesh`, `trimesh.Trimesh` or `(vertices (V, d), faces (F, d))`.
-    - `max_abs`: the largest absolute coordinate after normalisation (> 0).
+    - `max_abs`: the largest absolute coordinate after normalization (> 0).
     - `return_transform`: also return `centre (d,)` and `scale` such that
       `new_vertices = (old_vertices - centre) * scale`.
 
-    **Returns:** the normalised `Mesh`, or `(mesh, centre, scale)` if `return_transform`.
+    **Returns:** the normalized `Mesh`, or `(mesh, centre, scale)` if `return_transform`.
 
     >>> from voxax import data
-    >>> m, centre, scale = normalise(data.box((0, 0, 0), (2, 1, 1)), 1.0, return_transform=True)
+    >>> m, centre, scale = normalize(data.box((0, 0, 0), (2, 1, 1)), 1.0, return_transform=True)
     >>> m.bounds.tolist(), centre.tolist(), scale
     ([[-1.0, -0.5, -0.5], [1.0, 0.5, 0.5]], [1.0, 0.5, 0.5], 1.0)
     """
     m = mesh if isinstance(mesh, Mesh) else Mesh(*as_arrays(mesh))
-    vertices, centre, scale = _fit(m.vertices, float(max_abs))
+    vertices, centre, scale = fit(m.vertices, float(max_abs))
     out = Mesh(vertices, m.faces, m.info)
     return (out, centre, scale) if return_transform else out
 
 
-normalize = normalise
 
 
 # --------------------------------------------------------------------------------------

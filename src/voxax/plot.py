@@ -12,9 +12,9 @@ unless a backend has been chosen already, so they work on headless machines; cal
 - [`slices`][voxax.plot.slices]: evenly spaced slices of a 3D grid (or a whole 2D grid).
 - [`silhouettes`][voxax.plot.silhouettes]: the three mellowmax (or max) silhouettes.
 - [`mesh`][voxax.plot.mesh]: a triangle mesh (or 2D polyline) coloured by a per-vertex or
-  per-face quantity, e.g. the displacement from the input of an optimisation.
+  per-face quantity, e.g. the displacement from the input of an optimization.
 - [`gradient_field`][voxax.plot.gradient_field]: per-vertex gradients as arrows.
-- [`history`][voxax.plot.history]: the energy history of `voxax.minimise` or an app report.
+- [`history`][voxax.plot.history]: the energy history of `voxax.minimize` or an app report.
 - [`mesh_plotly`][voxax.plot.mesh_plotly]: an interactive plotly rendering of a mesh.
 """
 
@@ -324,7 +324,7 @@ def mesh(
 
     Faces are coloured by `values` through `cmap` when given (a per-vertex quantity is
     averaged over each face's corners; vectors, such as the displacement of every vertex
-    from the input of an optimisation, are coloured by their length), otherwise in the
+    from the input of an optimization, are coloured by their length), otherwise in the
     single colour `color`. With `shade=True` the colours are darkened by a fixed light
     for a sense of depth. The 3D axes have equal scales on x, y and z. matplotlib sorts
     faces by depth, not per pixel, so intersecting or interleaved parts may be drawn in
@@ -427,7 +427,7 @@ def gradient_field(
     *,
     ax=None,
     scale: float | None = None,
-    normalise: bool = False,
+    normalize: bool = False,
     color="#c0392b",
     title: str | None = None,
     path=None,
@@ -447,7 +447,7 @@ def gradient_field(
     - `ax`: an existing axes to draw into; default: a new figure.
     - `scale`: arrow length per unit of gradient; default: the longest arrow is 15% of
       the mesh's bounding box.
-    - `normalise`: draw unit-length arrows (times `scale`), showing directions only.
+    - `normalize`: draw unit-length arrows (times `scale`), showing directions only.
     - `color`: the arrows' colour.
     - `title`, `path`: an optional axes title; save the figure there if given.
 
@@ -472,7 +472,7 @@ def gradient_field(
         raise ValueError(f"gradient_field: gradient must have the vertices' shape {v.shape}, got {g.shape}")
     dim = v.shape[1]
     lengths = np.linalg.norm(g, axis=1)
-    if normalise:
+    if normalize:
         g = np.divide(g, lengths[:, None], out=np.zeros_like(g), where=lengths[:, None] > 0)
         lengths = (lengths > 0).astype(np.float64)
     if scale is None:
@@ -525,7 +525,7 @@ def _history_series(source) -> dict[str, np.ndarray]:
     if isinstance(source, Mapping):
         series = dict(source)
     elif hasattr(source, "history") and isinstance(getattr(source, "history"), Mapping):
-        series = dict(source.history)  # MinimiseResult, app reports
+        series = dict(source.history)  # MinimizeResult, app reports
         if "energy" not in series and getattr(source, "energy_history", None) is not None:
             series = {"energy": source.energy_history, **series}
     elif hasattr(source, "energy_history"):
@@ -534,7 +534,7 @@ def _history_series(source) -> dict[str, np.ndarray]:
         arr = np.asarray(source, dtype=np.float64)
         if arr.ndim != 1:
             raise TypeError(
-                "history: expected a MinimiseResult, an app report, a dict of 1D arrays or a 1D "
+                "history: expected a MinimizeResult, an app report, a dict of 1D arrays or a 1D "
                 f"array of energies, got {type(source).__name__}"
             )
         series = {"energy": arr}
@@ -555,14 +555,14 @@ def history(
     title: str | None = None,
     path=None,
 ):
-    """Plots an optimisation's recorded series (energy, energy terms, `max_w`, step size).
+    """Plots an optimization's recorded series (energy, energy terms, `max_w`, step size).
 
     One panel per series, sharing the x axis. With `log="auto"`, a panel gets a log scale
     when its values are positive and span more than two decades.
 
     **Arguments:**
 
-    - `result_or_history`: a `voxax.MinimiseResult` (its `history`), an application's
+    - `result_or_history`: a `voxax.MinimizeResult` (its `history`), an application's
       report (`voxax.apps`: its `history`), a dict of 1D arrays, or a 1D array of
       energies.
     - `keys`: the series to plot, in order (default: all except `"time"`, energy first).
@@ -578,7 +578,7 @@ def history(
 
     ```python
     >>> quad = lambda y, args: jax.numpy.sum((y - 1.0) ** 2)
-    >>> r = voxax.minimise(quad, jax.numpy.zeros(3), learning_rate=0.1, progress=False,
+    >>> r = voxax.minimize(quad, jax.numpy.zeros(3), learning_rate=0.1, progress=False,
     ...                    stop=voxax.StopRules(max_steps=50))
     >>> fig = voxax.plot.history(r)
     >>> [ax.get_ylabel() for ax in fig.axes]

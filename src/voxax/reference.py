@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .grid import Grid
+from ._grid import Grid
 
 __all__ = [
     "voxelize",

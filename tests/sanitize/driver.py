@@ -49,7 +49,7 @@ import numpy as np  # noqa: E402
 
 import voxax  # noqa: E402
 from voxax import _ffi, reference  # noqa: E402
-from voxax.grid import Grid  # noqa: E402
+from voxax import Grid  # noqa: E402
 
 # -- bookkeeping ---------------------------------------------------------------------------
 

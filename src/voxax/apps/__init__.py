@@ -2,13 +2,13 @@
 
 - [`resolve_self_intersections`][voxax.apps.resolve_self_intersections]: deform a mesh as
   rigidly as possible until no part of it overlaps another (section 4.2).
-- [`optimise_for_bandsaw`][voxax.apps.optimise_for_bandsaw]: deform a mesh so that
+- [`optimize_for_bandsaw`][voxax.apps.optimize_for_bandsaw]: deform a mesh so that
   cutting its three axis silhouettes with a bandsaw wastes less material (section 4.3).
-- [`optimise_tiling`][voxax.apps.optimise_tiling]: place and deform copies of one or more
+- [`optimize_tiling`][voxax.apps.optimize_tiling]: place and deform copies of one or more
   meshes so that they fill space periodically (section 4.4).
 
 Each takes a voxax `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair, composes
-`voxax.voxelize`, `voxax.energies` and `voxax.solve.minimise` with the paper's defaults,
+`voxax.voxelize`, `voxax.energies` and `voxax.minimize` with the paper's defaults,
 and returns the result together with a frozen report dataclass (energy history, steps,
 stop reason and the application's own numbers; `report.summary()` prints them and
 `report.plot_history(path)` plots the history).
@@ -16,19 +16,14 @@ stop reason and the application's own numbers; `report.summary()` prints them an
 For turning a shape into bandsaw templates and an exact cut solid, see `voxax.fabricate`.
 """
 
-from ._bandsaw import BandsawReport, optimise_for_bandsaw
+from ._bandsaw import BandsawReport, optimize_for_bandsaw
 from ._common import Report
 from ._self_intersection import SelfIntersectionReport, resolve_self_intersections
-from ._tiling import COVERAGE_TOLERANCE, TilingReport, optimise_tiling, rotation_matrices
-
-optimize_for_bandsaw = optimise_for_bandsaw
-optimize_tiling = optimise_tiling
+from ._tiling import COVERAGE_TOLERANCE, TilingReport, optimize_tiling, rotation_matrices
 
 __all__ = [
     "resolve_self_intersections",
-    "optimise_for_bandsaw",
     "optimize_for_bandsaw",
-    "optimise_tiling",
     "optimize_tiling",
     "rotation_matrices",
     "Report",

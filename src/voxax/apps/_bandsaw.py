@@ -10,15 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from ..data import Mesh
-from ..grid import Grid
-from ..voxelize import voxelize
+from .._mesh import Mesh
+from .._grid import Grid
+from .._voxelize import voxelize
 from . import _common
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class BandsawReport(_common.Report):
-    """The outcome of [`optimise_for_bandsaw`][voxax.apps.optimise_for_bandsaw].
+    """The outcome of [`optimize_for_bandsaw`][voxax.apps.optimize_for_bandsaw].
 
     Besides the shared fields of every report (`energy_history`, `history`, `steps`,
     `stop_reason`, `energy`, `resolution`):
@@ -33,7 +33,7 @@ class BandsawReport(_common.Report):
     - `arap_final`: ARAP energy of the result against the input (working frame).
     - `max_displacement`: the largest vertex move, in the input mesh's units.
     - `w`: the mellowmax sharpness used for the silhouettes.
-    - `centre`, `scale`: the normalisation, `working = (input - centre) * scale`.
+    - `centre`, `scale`: the normalization, `working = (input - centre) * scale`.
     """
 
     cut_initial: float
@@ -48,7 +48,7 @@ class BandsawReport(_common.Report):
     scale: float
 
 
-def optimise_for_bandsaw(
+def optimize_for_bandsaw(
     mesh: Any,
     *,
     resolution: int = 128,
@@ -58,7 +58,7 @@ def optimise_for_bandsaw(
     min_step: float | None = 5e-4,
     max_steps: int = 1000,
     solver: Any = "adam",
-    normalise: bool = True,
+    normalize: bool = True,
     max_abs: float = 0.8,
     dtype=None,
     progress: bool = True,
@@ -70,10 +70,10 @@ def optimise_for_bandsaw(
     silhouettes along x, y and z by mellowmax with sharpness `w`
     (`voxax.energies.silhouettes`), form the cut shape `S = Sx * Sy * Sz` (the silhouettes
     extruded along their axes and intersected: what a bandsaw cutting the three
-    silhouettes leaves), and minimise `E_cut = mean((S - W)^2)`
-    (`voxax.energies.bandsaw_cut`) plus `arap_weight * E_arap` with Adam. The optimisation
+    silhouettes leaves), and minimize `E_cut = mean((S - W)^2)`
+    (`voxax.energies.bandsaw_cut`) plus `arap_weight * E_arap` with Adam. The optimization
     stops when no vertex coordinate moves more than `min_step` in a step (stop reason from
-    `voxax.solve`), or after `max_steps`.
+    `voxax.minimize`), or after `max_steps`.
 
     By default the mesh is first centred and scaled to `max |v| = max_abs`, and the result
     is mapped back to the input's frame. Winding numbers above one (self-overlaps) count
@@ -88,12 +88,12 @@ def optimise_for_bandsaw(
     - `arap_weight`: weight of the ARAP regulariser (paper: 0.05).
     - `learning_rate`: Adam's learning rate (paper: 1e-3).
     - `min_step`: stop when the largest vertex-coordinate change of a step is below this
-      (paper: 5e-4, in the normalised frame); `None` to run `max_steps` steps.
-    - `max_steps`: the most optimisation steps.
-    - `solver`: passed to `voxax.solve.minimise`.
-    - `normalise`, `max_abs`: normalise the mesh to `max |v| = max_abs` first.
+      (paper: 5e-4, in the normalized frame); `None` to run `max_steps` steps.
+    - `max_steps`: the most optimization steps.
+    - `solver`: passed to `voxax.minimize`.
+    - `normalize`, `max_abs`: normalize the mesh to `max |v| = max_abs` first.
     - `dtype`: float32 or float64 (default: float64 when JAX's x64 mode is on).
-    - `progress`, `callback`: passed to `voxax.solve.minimise`.
+    - `progress`, `callback`: passed to `voxax.minimize`.
 
     **Returns:** `(mesh, report)`: the deformed `Mesh` (same faces, input frame) and a
     [`BandsawReport`][voxax.apps.BandsawReport] with the relative improvement.
@@ -102,14 +102,14 @@ def optimise_for_bandsaw(
 
     ```python
     >>> import voxax, voxax.apps
-    >>> mesh, report = voxax.apps.optimise_for_bandsaw(voxax.data.hand(), resolution=32, progress=False)
+    >>> mesh, report = voxax.apps.optimize_for_bandsaw(voxax.data.hand(), resolution=32, progress=False)
     >>> report.relative_improvement > 0.2
     True
 
     ```
     """
     source = _common.as_mesh(mesh)
-    _common.warn_if_open(source, "optimise_for_bandsaw")
+    _common.warn_if_open(source, "optimize_for_bandsaw")
     resolution = _common.check_resolution(resolution)
     w = _common.check_positive(w, "w")
     alpha = _common.check_positive(arap_weight, "arap_weight", allow_zero=True)
@@ -117,7 +117,7 @@ def optimise_for_bandsaw(
     if min_step is not None:
         min_step = _common.check_positive(min_step, "min_step")
     grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalise, max_abs, grid, "optimise_for_bandsaw")
+    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "optimize_for_bandsaw")
     dt = _common.float_dtype(dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
@@ -139,7 +139,7 @@ def optimise_for_bandsaw(
         )
 
     cut0, waste0, _ = measure(rest)
-    result = _common.run_minimise(
+    result = _common.run_minimize(
         energy,
         rest,
         solver=solver,

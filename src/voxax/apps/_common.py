@@ -1,4 +1,4 @@
-"""Shared pieces of the applications: mesh input, normalisation, reports, plotting."""
+"""Shared pieces of the applications: mesh input, normalization, reports, plotting."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..data import Mesh
-from ..grid import Grid
+from .._mesh import Mesh
+from .._grid import Grid
 from .. import io as _io
-from .. import solve
+from .. import _minimize as solve
 
 
 def as_mesh(mesh: Any) -> Mesh:
@@ -78,20 +78,20 @@ def check_positive(value: float, name: str, allow_zero: bool = False) -> float:
     return value
 
 
-def prepare(mesh: Mesh, normalise: bool, max_abs: float, grid: Grid, where: str):
-    """Normalises (or checks) a mesh for optimisation on `grid`.
+def prepare(mesh: Mesh, normalize: bool, max_abs: float, grid: Grid, where: str):
+    """Normalizes (or checks) a mesh for optimization on `grid`.
 
     Returns `(working mesh, centre, scale)` with `working = (mesh - centre) * scale`.
     """
-    if normalise:
-        work, centre, scale = _io.normalise(mesh, max_abs, return_transform=True)
+    if normalize:
+        work, centre, scale = _io.normalize(mesh, max_abs, return_transform=True)
     else:
         work, centre, scale = mesh, np.zeros(3), 1.0
         lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
         if np.any(work.vertices < lo) or np.any(work.vertices > hi):
             warnings.warn(
                 f"{where}: parts of the mesh lie outside the grid {lo.tolist()}..{hi.tolist()}; "
-                "they are not penalised. Pass normalise=True to fit the mesh in the grid.",
+                "they are not penalised. Pass normalize=True to fit the mesh in the grid.",
                 RuntimeWarning,
                 stacklevel=3,
             )
@@ -109,13 +109,13 @@ def history_dict(history: Mapping[str, Any]) -> dict[str, np.ndarray]:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Report:
-    """What an optimisation did: the fields shared by every application's report.
+    """What an optimization did: the fields shared by every application's report.
 
     - `energy_history`: `(steps,)` total energy per step.
     - `history`: every recorded series by name (the energy terms, `"max_w"`, ...),
-      as returned by `voxax.solve.minimise`.
-    - `steps`: optimisation steps taken.
-    - `stop_reason`: why the optimisation stopped (from `voxax.solve.minimise`).
+      as returned by `voxax.minimize`.
+    - `steps`: optimization steps taken.
+    - `stop_reason`: why the optimization stopped (from `voxax.minimize`).
     - `energy`: the final total energy.
     - `resolution`: cells per axis of the `[-1, 1]^3` grid used.
     """
@@ -224,14 +224,14 @@ def to_jax(x, dtype):
     return jnp.asarray(np.asarray(x), dtype=dtype)
 
 
-def run_minimise(fn, y0, *, solver, learning_rate, progress, callback, step_size_fn=None, **stop):
-    """Runs `voxax.solve.minimise` on `fn(y, args) -> (energy, aux)` with the given stop rules.
+def run_minimize(fn, y0, *, solver, learning_rate, progress, callback, step_size_fn=None, **stop):
+    """Runs `voxax.minimize` on `fn(y, args) -> (energy, aux)` with the given stop rules.
 
-    Returns `voxax.solve.MinimiseResult` (`y`, `steps`, `stop_reason`, `history`, `energy`).
+    Returns `voxax.MinimizeResult` (`y`, `steps`, `stop_reason`, `history`, `energy`).
     """
     rules = solve.StopRules(**{k: v for k, v in stop.items() if v is not None})
     kwargs = {} if step_size_fn is None else {"step_size_fn": step_size_fn}
-    return solve.minimise(
+    return solve.minimize(
         fn,
         y0,
         None,

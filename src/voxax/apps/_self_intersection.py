@@ -10,9 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from ..data import Mesh
-from ..grid import Grid
-from ..voxelize import voxelize
+from .._mesh import Mesh
+from .._grid import Grid
+from .._voxelize import voxelize
 from . import _common
 
 
@@ -32,7 +32,7 @@ class SelfIntersectionReport(_common.Report):
     - `arap_final`: the ARAP energy of the result against the input (working frame).
     - `max_displacement`: the largest vertex move, in the input mesh's units.
     - `volume_initial`, `volume_final`: signed volumes of the input and the result.
-    - `centre`, `scale`: the normalisation, `working = (input - centre) * scale`.
+    - `centre`, `scale`: the normalization, `working = (input - centre) * scale`.
     """
 
     resolved: bool
@@ -60,7 +60,7 @@ def resolve_self_intersections(
     learning_rate: float = 1e-2,
     max_steps: int = 2000,
     solver: Any = "adam",
-    normalise: bool = True,
+    normalize: bool = True,
     max_abs: float = 0.8,
     dtype=None,
     progress: bool = True,
@@ -72,7 +72,7 @@ def resolve_self_intersections(
     penalise every voxel whose box-filtered winding number exceeds `1 + eps` with
     `E_sect = sum_{W > 1 + eps} W^2 / n_voxels` (`voxax.energies.self_intersection`), add
     `arap_weight * E_arap` (spokes-and-rims ARAP against the input,
-    `voxax.energies.arap`), and minimise with Adam until no voxel exceeds `1 + eps`
+    `voxax.energies.arap`), and minimize with Adam until no voxel exceeds `1 + eps`
     (stop reason `max_w`), or for at most `max_steps` steps.
 
     By default the mesh is first centred and scaled so that `max |v| = max_abs = 0.8` (the
@@ -88,13 +88,13 @@ def resolve_self_intersections(
     - `eps`: voxels above `1 + eps` count as overlapping (paper: 1e-3).
     - `arap_weight`: weight of the ARAP regulariser (paper: 0.005).
     - `learning_rate`: Adam's learning rate (paper: 1e-2).
-    - `max_steps`: the most optimisation steps.
-    - `solver`: passed to `voxax.solve.minimise` (`"adam"`, `"lbfgs"`, ...).
-    - `normalise`, `max_abs`: normalise the mesh to `max |v| = max_abs` first (else the
+    - `max_steps`: the most optimization steps.
+    - `solver`: passed to `voxax.minimize` (`"adam"`, `"lbfgs"`, ...).
+    - `normalize`, `max_abs`: normalize the mesh to `max |v| = max_abs` first (else the
       mesh must already lie inside `[-1, 1]^3`).
     - `dtype`: float32 or float64 (default: float64 when JAX's x64 mode is on).
     - `progress`: show the solver's progress.
-    - `callback`: passed to `voxax.solve.minimise`.
+    - `callback`: passed to `voxax.minimize`.
 
     **Returns:** `(mesh, report)`: the deformed `Mesh` (same faces, input frame) and a
     [`SelfIntersectionReport`][voxax.apps.SelfIntersectionReport].
@@ -116,7 +116,7 @@ def resolve_self_intersections(
     alpha = _common.check_positive(arap_weight, "arap_weight", allow_zero=True)
     learning_rate = _common.check_positive(learning_rate, "learning_rate")
     grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalise, max_abs, grid, "resolve_self_intersections")
+    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "resolve_self_intersections")
     dt = _common.float_dtype(dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
@@ -144,7 +144,7 @@ def resolve_self_intersections(
         )
 
     max_w0, over0, ovol0, _ = measure(rest)
-    result = _common.run_minimise(
+    result = _common.run_minimize(
         energy,
         rest,
         solver=solver,

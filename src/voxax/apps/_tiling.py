@@ -12,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from ..data import Mesh
-from ..grid import Grid
-from ..voxelize import voxelize
+from .._mesh import Mesh
+from .._grid import Grid
+from .._voxelize import voxelize
 from . import _common
 
 #: A cell voxel counts as "covered exactly once" when its folded value is within this of 1.
@@ -23,7 +23,7 @@ COVERAGE_TOLERANCE = 0.5
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class TilingReport(_common.Report):
-    """The outcome of [`optimise_tiling`][voxax.apps.optimise_tiling].
+    """The outcome of [`optimize_tiling`][voxax.apps.optimize_tiling].
 
     Besides the shared fields of every report (`energy_history`, `history`, `steps`,
     `stop_reason`, `energy`, `resolution`):
@@ -92,7 +92,7 @@ def _mesh_list(meshes) -> list[Mesh]:
     if _is_mesh_like(meshes) or not isinstance(meshes, (list, tuple)):
         return [_common.as_mesh(meshes)]
     if not meshes:
-        raise ValueError("optimise_tiling needs at least one mesh")
+        raise ValueError("optimize_tiling needs at least one mesh")
     first = meshes[0]
     if len(meshes) == 2 and not _is_mesh_like(first) and np.ndim(first) == 2:
         return [_common.as_mesh(meshes)]  # a single (vertices, faces) pair
@@ -113,7 +113,7 @@ def _counts(instances, k: int) -> list[int]:
     return counts
 
 
-def optimise_tiling(
+def optimize_tiling(
     meshes: Any,
     *,
     instances: int | Sequence[int] = 27,
@@ -143,7 +143,7 @@ def optimise_tiling(
     into one periodic cell (`voxax.energies.fold_periodic`: what sticks out of the central
     block re-enters on the opposite side), and the energy is
     `E_fill = sum over cell voxels of (cell - 1)^2` (`voxax.energies.tiling`) plus
-    `arap_weight * sum over instances of E_arap`, minimised with Adam.
+    `arap_weight * sum over instances of E_arap`, minimized with Adam.
 
     Each input mesh is centred at its vertex mean and, with `fill_volume`, scaled so that
     every instance has the volume `cell volume / B` (the volume a perfect tiling needs).
@@ -153,12 +153,12 @@ def optimise_tiling(
 
     The results are in the frame of the `[-1, 1]^3` grid, whose central block
     `[-1/3, 1/3]^3` is the periodic cell: repeating all instances with period `2/3` along
-    x, y and z tiles space (as well as the optimisation could make it). Instances of
+    x, y and z tiles space (as well as the optimization could make it). Instances of
     several meshes may have different vertex and face counts; they are padded with unused
     vertices and degenerate faces.
 
     **On `arap_weight`.** As in the paper, `E_fill` is a plain sum over the cell's voxels,
-    so it grows with `resolution^3` while the (area-normalised) ARAP energy does not. With
+    so it grows with `resolution^3` while the (area-normalized) ARAP energy does not. With
     the paper's weight 0.005 the deformation is practically unregularised: Adam shrinks
     and crumples instances freely to fill the cell (27 hands at 48^3 reach full coverage
     with an ARAP energy of about 25 per instance). Larger weights keep the shapes: at 48^3,
@@ -174,18 +174,18 @@ def optimise_tiling(
       (paper: 192, so the cell has 64^3 voxels).
     - `arap_weight`: weight of the ARAP regulariser (paper: 0.005).
     - `learning_rate`: Adam's learning rate (paper: 1e-3).
-    - `max_steps`: the most optimisation steps.
+    - `max_steps`: the most optimization steps.
     - `min_step`: stop when no vertex of any instance (placed in the `[-1, 1]^3` frame)
       moves more than this in a step (paper: 1e-3); `None` runs `max_steps` steps.
-    - `solver`: passed to `voxax.solve.minimise`.
+    - `solver`: passed to `voxax.minimize`.
     - `blocks`: blocks per axis folded into the cell (paper: 3).
     - `fill_volume`: scale the meshes so the instances' volumes add up to the cell's.
-    - `deform`: optimise per-instance vertex offsets (else only rigid motions).
+    - `deform`: optimize per-instance vertex offsets (else only rigid motions).
     - `init`: `"random"` or `"lattice"`.
     - `translations`, `angles`: optional `(B, 3)` initial translations and yaw/pitch/roll.
     - `seed`: seed of the random initialisation.
     - `dtype`: float32 or float64 (default: float64 when JAX's x64 mode is on).
-    - `progress`, `callback`: passed to `voxax.solve.minimise`.
+    - `progress`, `callback`: passed to `voxax.minimize`.
 
     **Returns:** `(meshes, report)`: a list of `B` `Mesh`es, each instance placed in the
     `[-1, 1]^3` frame, and a [`TilingReport`][voxax.apps.TilingReport].
@@ -194,7 +194,7 @@ def optimise_tiling(
 
     ```python
     >>> import voxax, voxax.apps
-    >>> placed, report = voxax.apps.optimise_tiling(
+    >>> placed, report = voxax.apps.optimize_tiling(
     ...     voxax.data.icosphere(1), instances=8, resolution=24, max_steps=20, progress=False)
     >>> len(placed), report.fill_final < report.fill_initial
     (8, True)
@@ -203,7 +203,7 @@ def optimise_tiling(
     """
     sources = _mesh_list(meshes)
     for m in sources:
-        _common.warn_if_open(m, "optimise_tiling")
+        _common.warn_if_open(m, "optimize_tiling")
     if isinstance(blocks, bool) or not isinstance(blocks, (int, np.integer)) or blocks < 1:
         raise ValueError(f"blocks must be a positive int, got {blocks!r}")
     blocks = int(blocks)
@@ -234,7 +234,7 @@ def optimise_tiling(
             vol = m.signed_volume()
             if not vol > 0:
                 raise ValueError(
-                    "optimise_tiling: a mesh has non-positive signed volume; it must be closed "
+                    "optimize_tiling: a mesh has non-positive signed volume; it must be closed "
                     "and outward-oriented (or pass fill_volume=False)"
                 )
             s = (cell_volume / B / vol) ** (1.0 / 3.0)
@@ -336,7 +336,7 @@ def optimise_tiling(
     if deform:
         y0["offsets"] = jnp.zeros_like(rest_j)
     fill0, cell0, _ = measure(y0)
-    result = _common.run_minimise(
+    result = _common.run_minimize(
         energy,
         y0,
         solver=solver,

@@ -1,4 +1,4 @@
-"""Pure-JAX energies on voxel grids and meshes, for optimising shapes through `voxax.voxelize`.
+"""Pure-JAX energies on voxel grids and meshes, for optimizing shapes through `voxax.voxelize`.
 
 Grid energies take the output `W` of `voxax.voxelize` (box-filtered winding numbers,
 `W[..., i, j, k]` indexed x, y, z):
@@ -16,7 +16,7 @@ Mesh energies:
   `arap_rotations`.
 
 Every function is pure JAX: it works under `jax.jit`, `jax.grad` and `jax.vmap`.
-Solvers (`voxax.minimise`, optimistix) want objectives shaped `fn(y, args) -> scalar`;
+Solvers (`voxax.minimize`, optimistix) want objectives shaped `fn(y, args) -> scalar`;
 write them as lambdas, or combine named terms with `objective`:
 
 ```python
@@ -28,7 +28,7 @@ def fn(V, args):
     e_arap = voxax.energies.arap(V, V0, F)
     return e_sect + 0.005 * e_arap, {"sect": e_sect, "arap": e_arap, "max_w": W.max()}
 
-result = voxax.minimise(fn, V0, has_aux=True, stop=voxax.StopRules(max_w_threshold=1.001))
+result = voxax.minimize(fn, V0, has_aux=True, stop=voxax.StopRules(max_w_threshold=1.001))
 ```
 """
 

@@ -158,8 +158,8 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
     each of the face's three corners; Chao et al. 2010), `w_e` are the rest shape's
     cotangent weights (`cotangent_weights`, computed per face and clamped to be positive)
     and `R_i` the best rotations (`arap_rotations`), held fixed under differentiation
-    (`stop_gradient`). Since the `R_i` minimise the energy, the gradient with fixed
-    rotations *is* the gradient of the minimised energy (the envelope theorem).
+    (`stop_gradient`). Since the `R_i` minimize the energy, the gradient with fixed
+    rotations *is* the gradient of the minimized energy (the envelope theorem).
 
     With `normalize=True` (the default) the sum is divided by the total rest area, which
     makes the energy dimensionless and independent of the mesh's scale and (roughly) of

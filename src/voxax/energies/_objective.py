@@ -10,11 +10,11 @@ __all__ = ["objective"]
 
 
 def objective(terms: dict, weights: dict | None = None, extras: Callable | None = None) -> Callable:
-    """Builds `fn(y, args) -> (total, aux)` from named energy terms, for `voxax.minimise`.
+    """Builds `fn(y, args) -> (total, aux)` from named energy terms, for `voxax.minimize`.
 
     Each term is a function `term(y, args) -> scalar`. The objective returns the weighted
     sum of the terms and an aux dict holding every (unweighted) term by name, which
-    `voxax.minimise(..., has_aux=True)` records in its history. `extras(y, args) -> dict`
+    `voxax.minimize(..., has_aux=True)` records in its history. `extras(y, args) -> dict`
     may add more aux entries (e.g. `"max_w"` for the `max_w_threshold` stopping rule).
 
     Terms that share work (one voxelization feeding several grid energies) are better
@@ -35,13 +35,13 @@ def objective(terms: dict, weights: dict | None = None, extras: Callable | None 
     **Example:**
 
     ```python
-    >>> V0, F = voxax.io.normalise(voxax.data.bent_bar())
+    >>> V0, F = voxax.io.normalize(voxax.data.bent_bar())
     >>> grid = voxax.Grid.cube(32)
     >>> fn = voxax.energies.objective(
     ...     {"sect": lambda V, a: voxax.energies.self_intersection(voxax.voxelize(V, F, grid)),
     ...      "arap": lambda V, a: voxax.energies.arap(V, V0, F)},
     ...     weights={"arap": 0.005})
-    >>> result = voxax.minimise(fn, V0, has_aux=True, progress=False, stop=voxax.StopRules(max_steps=5))
+    >>> result = voxax.minimize(fn, V0, has_aux=True, progress=False, stop=voxax.StopRules(max_steps=5))
     >>> sorted(result.history)
     ['arap', 'energy', 'sect', 'step_size', 'time']
     ```

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _ffi
-from .grid import Grid
+from ._grid import Grid
 
 __all__ = ["voxelize", "voxelize_corner_gradients", "use_host_callback"]
 

@@ -5,10 +5,10 @@ voxel wide) in closed form. This module handles other kernels k:
 
     W[b] = integral of k(x - c_b) w(x) dx          (c_b the centre of voxel b)
 
-- [`voxelize_mc`][voxax.filters.voxelize_mc] estimates W by Monte Carlo for a [`Box`][voxax.filters.Box]
-  of any width or a truncated [`Gaussian`][voxax.filters.Gaussian], with the gradient
+- [`voxelize_mc`][voxax.voxelize_mc] estimates W by Monte Carlo for a [`Box`][voxax.Box]
+  of any width or a truncated [`Gaussian`][voxax.Gaussian], with the gradient
   estimated by sampling the surface (Sec. 3.2 of the paper), as a `jax.custom_vjp`.
-- [`box_filter`][voxax.filters.box_filter] is the exact alternative for boxes an odd whole
+- [`box_filter`][voxax.box_filter] is the exact alternative for boxes an odd whole
   number of voxels wide: the one-voxel result convolved with a discrete box (Sec. 3.3, "Box
   filters of different sizes"), differentiated by JAX itself.
 
@@ -25,8 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .grid import Grid
-from .winding import _winding_flat
+from ._grid import Grid
+from ._winding import _winding_flat
 
 __all__ = ["Box", "Gaussian", "voxelize_mc", "voxelize_mc_tangent", "box_filter"]
 
@@ -43,7 +43,7 @@ class Box:
 
     `radius` is in voxels: the half-width of the box. `Box(0.5)` is the one-voxel box of
     `voxax.voxelize`; `Box(1.5)` is three voxels wide (the paper's Fig. 2). The kernel is
-    normalised to integrate to 1.
+    normalized to integrate to 1.
     """
 
     radius: float = 0.5
@@ -74,7 +74,7 @@ class Gaussian:
 
     On every axis a the kernel is `exp(-x_a^2 / (2 s_a^2))` with `s_a = sigma * spacing_a`,
     restricted to `|x_a| <= truncate * s_a` (a box support, default 3 sigma) and
-    renormalised so that it integrates to 1 over that support (the truncated mass,
+    renormalized so that it integrates to 1 over that support (the truncated mass,
     `1 - erf(truncate / sqrt 2)` per axis, 0.27% at 3 sigma, is *not* lost but spread over
     the support). A smoothed winding number of a shape is thus the product over axes of
     truncated-normal probabilities for an axis-aligned box.
@@ -396,7 +396,7 @@ def voxelize_mc(
     the kernel's support is split into `strata^d` equal cells in the kernel's own measure
     (by default as many as `samples` allows, one sample each) with equally many samples
     per cell, and `W[b] = mean_s w(x_s)` with w the exact generalised winding number
-    ([`voxax.winding_number`][voxax.winding.winding_number]). The samples of different voxels are
+    ([`voxax.winding_number`][voxax.winding_number]). The samples of different voxels are
     independent. w is evaluated everywhere, also outside the grid: the shape need not lie
     inside it. The estimate is unbiased; its error decreases like 1/sqrt(samples) with a
     fixed number of strata (e.g. `strata=1`, plain Monte Carlo) and faster with the default

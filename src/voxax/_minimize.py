@@ -1,16 +1,16 @@
-"""`minimise`: a step-by-step driver around optimistix solvers, with progress, history,
+"""`minimize`: a step-by-step driver around optimistix solvers, with progress, history,
 callbacks and the stopping rules of the paper's applications.
 
 `optimistix.minimise` runs its whole loop inside one compiled `while_loop`: fast, but it
 gives no progress report, no per-step history and no way to stop on problem-specific
-rules ("no voxel above 1 + 1e-3", "no vertex moved more than 5e-4"). `minimise` instead
+rules ("no voxel above 1 + 1e-3", "no vertex moved more than 5e-4"). `minimize` instead
 drives the solver's own `init` / `step` / `terminate` API from Python. The step (one
 solver step plus the bookkeeping) is compiled once with `equinox.filter_jit`; each
 iteration then costs one compiled call and one small device-to-host copy of scalars.
 
 Solvers: `"adam"` and `"sgd"` (optax, through `optimistix.OptaxMinimiser`), `"bfgs"`
 (`optimistix.BFGS`), `"lbfgs"` (`optimistix.LBFGS`), any optax `GradientTransformation`,
-or any optimistix minimiser instance.
+or any optimistix minimizer instance.
 
 jaxopt is not used: it is in maintenance mode (its solvers are being merged into
 optax), and optax (first-order methods, schedules) plus optimistix (BFGS, L-BFGS, line
@@ -33,13 +33,13 @@ import numpy as np
 import optax
 import optimistix as optx
 
-__all__ = ["StopRules", "MinimiseResult", "minimise"]
+__all__ = ["StopRules", "MinimizeResult", "minimize"]
 
 
 @dataclasses.dataclass(frozen=True)
 class StopRules:
-    """When `minimise` stops. The first rule that holds wins; its name becomes
-    `MinimiseResult.stop_reason`.
+    """When `minimize` stops. The first rule that holds wins; its name becomes
+    `MinimizeResult.stop_reason`.
 
     **Attributes:**
 
@@ -50,13 +50,13 @@ class StopRules:
       The iterate returned is the one whose `max_w` satisfied the rule.
     - `max_w`: alias of `max_w_threshold` (give one of the two).
     - `min_step`: float or None, stop when the step size (largest per-vertex move of the
-      step; see `minimise`) falls below this (`"min_step"`).
+      step; see `minimize`) falls below this (`"min_step"`).
     - `energy_tol`: float or None, stop when the energy changes by less than this
       (absolute) between consecutive steps (`"energy_tol"`).
     - `patience`: int, how many consecutive steps `min_step` / `energy_tol` must hold
       before stopping (default 1).
 
-    Besides these, `minimise` stops when the solver itself reports convergence
+    Besides these, `minimize` stops when the solver itself reports convergence
     (`"converged"`, from the solver's `rtol`/`atol`), when it reports a failure
     (`"failed: <message>"`), when the energy becomes NaN or infinite (`"nonfinite"`,
     returning the last iterate with a finite energy), when the callback returns True
@@ -92,8 +92,8 @@ class StopRules:
 
 
 @dataclasses.dataclass(frozen=True)
-class MinimiseResult:
-    """What `minimise` returns.
+class MinimizeResult:
+    """What `minimize` returns.
 
     **Attributes:**
 
@@ -125,11 +125,11 @@ class _WithAux(eqx.Module):
         out = self.fn(y, args)
         if self.has_aux:
             if not (isinstance(out, tuple) and len(out) == 2):
-                raise ValueError("minimise: with has_aux=True, `fn(y, args)` must return (scalar, aux)")
+                raise ValueError("minimize: with has_aux=True, `fn(y, args)` must return (scalar, aux)")
             f, aux = out
         else:
             if isinstance(out, tuple):
-                raise ValueError("minimise: `fn(y, args)` returned a tuple; pass has_aux=True for (scalar, aux)")
+                raise ValueError("minimize: `fn(y, args)` returned a tuple; pass has_aux=True for (scalar, aux)")
             f, aux = out, None
         return jnp.asarray(f), aux
 
@@ -145,14 +145,14 @@ def _make_solver(solver, learning_rate, rtol, atol):
             return optx.BFGS(rtol=rtol, atol=atol)
         if name == "lbfgs":
             return optx.LBFGS(rtol=rtol, atol=atol)
-        raise ValueError(f"minimise: unknown solver {solver!r}; use 'adam', 'sgd', 'bfgs', 'lbfgs', "
-                         "an optax GradientTransformation or an optimistix minimiser")
+        raise ValueError(f"minimize: unknown solver {solver!r}; use 'adam', 'sgd', 'bfgs', 'lbfgs', "
+                         "an optax GradientTransformation or an optimistix minimizer")
     if isinstance(solver, optax.GradientTransformation):
         return optx.OptaxMinimiser(solver, rtol=rtol, atol=atol)
     if isinstance(solver, optx.AbstractMinimiser):
         return solver
-    raise TypeError(f"minimise: `solver` must be a name, an optax GradientTransformation or an "
-                    f"optimistix minimiser, got {type(solver).__name__}")
+    raise TypeError(f"minimize: `solver` must be a name, an optax GradientTransformation or an "
+                    f"optimistix minimizer, got {type(solver).__name__}")
 
 
 def _default_step_size(y_new, y_old):
@@ -185,7 +185,7 @@ def _as_inexact(x):
     return x if jnp.issubdtype(x.dtype, jnp.inexact) else x.astype(jnp.result_type(float))
 
 
-def minimise(
+def minimize(
     fn: Callable,
     y0,
     args=None,
@@ -201,8 +201,8 @@ def minimise(
     atol: float = 1e-10,
     step_size_fn: Callable | None = None,
     options: dict | None = None,
-) -> MinimiseResult:
-    """Minimises `fn(y, args)` step by step, with progress bar, history and stopping rules.
+) -> MinimizeResult:
+    """Minimizes `fn(y, args)` step by step, with progress bar, history and stopping rules.
 
     One compiled step (compiled once, on the first call) runs the solver's `step`, its
     `terminate` check, and the bookkeeping; Python then records the history, updates the
@@ -213,7 +213,7 @@ def minimise(
     convention), so `history["energy"][0]` is the energy at `y0`. For line-search solvers
     (BFGS, L-BFGS) it is the energy of the last accepted iterate after the step; steps
     whose line search rejected the trial point move nothing (and do not count for
-    `min_step` / `energy_tol`). For any other optimistix minimiser the energy and aux are
+    `min_step` / `energy_tol`). For any other optimistix minimizer the energy and aux are
     evaluated at the new iterate (one extra evaluation per step).
 
     The step size of a step is the largest move of a point — `max(norm(y_new - y_old,
@@ -230,7 +230,7 @@ def minimise(
     - `args`: passed to `fn` unchanged (arrays are traced; other leaves such as a
       `voxax.Grid` are static).
     - `solver`: `"adam"` (default), `"sgd"`, `"bfgs"`, `"lbfgs"`, an optax
-      `GradientTransformation`, or an optimistix minimiser instance.
+      `GradientTransformation`, or an optimistix minimizer instance.
     - `learning_rate`: for `"adam"` / `"sgd"`.
     - `stop`: a `StopRules`.
     - `has_aux`: whether `fn` returns `(scalar, aux)`.
@@ -249,19 +249,19 @@ def minimise(
 
     **Returns:**
 
-    A `MinimiseResult` (`y`, `steps`, `stop_reason`, `history`, `energy`, `aux`).
+    A `MinimizeResult` (`y`, `steps`, `stop_reason`, `history`, `energy`, `aux`).
 
     **Example:**
 
     ```python
     >>> rosen = lambda y, args: jnp.sum(100 * (y[1:] - y[:-1] ** 2) ** 2 + (1 - y[:-1]) ** 2)
-    >>> r = voxax.minimise(rosen, jnp.zeros(4), solver="bfgs", progress=False)
+    >>> r = voxax.minimize(rosen, jnp.zeros(4), solver="bfgs", progress=False)
     >>> r.stop_reason, r.y.round(4)
     ('converged', Array([1., 1., 1., 1.], dtype=float64))
     ```
     """
     if not isinstance(stop, StopRules):
-        raise TypeError(f"minimise: `stop` must be a StopRules, got {type(stop).__name__}")
+        raise TypeError(f"minimize: `stop` must be a StopRules, got {type(stop).__name__}")
     solver = _make_solver(solver, learning_rate, rtol, atol)
     options = {} if options is None else dict(options)
     tags = frozenset()
@@ -271,11 +271,11 @@ def minimise(
 
     f_struct, aux_struct = eqx.filter_eval_shape(fn_aux, y0, args)
     if not (f_struct.shape == () and jnp.issubdtype(f_struct.dtype, jnp.floating)):
-        raise ValueError(f"minimise: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
+        raise ValueError(f"minimize: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
                          f"and dtype {f_struct.dtype}")
     aux_names = sorted(_scalar_aux(aux_struct)) if aux_struct is not None else []
     if stop.max_w_threshold is not None and "max_w" not in aux_names:
-        raise ValueError("minimise: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
+        raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
                          "aux['max_w'] (e.g. W.max()) from `fn`")
 
     if isinstance(solver, optx.OptaxMinimiser):
@@ -337,7 +337,7 @@ def minimise(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=stop.max_steps, desc="minimise", unit="step", dynamic_ncols=True)
+        bar = tqdm(total=stop.max_steps, desc="minimize", unit="step", dynamic_ncols=True)
     try:
         while steps < stop.max_steps:
             y_new, state, info, result = _step(y, state, args)
@@ -416,5 +416,5 @@ def minimise(
         f, out_aux = final_eval(y_out, args)
         out_energy = float(f)
     history = {k: np.asarray(v, dtype=np.float64) for k, v in records.items()}
-    return MinimiseResult(y=y_out, steps=steps, stop_reason=stop_reason, history=history,
+    return MinimizeResult(y=y_out, steps=steps, stop_reason=stop_reason, history=history,
                           energy=float(out_energy), aux=out_aux if has_aux else None)

@@ -1,0 +1,288 @@
+"""`Mesh`: a triangle mesh (3D) or segment polyline (2D) as plain NumPy arrays."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Mesh", "fit", "from_manifold"]
+
+
+class _FrozenDict(dict):
+    """A read-only dict that pickles and deep-copies like a plain one."""
+
+    def _readonly(self, *args, **kwargs):
+        raise TypeError("Mesh.info is read-only; build a new Mesh with the changed info")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _readonly  # type: ignore[assignment]
+
+    def __reduce__(self):
+        return (_FrozenDict, (dict(self),))
+
+    def __deepcopy__(self, memo):
+        import copy
+
+        return _FrozenDict(copy.deepcopy(dict(self), memo))
+
+
+def _readonly_array(x: np.ndarray) -> np.ndarray:
+    x = np.array(x, copy=True, order="C")
+    x.setflags(write=False)
+    return x
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh (3D) or a segment polyline (2D) as plain NumPy arrays.
+
+    The arrays are copied on construction into read-only, C-contiguous arrays: vertices as
+    float64, faces as int32. Construction checks shapes and that every face index is in
+    range. A `Mesh` is a value: it pickles, deep-copies, and compares with `==` by its
+    vertices, faces and `info` (exactly, bit for bit). It is not hashable (its arrays are
+    not). A `Mesh` unpacks like a tuple, so `vertices, faces = mesh` works, and every voxax
+    function that takes `vertices, faces` also takes a `Mesh` in their place
+    (`voxax.voxelize(mesh, grid)`).
+
+    **Arguments:**
+
+    - `vertices`: `(V, d)` float array, `d` = 2 or 3.
+    - `faces`: `(F, d)` integer array: triangles `(F, 3)` for `d = 3`, segments `(F, 2)`
+      for `d = 2`, outward-oriented (counter-clockwise seen from outside).
+    - `info`: optional read-only metadata, for example the overlap box of
+      [`overlapping_cubes`][voxax.data.overlapping_cubes]. Not part of the geometry.
+
+    >>> import numpy as np
+    >>> m = Mesh(np.array([[0., 0.], [1., 0.], [0., 1.]]), np.array([[0, 1], [1, 2], [2, 0]]))
+    >>> m.dim, m.n_faces, m.signed_volume()
+    (2, 3, 0.5)
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    info: Mapping[str, Any] = dataclasses.field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        vertices = np.asarray(self.vertices)
+        if vertices.dtype.kind not in "fiu":
+            raise TypeError(f"Mesh: vertices must be a real array, got dtype {vertices.dtype}")
+        vertices = vertices.astype(np.float64)
+        if vertices.ndim != 2 or vertices.shape[1] not in (2, 3):
+            raise ValueError(f"Mesh: vertices must have shape (V, 2) or (V, 3), got {vertices.shape}")
+        d = vertices.shape[1]
+        faces_in = np.asarray(self.faces)
+        if faces_in.size == 0:  # e.g. np.zeros((0, 3)) or [] : an empty mesh
+            faces_in = np.zeros((0, d), dtype=np.int32)
+        if not np.issubdtype(faces_in.dtype, np.integer):
+            raise TypeError(f"Mesh: faces must be an integer array, got dtype {faces_in.dtype}")
+        if faces_in.ndim != 2 or faces_in.shape[1] != d:
+            kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
+            raise ValueError(f"Mesh: {d}D vertices need faces as {kind}, got faces of shape {faces_in.shape}")
+        if faces_in.size and (faces_in.min() < 0 or faces_in.max() >= len(vertices)):
+            raise ValueError(
+                f"Mesh: face indices must lie in [0, {len(vertices)}), got range "
+                f"[{faces_in.min()}, {faces_in.max()}]"
+            )
+        object.__setattr__(self, "vertices", _readonly_array(vertices))
+        object.__setattr__(self, "faces", _readonly_array(faces_in.astype(np.int32)))
+        object.__setattr__(self, "info", _FrozenDict(self.info))
+
+    # -- value semantics -------------------------------------------------------------
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Mesh):
+            return NotImplemented
+        return (
+            self.vertices.shape == other.vertices.shape
+            and self.faces.shape == other.faces.shape
+            and bool(np.array_equal(self.vertices, other.vertices))
+            and bool(np.array_equal(self.faces, other.faces))
+            and _info_equal(self.info, other.info)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __reduce__(self):
+        return (Mesh, (np.array(self.vertices), np.array(self.faces), dict(self.info)))
+
+    def __deepcopy__(self, memo):
+        import copy
+
+        return Mesh(np.array(self.vertices), np.array(self.faces), copy.deepcopy(dict(self.info), memo))
+
+    # -- basic properties -------------------------------------------------------------
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension `d` (2 or 3)."""
+        return int(self.vertices.shape[1])
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices `V`."""
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        """Number of faces `F` (triangles in 3D, segments in 2D)."""
+        return int(self.faces.shape[0])
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """Axis-aligned bounding box as a `(2, d)` array `[lower, upper]`."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    def __iter__(self):
+        yield self.vertices
+        yield self.faces
+
+    def __repr__(self) -> str:
+        kind = "triangles" if self.dim == 3 else "segments"
+        return f"Mesh(dim={self.dim}, n_vertices={self.n_vertices}, n_faces={self.n_faces} {kind})"
+
+    # -- geometry ---------------------------------------------------------------------
+
+    def signed_volume(self) -> float:
+        """Exact signed volume (3D) or signed area (2D) enclosed by the mesh.
+
+        Computed with the divergence theorem, `sum over faces det(a, b, c) / 6` in 3D and
+        the shoelace formula `sum (x_a y_b - x_b y_a) / 2` in 2D. Positive for a closed,
+        outward-oriented mesh; it equals the integral of the winding number over space,
+        so overlapping parts count twice and inverted parts negatively.
+
+        **Returns:** a Python float.
+
+        >>> from voxax import data
+        >>> round(data.cube(2.0).signed_volume(), 12)
+        8.0
+        """
+        v = self.vertices[self.faces]
+        if self.dim == 3:
+            a, b, c = v[:, 0], v[:, 1], v[:, 2]
+            return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+        a, b = v[:, 0], v[:, 1]
+        return float(np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]) / 2.0)
+
+    def flipped(self) -> "Mesh":
+        """The same mesh with reversed orientation (inward normals).
+
+        Reverses the vertex order of every face, which negates the winding number
+        everywhere (and the signed volume).
+
+        **Returns:** a new `Mesh`.
+
+        >>> from voxax import data
+        >>> data.cube().flipped().signed_volume()
+        -1.0
+        """
+        return Mesh(self.vertices, self.faces[:, ::-1], self.info)
+
+    def translated(self, offset: Sequence[float]) -> "Mesh":
+        """The mesh moved by `offset` (shape `(d,)`).
+
+        >>> from voxax import data
+        >>> data.cube().translated((1, 0, 0)).bounds[0].tolist()
+        [0.5, -0.5, -0.5]
+        """
+        offset = np.asarray(offset, dtype=np.float64).reshape(self.dim)
+        return Mesh(self.vertices + offset, self.faces, self.info)
+
+    def to_trimesh(self):
+        """Convert a 3D mesh to a `trimesh.Trimesh` (no processing, no vertex merging).
+
+        **Returns:** `trimesh.Trimesh` with copies of this mesh's vertices and faces.
+
+        >>> from voxax import data
+        >>> data.cube().to_trimesh().is_watertight
+        True
+        """
+        if self.dim != 3:
+            raise ValueError("to_trimesh() needs a 3D triangle mesh; this is a 2D polyline")
+        import trimesh
+
+        return trimesh.Trimesh(
+            vertices=np.array(self.vertices), faces=np.array(self.faces), process=False, validate=False
+        )
+
+    @classmethod
+    def from_trimesh(cls, mesh) -> "Mesh":
+        """A `Mesh` from a `trimesh.Trimesh` (vertex order and faces kept as they are).
+
+        >>> import trimesh
+        >>> Mesh.from_trimesh(trimesh.creation.box()).n_faces
+        12
+        """
+        vertices = getattr(mesh, "vertices", None)
+        faces = getattr(mesh, "faces", None)
+        if vertices is None or faces is None:
+            raise TypeError(f"Mesh.from_trimesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        return cls(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
+
+    @staticmethod
+    def concatenate(*meshes: "Mesh") -> "Mesh":
+        """Concatenate meshes of one dimension into one (no boolean union).
+
+        Overlapping parts stay overlapping, so their winding numbers add.
+
+        >>> from voxax import data
+        >>> Mesh.concatenate(data.cube(), data.cube().translated((2, 0, 0))).n_faces
+        24
+        """
+        if not meshes:
+            raise ValueError("concatenate() needs at least one mesh")
+        dims = {m.dim for m in meshes}
+        if len(dims) != 1:
+            raise ValueError(f"cannot concatenate meshes of different dimensions {sorted(dims)}")
+        offsets = np.cumsum([0] + [m.n_vertices for m in meshes[:-1]])
+        return Mesh(
+            np.concatenate([m.vertices for m in meshes]),
+            np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
+        )
+
+
+def _info_equal(a: Mapping, b: Mapping) -> bool:
+    if a.keys() != b.keys():
+        return False
+    for key in a:
+        x, y = a[key], b[key]
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if not np.array_equal(np.asarray(x), np.asarray(y)):
+                return False
+        elif x != y:
+            return False
+    return True
+
+
+def fit(vertices: np.ndarray, max_abs: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Centre the bounding box at the origin and scale so that max |v| == max_abs.
+
+    Returns `(new_vertices, centre, scale)` with `new = (old - centre) * scale`.
+    """
+    if len(vertices) == 0:
+        raise ValueError("cannot normalize a mesh without vertices")
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError("cannot normalize a mesh with non-finite vertex coordinates")
+    if not max_abs > 0:
+        raise ValueError(f"max_abs must be > 0, got {max_abs}")
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    centre = (lo + hi) / 2.0
+    centred = vertices - centre
+    extent = np.abs(centred).max()
+    if not extent > 0:
+        raise ValueError("cannot normalize a mesh whose vertices all coincide")
+    scale = float(max_abs) / float(extent)
+    return centred * scale, centre, scale
+
+
+def from_manifold(manifold) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex and face arrays of a manifold3d Manifold (float64 where available)."""
+    to_mesh = getattr(manifold, "to_mesh64", None) or manifold.to_mesh
+    mesh = to_mesh()
+    vertices = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    faces = np.asarray(mesh.tri_verts, dtype=np.int64)
+    # Properties can split vertices; merge exact duplicates so the mesh is index-watertight.
+    uniq, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    faces = inverse.reshape(-1)[faces]
+    return uniq, faces
