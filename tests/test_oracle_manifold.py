@@ -40,7 +40,7 @@ CASES = {
 }
 
 
-def _solid(mesh) -> "m3.Manifold":
+def _solid(mesh) -> m3.Manifold:
     solid = m3.Manifold(
         m3.Mesh64(
             vert_properties=np.array(mesh.vertices, dtype=np.float64),
@@ -64,7 +64,7 @@ def _touched(mesh, grid) -> np.ndarray:
     return touched
 
 
-def _box(grid, ijk) -> "m3.Manifold":
+def _box(grid, ijk) -> m3.Manifold:
     lower, h = np.asarray(grid.lower), np.asarray(grid.spacing)
     a = lower + np.asarray(ijk) * h
     b = lower + (np.asarray(ijk) + 1) * h
