@@ -189,9 +189,13 @@ def test_progress_bar_ignores_the_compiling_step_and_ends_at_the_stop():
     assert bar.bar.start_t >= after_compiling and bar.bar.desc.startswith("minimize")
     for _ in range(9):
         bar.update({"E": "0.5"})
+    bar.bar.refresh()
+    running = out.getvalue().rstrip().split("\r")[-1]
+    assert "10/1000" in running and "at most" in running  # the time left is an upper bound
     bar.close("min_step")
     last = out.getvalue().rstrip().split("\r")[-1]
     assert "10/10" in last and "100%" in last and "stop: min_step" in last and "E=0.5" in last
+    assert "at most" not in last
     # A run that uses every step ends at total/total.
     out = io.StringIO()
     bar = ProgressBar(3, "minimize", file=out)

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import sys
 
+# While running, the time left is an upper bound: a stopping rule may end the run early.
+_RUNNING = "{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}, at most {remaining} left, {rate_fmt}{postfix}]"
+_DONE = "{desc}{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}, {rate_fmt}{postfix}]"
+
 
 class ProgressBar:
     """A tqdm progress bar over at most `total` steps.
@@ -12,8 +16,9 @@ class ProgressBar:
     The first step of a jit-compiled loop includes the compilation, often far slower than
     every later step; counting it would predict minutes for a run of seconds. So the bar
     says "compiling" until the first step is done and starts its clock (rate, elapsed
-    time, ETA) after it. A run that stops before `total` steps ends with `steps/steps`
-    and the reason, rather than a bar stuck at `steps/total`.
+    time, time left) after it. The time left is shown as an upper bound ("at most"), since
+    stopping rules may end the run before `total` steps; a run that stops early ends with
+    `steps/steps` and the reason, rather than a bar stuck at `steps/total`.
 
     **Arguments:**
 
@@ -28,7 +33,8 @@ class ProgressBar:
         self.total = int(total)
         self.desc = desc
         self.steps = 0
-        self.bar = tqdm(total=self.total, desc=f"{desc} (compiling)", unit="step", dynamic_ncols=True, file=file)
+        self.bar = tqdm(total=self.total, desc=f"{desc} (compiling)", unit="step", dynamic_ncols=True, file=file,
+                        bar_format=_RUNNING)
 
     def update(self, postfix: dict | None = None) -> None:
         """Counts one step; `postfix` is shown after the bar (e.g. the energy)."""
@@ -45,8 +51,9 @@ class ProgressBar:
         (left out while an exception propagates, e.g. when called in a `finally`)."""
         if sys.exc_info()[0] is not None:
             reason = None
-        elif self.steps < self.total:
-            self.bar.total = self.steps
+        else:
+            self.bar.bar_format = _DONE
+            self.bar.total = min(self.steps, self.total)
         if reason:
             shown = self.bar.postfix
             self.bar.set_postfix_str(f"{shown}, stop: {reason}" if shown else f"stop: {reason}", refresh=False)
