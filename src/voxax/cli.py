@@ -224,6 +224,12 @@ def _add_optimization_options(p, resolution: int, learning_rate: float, arap_wei
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
 
 
+def _optimization_options(args) -> dict:
+    """The keyword arguments of the applications that `_add_optimization_options` adds."""
+    return {"resolution": args.resolution, "arap_weight": args.arap_weight, "learning_rate": args.learning_rate,
+            "max_steps": args.max_steps, "progress": not args.quiet}
+
+
 def _add_mesh_argument(p, example: str) -> None:
     p.add_argument("mesh", help=f"a mesh file readable by trimesh, or a built-in mesh name (e.g. {example})")
 
@@ -364,14 +370,7 @@ def _resolve(args) -> int:
     mesh = _load_mesh(args.mesh)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.resolve_self_intersections(
-            mesh,
-            resolution=args.resolution,
-            eps=args.eps,
-            arap_weight=args.arap_weight,
-            learning_rate=args.learning_rate,
-            max_steps=args.max_steps,
-            normalize=not args.no_normalize,
-            progress=not args.quiet,
+            mesh, eps=args.eps, normalize=not args.no_normalize, **_optimization_options(args)
         )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
@@ -415,15 +414,8 @@ def _bandsaw(args) -> int:
     mesh = _load_mesh(args.mesh)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.optimize_for_bandsaw(
-            mesh,
-            resolution=args.resolution,
-            w=args.w,
-            arap_weight=args.arap_weight,
-            learning_rate=args.learning_rate,
-            min_step=args.min_step if args.min_step > 0 else None,
-            max_steps=args.max_steps,
-            normalize=not args.no_normalize,
-            progress=not args.quiet,
+            mesh, w=args.w, min_step=args.min_step or None, normalize=not args.no_normalize,
+            **_optimization_options(args),
         )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
@@ -476,17 +468,8 @@ def _tile(args) -> int:
     meshes = [_load_mesh(m) for m in args.meshes]
     instances = args.instances if counts > 1 else args.instances[0]
     placed, report = apps.optimize_tiling(
-        meshes,
-        instances=instances,
-        resolution=args.resolution,
-        arap_weight=args.arap_weight,
-        learning_rate=args.learning_rate,
-        max_steps=args.max_steps,
-        min_step=args.min_step if args.min_step > 0 else None,
-        deform=not args.rigid,
-        init=args.init,
-        seed=args.seed,
-        progress=not args.quiet,
+        meshes, instances=instances, min_step=args.min_step or None, deform=not args.rigid, init=args.init,
+        seed=args.seed, **_optimization_options(args),
     )
     print(report.summary())
     voxax.io.save(voxax.Mesh.concatenate(*placed), os.path.join(args.out, "tiling.ply"))
