@@ -61,8 +61,8 @@ def test_api_reference_covers_every_public_module(site):
     for name in modules:
         if importlib.util.find_spec(name) is not None:
             assert f'id="{name}' in html, f"{name} is missing from the API reference"
-    for name in ("Grid", "Mesh", "voxelize", "voxelize_mc", "winding_number", "minimize", "StopRules",
-                 "MinimizeResult", "plot.projections", "plot.pyplot"):
+    for name in ("Grid", "Mesh", "voxelize", "use_host_callback", "winding_number", "voxelize_mc", "box_filter",
+                 "minimize", "StopRules", "MinimizeResult", "plot.projections", "plot.pyplot"):
         assert f'id="voxax.{name}"' in html, name
     # Docstring examples are rendered as code.
     assert "&gt;&gt;&gt;" in html
