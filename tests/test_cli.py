@@ -231,9 +231,11 @@ ERRORS = [
     (["voxelize", "torus", "-o", "{tmp}/W.txt"], "must end in .npz or .npy"),
     (["voxelize", "torus", "-n", "ten"], "expected an integer"),
     (["voxelize", "torus", "--bogus"], "unrecognized arguments: --bogus"),
+    (["voxelize", "torus", "-n", "100000", "-o", "{tmp}/W.npz"], "more than the"),  # memory
     (["resolve", "no_such_mesh", "-o", "{tmp}/r"], "neither a mesh file"),
     (["resolve", "bent_bar", "--lr", "-1"], "expected a number > 0"),
     (["resolve", "bent_bar", "--eps", "nan"], "finite"),
+    (["resolve", "--traceback", "bent_bar"], "unrecognized arguments: --traceback"),  # an option of voxax
     (["bandsaw"], "required: mesh"),
     (["bandsaw", "star_polyline", "-o", "{tmp}/b"], "2D mesh"),
     (["bandsaw", "hand", "--w", "0"], "expected a number > 0"),

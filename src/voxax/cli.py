@@ -536,6 +536,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser()
     _prog = "voxax"
+    command_at = next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))
+    show_traceback = "--traceback" in argv[:command_at]  # an option of `voxax` itself
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
@@ -545,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"unrecognized arguments: {' '.join(extra)} (see '{_prog} --help')")
             return int(args.run(args))
     except (UsageError, ValueError, TypeError, OSError, MemoryError) as err:
-        if "--traceback" in argv:
+        if show_traceback:
             raise
         print(f"{getattr(err, 'prog', _prog)}: error: {_one_line(err)}", file=sys.stderr)
         return 2
