@@ -259,6 +259,10 @@ def _demo(args) -> int:
     dtype = np.float32 if args.float32 else np.float64
     vertices = np.asarray(mesh.vertices, dtype=dtype)
     faces = np.asarray(mesh.faces)
+    outside = _outside(vertices, grid.lower, grid.upper)
+    if outside:
+        _warn(f"{outside[1]}, so the volume from the grid counts only the part inside; "
+              "use 'voxax voxelize --fit' for meshes of any size")
 
     fn = jax.jit(lambda v, f: voxax.voxelize(v, f, grid))
     W = fn(vertices, faces).block_until_ready()  # compile + first run
