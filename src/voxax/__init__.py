@@ -22,7 +22,7 @@ from ._mesh import Mesh
 from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
-from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
+from ._filters import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
 
@@ -38,6 +38,7 @@ __all__ = [
     "voxelize_mc",
     "voxelize_mc_tangent",
     "box_filter",
+    "Kernel",
     "Box",
     "Gaussian",
     "minimize",
