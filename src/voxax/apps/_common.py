@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
+from .._optional import require
 from .._values import ValueEquality
 from .._mesh import Mesh
 from .._grid import Grid
@@ -180,7 +181,7 @@ class Report(ValueEquality):
 
 def pyplot():
     """matplotlib.pyplot with a non-interactive backend unless one is already in use."""
-    import matplotlib
+    matplotlib = require("matplotlib", "plotting")
 
     if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
         try:
