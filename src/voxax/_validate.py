@@ -23,6 +23,7 @@ __all__ = [
     "is_mesh_object",
     "mesh_object_arrays",
     "unpack_mesh",
+    "mesh_like",
     "mesh",
     "grid",
     "key",
@@ -84,6 +85,44 @@ def unpack_mesh(where: str, vertices, faces, *params):
         raise TypeError(f"{where}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
     shifted = tuple(slots[j] if j < n else params[j] for j in range(len(params)))
     return v, f, shifted
+
+
+def _is_plain(x) -> bool:
+    """True for inputs converted to NumPy (NumPy arrays, lists, tuples, scalars)."""
+    return isinstance(x, (np.ndarray, list, tuple, np.generic, int, float))
+
+
+def mesh_like(where: str, value) -> tuple:
+    """`(vertices, faces)` from a `voxax.Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair.
+
+    Mesh objects give float64 vertices and int32 faces. In a pair, NumPy arrays and nested
+    lists are converted (integer vertices to float64, faces to int32; floating vertices
+    keep their dtype) and other array types (JAX arrays, tracers) are returned unchanged;
+    leading batch axes are allowed. Shapes and concrete face indices are checked.
+    """
+    if is_mesh_object(value):
+        vertices, faces = mesh_object_arrays(where, value)
+        vertices, faces = mesh(where, vertices, faces, allow_empty=True, finite=False)
+        return np.asarray(vertices, dtype=np.float64), np.ascontiguousarray(np.asarray(faces, dtype=np.int32))
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        vertices, faces = value
+        if _is_plain(vertices):
+            vertices = np.asarray(vertices)
+            if vertices.dtype.kind in "iub":
+                vertices = vertices.astype(np.float64)
+            vertices = np.ascontiguousarray(vertices)
+        if _is_plain(faces):
+            faces = np.asarray(faces)
+            if faces.size == 0:
+                d = np.shape(vertices)[-1] if np.ndim(vertices) >= 1 else 3
+                faces = faces.astype(np.int32).reshape(0, d)
+        vertices, faces = mesh(where, vertices, faces, batch=True, allow_empty=True, finite=False)
+        if isinstance(faces, np.ndarray):
+            faces = np.ascontiguousarray(faces.astype(np.int32))
+        return vertices, faces
+    raise TypeError(
+        f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or a (vertices, faces) pair, got {type(value).__name__}"
+    )
 
 
 def face_kind(d: int) -> str:

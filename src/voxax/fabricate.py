@@ -43,7 +43,6 @@ import numpy as np
 from . import _validate
 from ._values import ValueEquality
 from ._mesh import Mesh, from_manifold
-from .io import as_arrays
 from ._grid import Grid
 
 __all__ = [
@@ -93,7 +92,7 @@ def _as_grid_values(W, grid: Grid) -> np.ndarray:
 
 
 def _mesh_arrays(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
-    vertices, faces = as_arrays(mesh)
+    vertices, faces = _validate.mesh_like(where, mesh)
     vertices, faces = _validate.mesh(where, vertices, faces, dim=3, context="a 3D triangle mesh")
     return np.asarray(vertices, dtype=np.float64), np.asarray(faces)
 

@@ -28,11 +28,6 @@ __all__ = ["load", "save", "normalize", "as_arrays", "is_watertight"]
 # --------------------------------------------------------------------------------------
 
 
-def _is_plain(x: Any) -> bool:
-    """True for inputs that we convert to NumPy (NumPy arrays, lists, tuples, scalars)."""
-    return isinstance(x, (np.ndarray, list, tuple, np.generic, int, float))
-
-
 def as_arrays(mesh: Any) -> tuple[Any, Any]:
     """Return `(vertices, faces)` from a voxax `Mesh`, a `trimesh.Trimesh` or a pair.
 
@@ -62,32 +57,7 @@ def as_arrays(mesh: Any) -> tuple[Any, Any]:
     >>> v.dtype, f.dtype, f.shape
     (dtype('float64'), dtype('int32'), (3, 2))
     """
-    where = "as_arrays"
-    if isinstance(mesh, Mesh):
-        return mesh.vertices, mesh.faces
-    if _validate.is_mesh_object(mesh):  # trimesh.Trimesh and friends
-        m = Mesh(*_validate.mesh_object_arrays(where, mesh))
-        return m.vertices, m.faces
-    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        vertices, faces = mesh
-        if _is_plain(vertices):
-            vertices = np.asarray(vertices)
-            if vertices.dtype.kind in "iub":
-                vertices = vertices.astype(np.float64)
-            vertices = np.ascontiguousarray(vertices)
-        if _is_plain(faces):
-            faces = np.asarray(faces)
-            if faces.size == 0:
-                d = np.shape(vertices)[-1] if np.ndim(vertices) >= 1 else 3
-                faces = faces.astype(np.int32).reshape(0, d)
-        vertices, faces = _validate.mesh(where, vertices, faces, batch=True, allow_empty=True, finite=False)
-        if isinstance(faces, np.ndarray):
-            faces = np.ascontiguousarray(faces.astype(np.int32))
-        return vertices, faces
-    raise TypeError(
-        f"{where}: expected a voxax Mesh, a trimesh.Trimesh or a (vertices, faces) pair, "
-        f"got {type(mesh).__name__}"
-    )
+    return _validate.mesh_like("as_arrays", mesh)
 
 
 # --------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from .. import _minimize as solve
 
 def as_mesh(where: str, mesh: Any) -> Mesh:
     """A 3D voxax `Mesh` from a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair."""
-    out = mesh if isinstance(mesh, Mesh) else Mesh(*_io.as_arrays(mesh))
+    out = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like(where, mesh))
     _validate.mesh(where, out.vertices, out.faces, dim=3, context="the applications need a 3D triangle mesh")
     return out
 
