@@ -109,10 +109,9 @@ def test_voxelize_mc_broadcasts_vertices_and_faces_like_voxelize():
     assert out.shape == (2, 3) + GRID2.shape
     exact = np.asarray(voxax.voxelize(v, f, GRID2))
     assert exact.shape == out.shape
-    for i in range(2):
-        for j in range(3):
-            one = voxax.voxelize_mc(v[j], f[i, 0], GRID2, Gaussian(0.8), key, samples=16)
-            np.testing.assert_allclose(out[i, j], one, atol=1e-12)
+    for i, j in ((0, 0), (1, 2)):
+        one = voxax.voxelize_mc(v[j], f[i, 0], GRID2, Gaussian(0.8), key, samples=16)
+        np.testing.assert_allclose(out[i, j], one, atol=1e-12)
     mapped = jax.vmap(lambda vv: voxax.voxelize_mc(vv, f[1, 0], GRID2, Gaussian(0.8), key, samples=16))(v)
     np.testing.assert_allclose(mapped, out[1], atol=1e-12)
     np.testing.assert_allclose(out[1], -out[0], atol=1e-12)  # inverted faces: negated winding
@@ -273,7 +272,7 @@ def test_user_epanechnikov_kernel_matches_its_closed_form_on_a_box():
     r = kernel.radius * np.asarray(GRID2.spacing)
     exact = np.prod(_epanechnikov_cdf((hi - c) / r) - _epanechnikov_cdf((lo - c) / r), axis=-1)
     err = np.abs(W - exact)
-    assert err.max() < 0.02, err.max()
+    assert err.max() < 0.02, err.max()  # measured 0.008-0.010 over seeds
     assert np.abs(exact).max() == pytest.approx(1.0) and np.count_nonzero((exact > 0.05) & (exact < 0.95)) > 20
     # The gradient (surface samples weighted by the kernel) against finite differences of
     # the closed form for moving the right edge: dW/dx_hi = k1((hi_x - c_x)) * mass_y.
@@ -281,14 +280,14 @@ def test_user_epanechnikov_kernel_matches_its_closed_form_on_a_box():
     g = np.random.default_rng(6).normal(size=GRID2.shape)
 
     def loss(v):
-        return jnp.sum(g * voxax.voxelize_mc(v, SQUARE.faces, GRID2, kernel, jax.random.key(5), samples=4, surface_samples=512))
+        return jnp.sum(g * voxax.voxelize_mc(v, SQUARE.faces, GRID2, kernel, jax.random.key(5), samples=1, surface_samples=128))
 
     dv = np.asarray(jax.grad(loss)(jnp.asarray(SQUARE.vertices)))
     ux = (hi[0] - c[..., 0]) / r[0]
     k1 = np.where(np.abs(ux) <= 1, 0.75 * (1 - ux**2), 0.0) / r[0]
     mass_y = _epanechnikov_cdf((hi[1] - c[..., 1]) / r[1]) - _epanechnikov_cdf((lo[1] - c[..., 1]) / r[1])
     expected = float(np.sum(g * k1 * mass_y))
-    assert dv[right, 0].sum() == pytest.approx(expected, rel=0.02, abs=0.05)
+    assert dv[right, 0].sum() == pytest.approx(expected, rel=0.01)  # measured within 0.3%
 
 
 def test_user_anisotropic_box_matches_the_exact_box_composition():
@@ -303,21 +302,20 @@ def test_user_anisotropic_box_matches_the_exact_box_composition():
     exact = (padded[:-2] + padded[1:-1] + padded[2:]) / 3
     W = np.asarray(voxax.voxelize_mc(star, grid, kernel, jax.random.key(7), samples=1024))
     err = np.abs(W - exact)
-    assert err.max() < 0.02, err.max()
-    # An isotropic box of either width would be far off: the test can tell them apart.
-    for other in (Box(0.5), Box(1.5)):
-        W_other = np.asarray(voxax.voxelize_mc(star, grid, other, jax.random.key(7), samples=1024))
-        assert np.abs(W_other - exact).max() > 0.1
+    assert err.max() < 0.02, err.max()  # measured 0.006-0.008 over seeds
+    # The isotropic box 3 voxels wide is far off (0.24): the test tells them apart.
+    W_iso = np.asarray(voxax.voxelize_mc(star, grid, Box(1.5), jax.random.key(7), samples=256))
+    assert np.abs(W_iso - exact).max() > 0.1
     # Gradient: the same composition of exact one-voxel gradients.
     g = np.random.default_rng(8).normal(size=grid.shape)
     gp = np.pad(g, ((1, 1), (0, 0)))
     g_spread = (gp[:-2] + gp[1:-1] + gp[2:]) / 3  # the adjoint of the x-average
     exact_dv = reference.voxelize_backward(star, grid, g_spread)
     dv = jax.grad(
-        lambda v: jnp.sum(g * voxax.voxelize_mc(v, star.faces, grid, kernel, jax.random.key(7), samples=4, surface_samples=2048))
+        lambda v: jnp.sum(g * voxax.voxelize_mc(v, star.faces, grid, kernel, jax.random.key(7), samples=1, surface_samples=256))
     )(jnp.asarray(star.vertices))
     scale = np.abs(exact_dv).max()
-    assert np.abs(np.asarray(dv) - exact_dv).max() < 0.05 * scale
+    assert np.abs(np.asarray(dv) - exact_dv).max() < 0.02 * scale  # measured 0.002-0.0035
 
 
 # -- value semantics ----------------------------------------------------------------------------
@@ -364,18 +362,30 @@ def test_mesh_trimesh_round_trip():
     assert t.volume == pytest.approx(m.signed_volume(), rel=1e-12)
 
 
+def _filled(cls, i):
+    """An instance of a report dataclass with a value of the right kind in every field."""
+    values = {
+        "np.ndarray": np.arange(6.0).reshape(2, 3) + i,
+        "Mapping[str, np.ndarray]": {"energy": np.arange(3.0) + i, "max_w": np.array([1.5, np.nan])},
+        "int": 3 + i,
+        "float": 0.25 + i,
+        "str": "max_steps",
+        "bool": True,
+    }
+    return cls(**{f.name: values[f.type] for f in dataclasses.fields(cls)})
+
+
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory):
-    cube = data.cube(0.8)
-    inter, rep_i = voxax.apps.resolve_self_intersections(data.overlapping_cubes(), resolution=12, max_steps=2, progress=False)
-    saw, rep_b = voxax.apps.optimize_for_bandsaw(data.icosphere(1, radius=0.7), resolution=12, max_steps=2, progress=False)
-    tiles, rep_t = voxax.apps.optimize_tiling(cube, instances=2, resolution=12, max_steps=2, progress=False)
-    templates = voxax.fabricate.bandsaw_templates(cube, tmp_path_factory.mktemp("saw"))
+    _, rep_i = voxax.apps.resolve_self_intersections(data.overlapping_cubes(), resolution=8, max_steps=2, progress=False)
+    templates = voxax.fabricate.bandsaw_templates(data.cube(0.8), tmp_path_factory.mktemp("saw"))
+    rep_b = _filled(voxax.apps.BandsawReport, 1)
+    rep_t = _filled(voxax.apps.TilingReport, 2)
     return rep_i, rep_b, rep_t, templates
 
 
 def test_reports_and_templates_round_trip(reports):
     for obj in reports:
         _roundtrips(obj)
-    a, b = reports[0], reports[1]
-    assert a != b
+    assert reports[1] != _filled(voxax.apps.BandsawReport, 2)
+    assert reports[1] != reports[2]
