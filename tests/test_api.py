@@ -140,6 +140,14 @@ def test_winding_number_batches_meshes_over_shared_points():
     np.testing.assert_allclose(mapped, out[0], atol=1e-12)
 
 
+def test_point_sampled_batches():
+    v, f = _square_batch()
+    out = np.asarray(voxax.baselines.point_sampled(v, f, GRID2, supersample=2))
+    assert out.shape == (2, 3) + GRID2.shape
+    np.testing.assert_array_equal(out[1, 2], voxax.baselines.point_sampled(v[2], f[1, 0], GRID2, supersample=2))
+    np.testing.assert_array_equal(out[0, 0], voxax.baselines.point_sampled(SQUARE, GRID2, supersample=2))
+
+
 def test_arap_batches_like_a_loop():
     m = data.icosphere(1)
     v = np.stack([m.vertices * 1.1, m.vertices @ np.diag([1.0, 1.2, 0.9])])
@@ -175,6 +183,7 @@ def _callers():
         "voxelize_mc_tangent": lambda v, f: voxax.voxelize_mc_tangent(v, f, grid, Box(0.5), key, np.zeros_like(v)),
         "winding_number": lambda v, f: voxax.winding_number(v, f, pts),
         "reference.voxelize": lambda v, f: reference.voxelize(v, f, grid),
+        "point_sampled": lambda v, f: voxax.baselines.point_sampled(v, f, grid),
         "reference.signed_volume": lambda v, f: reference.signed_volume(v, f),
         "as_arrays": lambda v, f: voxax.io.as_arrays((v, f)),
         "Mesh": lambda v, f: Mesh(v, f),
