@@ -94,7 +94,7 @@ def _build(op, n):
     if op == "bwd_kernel":
         # the cotangent of sum(W**2): 2 W, made in one call so that XLA can reuse W's buffer
         cot = jax.jit(lambda v, f: 2 * voxax.voxelize(v, f, grid))(v, f).block_until_ready()
-        corners = jax.jit(lambda v, f, c: voxax.voxelize_corner_gradients(v, f, c, grid))
+        corners = jax.jit(lambda v, f, c: voxax.voxelize_corner_gradients(v, f, grid, c))
         fn = corners.lower(v, f, cot).compile()
         return None, lambda: fn(v, f, cot).block_until_ready()
     if op == "e2e":

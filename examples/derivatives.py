@@ -71,7 +71,7 @@ def compute(resolution: int = 64, samples: int = 2048, seed: int = 0) -> dict:
         fd = (voxax.voxelize(shape(t0 + eps), faces, grid) - voxax.voxelize(shape(t0 - eps), faces, grid)) / (2 * eps)
         ad = jax.jacrev(lambda t: voxax.voxelize(shape(t), faces, grid))(t0)
         v0, dv = jax.jvp(shape, (t0,), (jnp.ones_like(t0),))
-        mc = voxelize_mc_tangent(v0, faces, dv, grid, Box(1.5), key, surface_samples=samples)
+        mc = voxelize_mc_tangent(v0, faces, grid, Box(1.5), key, dv, surface_samples=samples)
         fd3 = box_filter(fd, 3)  # the FD of the exact box-3 forward (box_filter is linear)
         small = 1e-7
         base = lambda t: baselines.point_sampled(shape(t), faces, grid)

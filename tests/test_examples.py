@@ -21,7 +21,7 @@ def _load(name: str):
 
 
 def test_the_application_examples_exist():
-    assert {"voxelize_mesh", "self_intersection", "bandsaw", "tiling"} <= {p.stem for p in EXAMPLES.glob("*.py")}
+    assert {"voxelize_mesh", "self_intersection", "bandsaw", "tiling", "bounded_minimize"} <= {p.stem for p in EXAMPLES.glob("*.py")}
 
 
 def test_voxelize_mesh(tmp_path, capsys):
@@ -51,3 +51,12 @@ def test_tiling(tmp_path, meshes):
     assert _load("tiling").main(argv) == 0
     for name in ("tiling.ply", "tiled_2x2x2.ply", "cell.png", "history.png", "report.json"):
         assert (tmp_path / name).exists(), name
+
+
+@pytest.mark.parametrize("solver", ["adam", "lbfgsb"])
+def test_bounded_minimize(tmp_path, capsys, solver):
+    argv = ["--resolution", "16", "--max-steps", "10", "--solver", solver, "--out", str(tmp_path)]
+    assert _load("bounded_minimize").main(argv) == 0
+    out = capsys.readouterr().out
+    assert "every vertex inside the build volume: True" in out
+    assert (tmp_path / "inflated.ply").exists()

@@ -163,7 +163,7 @@ def test_tangent_is_the_adjoint_of_the_vjp():
         cot, t = rng.normal(size=grid.shape), rng.normal(size=mesh.vertices.shape)
         key = jax.random.key(2)
         vjp = _mc_grad(mesh.vertices, mesh.faces, cot, key, grid, ker, n)
-        tan = voxelize_mc_tangent(mesh.vertices, mesh.faces, t, grid, ker, key, surface_samples=n)
+        tan = voxelize_mc_tangent(mesh.vertices, mesh.faces, grid, ker, key, t, surface_samples=n)
         np.testing.assert_allclose(np.sum(cot * tan), np.sum(vjp * t), rtol=1e-10)
 
 

@@ -425,7 +425,7 @@ def test_backward_matches_reference_float32(seed, dim):
 def test_corner_gradients_sum_to_vertex_gradients(dim):
     """`voxelize_corner_gradients` summed over the corners of each vertex is the VJP."""
     v, f, grid, cot = _random_case(42, dim)
-    corners = np.asarray(voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), jnp.asarray(cot), grid))
+    corners = np.asarray(voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), grid, jnp.asarray(cot)))
     assert corners.shape == (len(f), dim, dim)
     summed = np.zeros_like(v)
     np.add.at(summed, f.reshape(-1), corners.reshape(-1, dim))
@@ -459,7 +459,7 @@ def _run_all(inputs):
             x = jnp.asarray(v.astype(dt))
             W, vjp = jax.vjp(lambda y: voxax.voxelize(y, f, g), x)
             (dv,) = vjp(jnp.asarray(c.astype(dt)))
-            corners = voxax.voxelize_corner_gradients(x, jnp.asarray(f), jnp.asarray(c.astype(dt)), g)
+            corners = voxax.voxelize_corner_gradients(x, jnp.asarray(f), g, jnp.asarray(c.astype(dt)))
             key = f"{i}_{np.dtype(dt).name}"
             out["W_" + key] = np.asarray(W)
             out["dv_" + key] = np.asarray(dv)

@@ -324,7 +324,7 @@ def test_backward_of_huge_triangles_is_exact(L):
     W = np.asarray(voxax.voxelize(v, f, grid))
     np.testing.assert_allclose(W[..., 1], 0.1, atol=1e-12)
     np.testing.assert_allclose(W[..., 0], 1.0, atol=1e-12)
-    corners = np.asarray(voxax.voxelize_corner_gradients(v, f, np.ones(grid.shape), grid))[0]
+    corners = np.asarray(voxax.voxelize_corner_gradients(v, f, grid, np.ones(grid.shape)))[0]
     # sum over corners of dL/dz = (area of the triangle inside the grid) / voxel volume = 4
     assert corners[:, 2].sum() == pytest.approx(4.0, rel=1e-9)
 
@@ -343,7 +343,7 @@ def test_backward_of_sliver_triangles_is_finite_and_exact(eps, dtype):
     v = np.array([a, b, b + [0.0, eps, 0.0],
                   a, b, a + 0.3 * (b - a)])  # a collinear triangle, up to rounding
     v = v.astype(dtype)
-    C = np.asarray(voxax.voxelize_corner_gradients(v, f, np.ones(grid.shape, dtype), grid))
+    C = np.asarray(voxax.voxelize_corner_gradients(v, f, grid, np.ones(grid.shape, dtype)))
     assert np.all(np.isfinite(C))
     R = reference.voxelize_backward(v.astype(np.float64), f, grid, np.ones(grid.shape))
     dv = np.zeros_like(R)

@@ -251,3 +251,108 @@ def test_solver_failures_are_reported():
     r = minimize(quadratic, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=50), progress=False)
     assert r.stop_reason.startswith("failed: ") and "diverged" in r.stop_reason
     assert r.steps == 3
+
+
+# -- stop reasons and box bounds ------------------------------------------------------------
+
+
+def test_stop_reasons_are_the_documented_constants():
+    from voxax import StopReason
+
+    r = minimize(quadratic, np.zeros((4, 3)), solver="bfgs", progress=False)
+    assert r.stop_reason == StopReason.CONVERGED == "converged"
+    r = minimize(quadratic, np.zeros((4, 3)), solver="sgd", stop=StopRules(max_steps=2), progress=False)
+    assert r.stop_reason == StopReason.MAX_STEPS
+    names = {k for k in vars(StopReason) if k.isupper()}
+    assert names == {"MAX_STEPS", "MAX_W", "MIN_STEP", "ENERGY_TOL", "CONVERGED", "CALLBACK", "NONFINITE",
+                     "INTERRUPTED", "FAILED"}
+
+
+def test_the_analytic_box_optimum_of_a_quadratic():
+    """min sum s (y - t)^2 over a box is t clipped into the box (separable and convex)."""
+    lower, upper = np.array([-0.2, -0.1, 0.0]), 0.4
+    expected = np.clip(TARGET, lower, upper)
+    for solver in ("adam", "sgd", "lbfgsb"):
+        r = minimize(quadratic, np.zeros((4, 3)), solver=solver, learning_rate=0.05, bounds=(lower, upper),
+                     stop=StopRules(max_steps=400), progress=False)
+        assert r.stop_reason == "converged", (solver, r.stop_reason)
+        np.testing.assert_allclose(r.y, expected, atol=1e-6)
+        assert np.all(np.asarray(r.y) >= lower) and np.all(np.asarray(r.y) <= upper)
+
+
+def _grow(mesh, grid):
+    """Minus the enclosed volume measured on the grid: pushes every vertex outwards."""
+
+    def fn(v, args):
+        W = voxax.voxelize(v, mesh.faces, grid)
+        return -jnp.sum(W) * grid.voxel_volume, {"max_w": W.max()}
+
+    return fn
+
+
+@pytest.mark.parametrize("solver", ["adam", "sgd", "lbfgsb"])
+def test_bounds_hold_on_a_voxel_objective(solver):
+    mesh = voxax.data.icosphere(1, radius=0.3)
+    grid = voxax.Grid.cube(8)
+    fn = _grow(mesh, grid)
+    lr = {"adam": 0.05, "sgd": 2.0, "lbfgsb": 0.0}[solver]  # (L-BFGS-B takes no learning rate)
+    free = minimize(fn, mesh.vertices, solver="adam", learning_rate=0.05, has_aux=True,
+                    stop=StopRules(max_steps=12), progress=False)
+    assert np.abs(np.asarray(free.y)).max() > 0.42  # unbounded, the sphere grows past the box
+    lower, upper = np.array([-0.35, -0.4, -0.32]), np.array([0.4, 0.33, 0.36])
+    seen = []
+
+    def record(step, y, info):
+        seen.append(np.asarray(y))
+
+    r = minimize(fn, mesh.vertices, solver=solver, learning_rate=lr, has_aux=True, bounds=(lower, upper),
+                 stop=StopRules(max_steps=12), progress=False, callback=record)
+    assert seen and r.steps == len(seen)
+    for y in seen + [np.asarray(r.y)]:
+        assert np.all(y >= lower) and np.all(y <= upper)
+    assert r.energy < fn(jnp.asarray(mesh.vertices), None)[0] - 0.01  # it did grow
+    touching = np.isclose(np.asarray(r.y), lower) | np.isclose(np.asarray(r.y), upper)
+    assert touching.any()  # and the bounds were active
+
+
+def test_bounds_validation_and_pytrees():
+    with pytest.raises(ValueError, match="optimistix minimizers are unconstrained"):
+        minimize(quadratic, np.zeros((4, 3)), solver="bfgs", bounds=(0.0, 1.0), progress=False)
+    with pytest.raises(ValueError, match="lower <= upper"):
+        minimize(quadratic, np.zeros((4, 3)), bounds=(1.0, 0.0), progress=False)
+    with pytest.raises(ValueError, match="does not broadcast"):
+        minimize(quadratic, np.zeros((4, 3)), bounds=(np.zeros(2), None), progress=False)
+    with pytest.raises(TypeError, match="pair"):
+        minimize(quadratic, np.zeros((4, 3)), bounds=0.0, progress=False)
+
+    def fn(y, args):
+        return jnp.sum((y["a"] - 2.0) ** 2) + jnp.sum((y["b"] + 2.0) ** 2)
+
+    y0 = {"a": jnp.zeros(2), "b": jnp.zeros(3)}
+    r = minimize(fn, y0, solver="sgd", learning_rate=0.2, bounds=({"a": 1.0, "b": -1.0}, None),
+                 stop=StopRules(max_steps=200), progress=False)
+    np.testing.assert_allclose(r.y["a"], [2.0, 2.0], atol=1e-6)  # above its lower bound 1
+    np.testing.assert_allclose(r.y["b"], [-1.0] * 3, atol=1e-12)  # held at its lower bound -1
+    # y0 outside the box is clipped into it first.
+    r = minimize(fn, {"a": jnp.full(2, 5.0), "b": jnp.zeros(3)}, solver="sgd", bounds=(-0.5, 0.5),
+                 stop=StopRules(max_steps=0), progress=False)
+    np.testing.assert_array_equal(r.y["a"], [0.5, 0.5])
+
+
+def test_lbfgsb_without_jaxopt_names_the_extra(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "jaxopt", None)  # makes `import jaxopt` fail
+    with pytest.raises(ImportError, match=r'pip install "voxax\[bounds\]"'):
+        minimize(quadratic, np.zeros((4, 3)), solver="lbfgsb", progress=False)
+
+
+def test_plotting_without_matplotlib_names_the_extra(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    r = minimize(quadratic, np.zeros((4, 3)), solver="sgd", stop=StopRules(max_steps=2), progress=False)
+    report = voxax.apps.Report(energy_history=r.history["energy"], history=r.history, steps=r.steps,
+                               stop_reason=r.stop_reason, energy=r.energy, resolution=8)
+    with pytest.raises(ImportError, match=r'pip install "voxax\[plot\]"'):
+        report.plot_history()

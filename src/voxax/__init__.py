@@ -8,9 +8,11 @@ The public API:
 - `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
 - `voxax.winding_number`: exact generalised winding numbers at points;
   `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
-  `voxax.box_filter`: integer-scaled box filters of a voxelization.
+  `voxax.box_filter`: integer-scaled box filters of a voxelization; `voxax.Kernel`: the
+  filter-kernel protocol (bring your own kernel).
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
-  tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver.
+  tiling, ARAP, ...); `voxax.minimize`: an optax/optimistix minimization driver with
+  stopping rules (`voxax.StopRules`, `voxax.StopReason`) and box bounds.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
@@ -22,9 +24,9 @@ from ._mesh import Mesh
 from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
-from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
+from ._filters import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
-from ._minimize import MinimizeResult, StopRules, minimize
+from ._minimize import MinimizeResult, StopReason, StopRules, minimize
 
 __version__ = "0.1.0"
 
@@ -38,11 +40,13 @@ __all__ = [
     "voxelize_mc",
     "voxelize_mc_tangent",
     "box_filter",
+    "Kernel",
     "Box",
     "Gaussian",
     "minimize",
     "MinimizeResult",
     "StopRules",
+    "StopReason",
     "apps",
     "fabricate",
     "baselines",

@@ -20,21 +20,67 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _validate
+from ._constants import PAIR_BUDGET
 from ._grid import Grid
-from ._winding import _winding_flat
+from ._winding import winding_flat
 
-__all__ = ["Box", "Gaussian", "voxelize_mc", "voxelize_mc_tangent", "box_filter"]
-
-# (point, face) pairs, resp. (surface sample, voxel) pairs, evaluated at once.
-_PAIR_BUDGET = 1 << 20
+__all__ = ["Kernel", "Box", "Gaussian", "voxelize_mc", "voxelize_mc_tangent", "box_filter"]
 
 
 # -- kernels ----------------------------------------------------------------------------------
+
+
+@runtime_checkable
+class Kernel(Protocol):
+    """The filter-kernel protocol of [`voxelize_mc`][voxax.voxelize_mc].
+
+    A kernel is any hashable object (a frozen dataclass, say) with:
+
+    - `support`: a float, or one float per grid axis: the half-width of the kernel's
+      support in voxels. The kernel must vanish outside the box `|t_a| <= support[a]`.
+    - `weight(t)`: the kernel's density at offsets `t` `(..., d)` from a voxel centre,
+      measured in voxels (`t = (x - c) / spacing`), returning `(...)`. It must be a JAX
+      function of `t` and integrate to 1 over the support (in voxel units), so that a
+      region of winding number 1 gives `W = 1`.
+
+    and optionally:
+
+    - `sample(u)`: maps uniform numbers `u` `(..., d)` in `[0, 1)` to offsets `(..., d)`
+      distributed with density `weight` (exact importance sampling, like `Box` and
+      `Gaussian` do). Without it `voxelize_mc` samples the support box uniformly and
+      weights every sample by `weight(t) * volume(support)`, which is also unbiased.
+
+    The offsets are in voxels per axis, so a kernel scales with the grid's spacing (and
+    becomes anisotropic in space on a grid with anisotropic cells).
+
+    **Example:** a separable Epanechnikov kernel of radius 1.5 voxels:
+
+    ```python
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Epanechnikov:
+    ...     radius: float = 1.5
+    ...     @property
+    ...     def support(self):
+    ...         return self.radius
+    ...     def weight(self, t):
+    ...         u = t / self.radius
+    ...         return jnp.prod(jnp.where(jnp.abs(u) <= 1, 0.75 * (1 - u * u) / self.radius, 0.0), axis=-1)
+    >>> isinstance(Epanechnikov(), voxax.Kernel)
+    True
+    ```
+    """
+
+    @property
+    def support(self) -> float | tuple[float, ...]: ...
+
+    def weight(self, t: jax.Array) -> jax.Array: ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +89,7 @@ class Box:
 
     `radius` is in voxels: the half-width of the box. `Box(0.5)` is the one-voxel box of
     `voxax.voxelize`; `Box(1.5)` is three voxels wide (the paper's Fig. 2). The kernel is
-    normalized to integrate to 1.
+    normalized to integrate to 1. Implements the [`Kernel`][voxax.Kernel] protocol.
     """
 
     radius: float = 0.5
@@ -59,13 +105,20 @@ class Box:
         """Half-width of the support, in voxels."""
         return self.radius
 
-    def _from_unit(self, u, h):
-        # Uniform u in [0, 1) -> offset uniform on [-r h, r h].
-        return (2 * u - 1) * (self.radius * h)
+    @property
+    def support(self) -> float:
+        """Half-width of the support, in voxels (the `Kernel` protocol)."""
+        return self.radius
 
-    def _density_1d(self, t, h):
-        # t: offsets in voxels (|t| <= reach assumed), h: spacing along the axis.
-        return jnp.full_like(t, 1.0 / (2 * self.radius * h))
+    def weight(self, t):
+        """`1 / (2 radius)^d` on the box `|t_a| <= radius`, 0 outside (`t` in voxels)."""
+        r = self.radius
+        inside = jnp.all(jnp.abs(t) <= r, axis=-1)
+        return jnp.where(inside, (2 * r) ** -t.shape[-1], 0.0).astype(t.dtype)
+
+    def sample(self, u):
+        """Uniform `u` in `[0, 1)^d` -> offsets uniform on the box (in voxels)."""
+        return (2 * u - 1) * self.radius
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +130,8 @@ class Gaussian:
     renormalized so that it integrates to 1 over that support (the truncated mass,
     `1 - erf(truncate / sqrt 2)` per axis, 0.27% at 3 sigma, is *not* lost but spread over
     the support). A smoothed winding number of a shape is thus the product over axes of
-    truncated-normal probabilities for an axis-aligned box.
+    truncated-normal probabilities for an axis-aligned box. Implements the
+    [`Kernel`][voxax.Kernel] protocol.
     """
 
     sigma: float = 1.0
@@ -98,29 +152,63 @@ class Gaussian:
         return self.sigma * self.truncate
 
     @property
+    def support(self) -> float:
+        """Half-width of the support, in voxels (the `Kernel` protocol)."""
+        return self.reach
+
+    @property
     def _mass(self) -> float:
         return math.erf(self.truncate / math.sqrt(2.0))
 
-    def _from_unit(self, u, h):
-        # Inverse CDF of the truncated normal: samples distributed exactly like the kernel.
-        s = self.sigma * h
+    def weight(self, t):
+        """The truncated, renormalized product of normal densities at `t` (in voxels)."""
+        z = t / self.sigma
+        per_axis = jnp.exp(-0.5 * z * z) / (self.sigma * math.sqrt(2 * math.pi) * self._mass)
+        inside = jnp.abs(t) <= self.reach
+        return jnp.prod(jnp.where(inside, per_axis, 0.0), axis=-1)
+
+    def sample(self, u):
+        """Inverse CDF of the truncated normal: `u` in `[0, 1)^d` -> offsets (in voxels)."""
         z = jax.scipy.special.erfinv((2 * u - 1) * self._mass)
-        return jnp.clip(s * math.sqrt(2.0) * z, -self.reach * h, self.reach * h)
-
-    def _density_1d(self, t, h):
-        s = self.sigma * h
-        return jnp.exp(-0.5 * (t / self.sigma) ** 2) / (s * math.sqrt(2 * math.pi) * self._mass)
+        return jnp.clip(self.sigma * math.sqrt(2.0) * z, -self.reach, self.reach)
 
 
+def _support(where: str, kernel, d: int) -> tuple[float, ...]:
+    """The kernel's support half-widths per axis, checked."""
+    s = kernel.support
+    values = (s,) * d if np.ndim(s) == 0 else tuple(s)
+    try:
+        values = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise TypeError(f"{where}: `kernel.support` must be a number or {d} numbers, got {s!r}") from None
+    if len(values) != d or not all(math.isfinite(v) and v > 0 for v in values):
+        raise ValueError(f"{where}: `kernel.support` must be {d} positive finite half-widths (voxels), got {s!r}")
+    return values
+
+
+def _check_kernel(where: str, kernel, d: int) -> tuple[float, ...]:
+    if not isinstance(kernel, Kernel):
+        raise TypeError(
+            f"{where}: `kernel` must implement the voxax.Kernel protocol (a `support` half-width and a "
+            f"`weight(t)` method), e.g. voxax.Box or voxax.Gaussian; got {type(kernel).__name__}"
+        )
+    try:
+        hash(kernel)
+    except TypeError:
+        raise TypeError(f"{where}: `kernel` must be hashable (e.g. a frozen dataclass), got {type(kernel).__name__}") from None
+    return _support(where, kernel, d)
 
 
 # -- static settings --------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
-class _Settings:
+class MCSettings:
+    """Static settings of a Monte Carlo voxelization (a static argument under `jax.jit`)."""
+
     grid: Grid
-    kernel: Box | Gaussian
+    kernel: Kernel
+    support: tuple  # per-axis half-widths of the kernel's support, in voxels
     strata: int  # strata per axis in the kernel's support
     per_stratum: int  # samples per stratum
     surface_samples: int  # per face (a square number for triangles)
@@ -150,7 +238,8 @@ def _unravel(flat, shape):
     return jnp.stack(idx[::-1], axis=-1)
 
 
-def _forward(vertices, faces, key, st: _Settings):
+def mc_forward(vertices, faces, key, st: "MCSettings"):
+    """Monte Carlo estimate of the filtered winding numbers of one mesh (the forward pass)."""
     grid, kernel = st.grid, st.kernel
     d = grid.dim
     dtype = vertices.dtype
@@ -166,23 +255,30 @@ def _forward(vertices, faces, key, st: _Settings):
     h = jnp.asarray(grid.spacing, dtype)
     fkey = jax.random.fold_in(key, 0)
 
-    voxels_per_chunk = max(1, min(n_vox, _PAIR_BUDGET // max(1, S * n_faces)))
-    inner = max(1, min(voxels_per_chunk * S, _PAIR_BUDGET // max(1, n_faces)))
+    voxels_per_chunk = max(1, min(n_vox, PAIR_BUDGET // max(1, S * n_faces)))
+    inner = max(1, min(voxels_per_chunk * S, PAIR_BUDGET // max(1, n_faces)))
     n_chunks = -(-n_vox // voxels_per_chunk)
+
+    sample = getattr(kernel, "sample", None)
+    support = jnp.asarray(st.support, dtype)
+    box_volume = float(np.prod([2 * r for r in st.support]))
 
     def one_voxel_offsets(b):
         u = jax.random.uniform(jax.random.fold_in(fkey, b), (S, d), dtype)
         u = (cells + u) / m
-        return kernel._from_unit(u, h)
+        if sample is not None:  # samples distributed like the kernel
+            return jnp.asarray(sample(u), dtype), jnp.ones((S,), dtype)
+        t = (2 * u - 1) * support  # uniform on the support, weighted by the kernel
+        return t, jnp.asarray(kernel.weight(t), dtype) * box_volume
 
     def chunk(idx):
         valid = idx < n_vox
         idx = jnp.where(valid, idx, 0)
         centres = lower + (_unravel(idx, grid.shape).astype(dtype) + 0.5) * h  # (C, d)
-        offsets = jax.vmap(one_voxel_offsets)(idx)  # (C, S, d)
-        pts = (centres[:, None, :] + offsets).reshape(-1, d)
-        w = _winding_flat(vertices, faces, pts, inner).reshape(idx.shape[0], S)
-        return jnp.mean(w, axis=1)
+        t, factor = jax.vmap(one_voxel_offsets)(idx)  # (C, S, d), (C, S)
+        pts = (centres[:, None, :] + t * h).reshape(-1, d)
+        w = winding_flat(vertices, faces, pts, inner).reshape(idx.shape[0], S)
+        return jnp.mean(w * factor, axis=1)
 
     idx = jnp.arange(n_chunks * voxels_per_chunk, dtype=jnp.int32).reshape(n_chunks, voxels_per_chunk)
     values = jax.lax.map(chunk, idx).reshape(-1)[:n_vox]
@@ -192,50 +288,51 @@ def _forward(vertices, faces, key, st: _Settings):
 # -- backward: samples on the faces, kernel-weighted cotangent gathered from nearby voxels ----
 
 
-def _stencil(grid: Grid, kernel):
-    """Per axis, how many voxel centres can lie within the kernel's reach of a point."""
-    return tuple(int(math.floor(2 * kernel.reach)) + 1 for _ in range(grid.dim))
+def _stencil(st: MCSettings):
+    """Per axis, how many voxel centres can lie within the kernel's support of a point."""
+    return tuple(int(math.floor(2 * r)) + 1 for r in st.support)
 
 
-def _stencil_weights(x, grid: Grid, kernel):
-    """The voxels within the kernel's reach of points `x` (..., d) and their kernel values.
+def _stencil_weights(x, st: MCSettings):
+    """The voxels within the kernel's support of points `x` (..., d) and their kernel values.
 
-    Returns flat voxel indices and weights `k(x - c_b)`, both `(..., K)` (K the stencil
-    size); entries for voxels out of reach or outside the grid have weight 0.
+    Returns flat voxel indices and weights `k(x - c_b)` (in world units, the kernel's
+    voxel-unit density divided by the cell volume), both `(..., K)` (K the stencil size);
+    entries for voxels out of reach or outside the grid have weight 0.
     """
+    grid, kernel = st.grid, st.kernel
     d = grid.dim
     dtype = x.dtype
-    r = kernel.reach
     lead = x.shape[:-1]
-    per_axis = []
-    for a in range(d):
-        h = grid.spacing[a]
-        u = (x[..., a] - grid.lower[a]) / h - 0.5  # continuous centre index
-        start = jnp.ceil(u - r)
-        offs = jnp.arange(int(math.floor(2 * r)) + 1, dtype=dtype)
-        b = start[..., None] + offs  # (..., k_a) voxel indices
-        t = u[..., None] - b  # offsets in voxels
-        ok = (jnp.abs(t) <= r) & (b >= 0) & (b < grid.shape[a])
-        wgt = jnp.where(ok, kernel._density_1d(t, h), 0)
-        bi = jnp.clip(b, 0, grid.shape[a] - 1).astype(jnp.int32)
-        per_axis.append((bi, wgt))
-    # Combine the axes into the full stencil (..., k_0, ..., k_{d-1}).
+    sizes = _stencil(st)
     flat = jnp.zeros(lead + (1,) * d, jnp.int32)
-    weight = jnp.ones(lead + (1,) * d, dtype)
+    ok = jnp.ones(lead + (1,) * d, bool)
+    offsets = []
     stride = 1
     for a in reversed(range(d)):
-        bi, wgt = per_axis[a]
-        shape = lead + tuple(bi.shape[-1] if c == a else 1 for c in range(d))
+        h, r = grid.spacing[a], st.support[a]
+        u = (x[..., a] - grid.lower[a]) / h - 0.5  # continuous centre index
+        start = jnp.ceil(u - r)
+        b = start[..., None] + jnp.arange(sizes[a], dtype=dtype)  # (..., k_a) voxel indices
+        t = u[..., None] - b  # offsets in voxels
+        valid = (jnp.abs(t) <= r) & (b >= 0) & (b < grid.shape[a])
+        bi = jnp.clip(b, 0, grid.shape[a] - 1).astype(jnp.int32)
+        shape = lead + tuple(sizes[a] if c == a else 1 for c in range(d))
         flat = flat + bi.reshape(shape) * stride
-        weight = weight * wgt.reshape(shape)
+        ok = ok & valid.reshape(shape)
+        offsets.insert(0, t.reshape(shape))
         stride *= grid.shape[a]
-    K = int(np.prod(_stencil(grid, kernel)))
-    return jnp.broadcast_to(flat, weight.shape).reshape(lead + (K,)), weight.reshape(lead + (K,))
+    full = lead + sizes
+    t_all = jnp.stack([jnp.broadcast_to(t, full) for t in offsets], axis=-1)  # (..., k_0..k_{d-1}, d)
+    weight = jnp.asarray(kernel.weight(t_all), dtype) / grid.voxel_volume
+    weight = jnp.where(jnp.broadcast_to(ok, full), weight, 0)
+    K = int(np.prod(sizes))
+    return jnp.broadcast_to(flat, full).reshape(lead + (K,)), weight.reshape(lead + (K,))
 
 
-def _gather(g, x, grid: Grid, kernel):
+def kernel_gather(g, x, st: "MCSettings"):
     """G(x) = sum_b g[b] k(x - c_b) for points `x` (..., d): the kernel-weighted cotangent."""
-    flat, weight = _stencil_weights(x, grid, kernel)
+    flat, weight = _stencil_weights(x, st)
     return jnp.sum(g.reshape(-1)[flat] * weight, axis=-1)
 
 
@@ -263,7 +360,7 @@ def _area_normal(corners):
 
 
 def _face_chunks(n_faces: int, S: int, K: int):
-    per_chunk = max(1, min(n_faces, _PAIR_BUDGET // max(1, S * K)))
+    per_chunk = max(1, min(n_faces, PAIR_BUDGET // max(1, S * K)))
     n_chunks = -(-n_faces // per_chunk)
     return jnp.arange(n_chunks * per_chunk, dtype=jnp.int32).reshape(n_chunks, per_chunk)
 
@@ -283,7 +380,7 @@ def _surface_samples(vertices, faces, fidx, key, S):
     return fi, beta, x, an
 
 
-def _backward(vertices, faces, key, g, st: _Settings):
+def _backward(vertices, faces, key, g, st: MCSettings):
     grid, kernel = st.grid, st.kernel
     d = grid.dim
     S = st.surface_samples
@@ -292,16 +389,16 @@ def _backward(vertices, faces, key, g, st: _Settings):
 
     def chunk(fidx):
         _, beta, x, an = _surface_samples(vertices, faces, fidx, bkey, S)
-        G = _gather(g, x, grid, kernel)  # (C, S)
+        G = kernel_gather(g, x, st)  # (C, S)
         wsum = jnp.einsum("cs,csm->cm", G, beta) / S  # (C, d corners)
         return wsum[:, :, None] * an[:, None, :]  # (C, d corners, d)
 
-    fidx = _face_chunks(faces.shape[0], S, int(np.prod(_stencil(grid, kernel))))
+    fidx = _face_chunks(faces.shape[0], S, int(np.prod(_stencil(st))))
     corner_grads = jax.lax.map(chunk, fidx).reshape(-1, d, d)[: faces.shape[0]]
     return jnp.zeros_like(vertices).at[faces].add(corner_grads)
 
 
-def _tangent(vertices, faces, key, tangent, st: _Settings):
+def _tangent(vertices, faces, key, tangent, st: MCSettings):
     grid, kernel = st.grid, st.kernel
     S = st.surface_samples
     bkey = jax.random.fold_in(key, 1)
@@ -312,22 +409,22 @@ def _tangent(vertices, faces, key, tangent, st: _Settings):
         # Normal speed times area at every sample: sum_m beta_m (dv_m . area n).
         speed = jnp.einsum("cmk,ck->cm", tangent[faces[fi]], an)  # (C, d corners)
         vn = jnp.einsum("csm,cm->cs", beta, speed) / S  # (C, S)
-        flat, weight = _stencil_weights(x, grid, kernel)  # (C, S, K)
+        flat, weight = _stencil_weights(x, st)  # (C, S, K)
         acc = acc.at[flat.reshape(-1)].add((weight * vn[..., None]).reshape(-1))
         return acc, None
 
-    fidx = _face_chunks(faces.shape[0], S, int(np.prod(_stencil(grid, kernel))))
+    fidx = _face_chunks(faces.shape[0], S, int(np.prod(_stencil(st))))
     out, _ = jax.lax.scan(step, jnp.zeros(grid.size, vertices.dtype), fidx)
     return out.reshape(grid.shape)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
 def _mc(vertices, faces, key, st):
-    return _forward(vertices, faces, key, st)
+    return mc_forward(vertices, faces, key, st)
 
 
 def _mc_fwd(vertices, faces, key, st):
-    return _forward(vertices, faces, key, st), (vertices, faces, key)
+    return mc_forward(vertices, faces, key, st), (vertices, faces, key)
 
 
 def _mc_bwd(st, res, g):
@@ -338,52 +435,46 @@ def _mc_bwd(st, res, g):
 _mc.defvjp(_mc_fwd, _mc_bwd)
 
 
+def _grid_signature(grid: Grid) -> str:
+    return "(" + ",".join(f"g{a}" for a in range(grid.dim)) + ")"
+
+
 @functools.partial(jax.jit, static_argnums=(3,))
 def _mc_jit(vertices, faces, key, st):
-    if vertices.ndim == 2:
-        return _mc(vertices, faces, key, st)
-    lead = vertices.shape[:-2]
-    flat = vertices.reshape((-1,) + vertices.shape[-2:])
-    out = jax.vmap(lambda v: _mc(v, faces, key, st))(flat)
-    return out.reshape(lead + st.grid.shape)
+    # Leading axes of vertices and faces broadcast; every item shares the key.
+    fn = jnp.vectorize(lambda v, f: _mc(v, f, key, st), signature="(n,d),(m,k)->" + _grid_signature(st.grid))
+    return fn(vertices, faces)
 
 
-def _check_key(key):
-    if isinstance(key, (int, np.integer)):
-        raise TypeError("voxelize_mc: `key` must be a JAX PRNG key, e.g. jax.random.key(0), not an int")
-    key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
-    if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and not (key.dtype == jnp.uint32 and key.shape == (2,)):
-        raise TypeError(f"voxelize_mc: `key` must be a JAX PRNG key (jax.random.key or PRNGKey), got {key.dtype}{key.shape}")
-    return key
-
-
-def _settings(grid, kernel, samples, strata, surface_samples, where="voxelize_mc"):
-    if not isinstance(grid, Grid):
-        raise TypeError(f"{where}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
-    if not isinstance(kernel, (Box, Gaussian)):
-        raise TypeError(f"{where}: `kernel` must be voxax.Box or voxax.Gaussian, got {type(kernel).__name__}")
-    samples, surface_samples = int(samples), int(surface_samples)
-    if samples < 1 or surface_samples < 1:
-        raise ValueError(f"{where}: samples and surface_samples must be >= 1")
+def mc_settings(grid, kernel, samples, strata, surface_samples, where="voxelize_mc") -> MCSettings:
+    """Checks the grid, kernel and sample counts; returns the static `MCSettings`."""
+    grid = _validate.grid(where, grid)
     d = grid.dim
-    m = _int_root(samples, d) if strata is None else int(strata)
-    if m < 1:
-        raise ValueError(f"{where}: strata must be >= 1, got {strata}")
+    support = _check_kernel(where, kernel, d)
+    samples = _validate.positive_int(where, "samples", samples)
+    surface_samples = _validate.positive_int(where, "surface_samples", surface_samples)
+    m = _int_root(samples, d) if strata is None else _validate.positive_int(where, "strata", strata)
     per = -(-samples // m**d)
     if d == 3:
         r = _int_root(surface_samples, 2)
         if r * r < surface_samples:
             r += 1
         surface_samples = r * r
-    return _Settings(grid, kernel, m, per, surface_samples)
+    return MCSettings(grid, kernel, support, m, per, surface_samples)
+
+
+def _mesh_in(where, vertices, faces, grid):
+    vertices, faces = _validate.mesh(where, vertices, faces, dim=grid.dim, batch=True)
+    vertices = jnp.asarray(vertices)
+    return vertices, jnp.asarray(np.asarray(faces, np.int32) if _validate.is_concrete(faces) else faces, jnp.int32)
 
 
 def voxelize_mc(
     vertices,
-    faces,
-    grid: Grid,
-    kernel: Box | Gaussian,
-    key,
+    faces=None,
+    grid: Grid | None = None,
+    kernel: Kernel | None = None,
+    key=None,
     *,
     samples: int = 64,
     surface_samples: int = 64,
@@ -416,15 +507,18 @@ def voxelize_mc(
     bounded), not in the C++ kernels: the forward costs O(voxels x samples x faces).
     The same key gives the same bits; forward and backward use independent streams
     derived from it (`fold_in(key, 0)`, `fold_in(key, 1)`). Works under `jax.jit`,
-    `jax.grad` and `jax.vmap`; leading axes of `vertices` are batch axes sharing `faces`
-    and the key (common random numbers).
+    `jax.grad` and `jax.vmap`; leading axes of `vertices` and `faces` are batch axes that
+    broadcast against each other, as for `voxax.voxelize`, and every item shares the key
+    (common random numbers).
 
     **Arguments:**
 
-    - `vertices`: `(..., V, d)` float32 or float64; `faces`: `(F, d)` int, outward-oriented
-      triangles (3D) or segments (2D), as for `voxax.voxelize`.
+    - `vertices`: `(..., V, d)` float32 or float64; `faces`: `(..., F, d)` int,
+      outward-oriented triangles (3D) or segments (2D), as for `voxax.voxelize` (or a
+      mesh object in their place: `voxelize_mc(mesh, grid, kernel, key)`).
     - `grid`: the `voxax.Grid`.
-    - `kernel`: `voxax.Box(radius)` or `voxax.Gaussian(sigma, truncate=3)`, sizes in voxels.
+    - `kernel`: any [`Kernel`][voxax.Kernel]: `voxax.Box(radius)`,
+      `voxax.Gaussian(sigma, truncate=3)` (sizes in voxels) or your own.
     - `key`: a JAX PRNG key (`jax.random.key(0)` or `jax.random.PRNGKey(0)`).
     - `samples`: samples per voxel for the forward; rounded up to a multiple of `strata^d`.
     - `surface_samples`: samples per face for the backward (rounded up to a square in 3D).
@@ -445,24 +539,27 @@ def voxelize_mc(
 
     ```
     """
-    st = _settings(grid, kernel, samples, strata, surface_samples)
-    vertices, faces = _check_mesh(vertices, faces, grid, "voxelize_mc")
-    key = _check_key(key)
+    where = "voxelize_mc"
+    vertices, faces, (grid, kernel, key) = _validate.unpack_mesh(where, vertices, faces, grid, kernel, key)
+    st = mc_settings(grid, kernel, samples, strata, surface_samples)
+    vertices, faces = _mesh_in(where, vertices, faces, st.grid)
+    key = _validate.key(where, key)
     return _mc_jit(vertices, faces, key, st)
 
 
 @functools.partial(jax.jit, static_argnums=(4,))
 def _tangent_jit(vertices, faces, key, tangent, st):
-    return _tangent(vertices, faces, key, tangent, st)
+    sig = "(n,d),(m,k),(n,d)->" + _grid_signature(st.grid)
+    return jnp.vectorize(lambda v, f, t: _tangent(v, f, key, t, st), signature=sig)(vertices, faces, tangent)
 
 
 def voxelize_mc_tangent(
     vertices,
-    faces,
-    tangent,
-    grid: Grid,
-    kernel: Box | Gaussian,
-    key,
+    faces=None,
+    grid: Grid | None = None,
+    kernel: Kernel | None = None,
+    key=None,
+    tangent=None,
     *,
     surface_samples: int = 64,
 ) -> jax.Array:
@@ -481,44 +578,29 @@ def voxelize_mc_tangent(
 
     **Arguments:**
 
-    - `vertices`: `(V, d)`, `faces`: `(F, d)`, `grid`, `kernel`, `key`: as for `voxelize_mc`.
-    - `tangent`: `(V, d)` float, the vertex velocities `dv/de`.
+    - `vertices`: `(..., V, d)`, `faces`: `(..., F, d)` (or a mesh object in their place),
+      `grid`, `kernel`, `key`: as for `voxelize_mc`.
+    - `tangent`: `(..., V, d)` float, the vertex velocities `dv/de`; its leading axes
+      broadcast with those of `vertices` and `faces`.
     - `surface_samples`: samples per face (rounded up to a square in 3D).
 
-    **Returns:** `grid.shape` array.
+    **Returns:** `(..., *grid.shape)` array.
     """
-    st = _settings(grid, kernel, 1, None, surface_samples, "voxelize_mc_tangent")
-    vertices, faces = _check_mesh(vertices, faces, grid, "voxelize_mc_tangent")
+    where = "voxelize_mc_tangent"
+    vertices, faces, (grid, kernel, key, tangent) = _validate.unpack_mesh(
+        where, vertices, faces, grid, kernel, key, tangent
+    )
+    st = mc_settings(grid, kernel, 1, None, surface_samples, where)
+    vertices, faces = _mesh_in(where, vertices, faces, st.grid)
+    if tangent is None:
+        raise TypeError(f"{where}: missing `tangent`")
     tangent = jnp.asarray(tangent, vertices.dtype)
-    if vertices.ndim != 2 or tangent.shape != vertices.shape:
+    if tangent.ndim < 2 or tangent.shape[-2:] != vertices.shape[-2:]:
         raise ValueError(
-            f"voxelize_mc_tangent: need vertices (V, d) and a tangent of the same shape, "
-            f"got {tuple(vertices.shape)} and {tuple(tangent.shape)}"
+            f"{where}: `tangent` must have the shape (..., V, d) of `vertices`, "
+            f"got {tuple(tangent.shape)} and {tuple(vertices.shape)}"
         )
-    return _tangent_jit(vertices, faces, _check_key(key), tangent, st)
-
-
-def _check_mesh(vertices, faces, grid, where):
-    vertices = jnp.asarray(vertices)
-    if not jnp.issubdtype(vertices.dtype, jnp.floating):
-        raise TypeError(f"{where}: `vertices` must be float32 or float64, got {vertices.dtype}")
-    if not hasattr(faces, "dtype"):
-        faces = np.asarray(faces)
-    if not jnp.issubdtype(faces.dtype, jnp.integer):
-        raise TypeError(f"{where}: `faces` must be an integer array, got {faces.dtype}")
-    d = grid.dim
-    if vertices.ndim < 2 or vertices.shape[-1] != d:
-        raise ValueError(f"{where}: `vertices` must have shape (..., V, {d}) for a {d}D grid, got {tuple(vertices.shape)}")
-    if faces.ndim != 2 or faces.shape[-1] != d or faces.shape[0] == 0:
-        kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
-        raise ValueError(f"{where}: `faces` must hold a non-empty array of {kind}, got shape {tuple(faces.shape)}")
-    if not isinstance(faces, jax.core.Tracer):
-        f = np.asarray(faces)
-        if f.min() < 0 or f.max() >= vertices.shape[-2]:
-            raise ValueError(f"{where}: face indices must lie in [0, {vertices.shape[-2]}), got [{f.min()}, {f.max()}]")
-    if not isinstance(vertices, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(vertices))):
-        raise ValueError(f"{where}: `vertices` contain NaN or Inf")
-    return vertices, jnp.asarray(faces, jnp.int32)
+    return _tangent_jit(vertices, faces, _validate.key(where, key), tangent, st)
 
 
 # -- integer box filters by discrete convolution ----------------------------------------------

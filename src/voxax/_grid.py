@@ -8,6 +8,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ._constants import MAX_CELL_VOLUME, MIN_CELL_VOLUME
+
 __all__ = ["Grid"]
 
 
@@ -76,9 +78,9 @@ class Grid:
         if any(not math.isfinite((u - l) / n) or (u - l) / n <= 0 for l, u, n in zip(lower, upper, shape)):
             raise ValueError("Grid: the cell size underflows or overflows on some axis")
         volume = math.prod((u - l) / n for l, u, n in zip(lower, upper, shape))
-        if not (1e-300 <= volume <= 1e300):
+        if not (MIN_CELL_VOLUME <= volume <= MAX_CELL_VOLUME):
             raise ValueError(
-                f"Grid: the cell volume {volume:.3g} is outside [1e-300, 1e300]; rescale the problem "
+                f"Grid: the cell volume {volume:.3g} is outside [{MIN_CELL_VOLUME:g}, {MAX_CELL_VOLUME:g}]; rescale the problem "
                 "(the kernels divide by the cell volume in double precision)"
             )
         object.__setattr__(self, "lower", lower)
@@ -121,7 +123,8 @@ class Grid:
 
         **Arguments:**
 
-        - `vertices`: `(..., V, d)` float, the points to enclose (batch axes allowed).
+        - `vertices`: `(..., V, d)` float, the points to enclose (batch axes allowed), or a
+          mesh object (`voxax.Mesh`, `trimesh.Trimesh`) whose vertices to enclose.
         - `n`: int or `(d,)` ints, cells along the longest axis (or per axis when
           `cubic_cells=False`).
         - `pad`: float >= 0, the margin as a fraction of the longest side.
@@ -131,11 +134,13 @@ class Grid:
 
         ```python
         >>> mesh = voxax.data.icosphere(2)
-        >>> g = voxax.Grid.around(mesh.vertices, 32)
+        >>> g = voxax.Grid.around(mesh, 32)
         >>> max(g.shape)
         32
         ```
         """
+        if hasattr(vertices, "vertices") and hasattr(vertices, "faces") and not hasattr(vertices, "shape"):
+            vertices = vertices.vertices  # a mesh object
         v = np.asarray(vertices, dtype=np.float64)
         if v.ndim < 2 or v.shape[-1] not in (2, 3) or v.shape[-2] == 0:
             raise ValueError(f"Grid.around: expected vertices of shape (..., V, 2|3) with V > 0, got {v.shape}")

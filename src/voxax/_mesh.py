@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from . import _validate
+
 __all__ = ["Mesh", "fit", "from_manifold"]
 
 
@@ -66,25 +68,12 @@ class Mesh:
 
     def __post_init__(self) -> None:
         vertices = np.asarray(self.vertices)
-        if vertices.dtype.kind not in "fiu":
-            raise TypeError(f"Mesh: vertices must be a real array, got dtype {vertices.dtype}")
-        vertices = vertices.astype(np.float64)
-        if vertices.ndim != 2 or vertices.shape[1] not in (2, 3):
-            raise ValueError(f"Mesh: vertices must have shape (V, 2) or (V, 3), got {vertices.shape}")
-        d = vertices.shape[1]
+        if vertices.dtype.kind in "fiub":
+            vertices = vertices.astype(np.float64)
         faces_in = np.asarray(self.faces)
-        if faces_in.size == 0:  # e.g. np.zeros((0, 3)) or [] : an empty mesh
-            faces_in = np.zeros((0, d), dtype=np.int32)
-        if not np.issubdtype(faces_in.dtype, np.integer):
-            raise TypeError(f"Mesh: faces must be an integer array, got dtype {faces_in.dtype}")
-        if faces_in.ndim != 2 or faces_in.shape[1] != d:
-            kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
-            raise ValueError(f"Mesh: {d}D vertices need faces as {kind}, got faces of shape {faces_in.shape}")
-        if faces_in.size and (faces_in.min() < 0 or faces_in.max() >= len(vertices)):
-            raise ValueError(
-                f"Mesh: face indices must lie in [0, {len(vertices)}), got range "
-                f"[{faces_in.min()}, {faces_in.max()}]"
-            )
+        if faces_in.size == 0 and vertices.ndim == 2:  # e.g. np.zeros((0, 3)) or []: an empty mesh
+            faces_in = np.zeros((0, vertices.shape[1]), dtype=np.int32)
+        vertices, faces_in = _validate.mesh("Mesh", vertices, faces_in, allow_empty=True, finite=False)
         object.__setattr__(self, "vertices", _readonly_array(vertices))
         object.__setattr__(self, "faces", _readonly_array(faces_in.astype(np.int32)))
         object.__setattr__(self, "info", _FrozenDict(self.info))

@@ -8,14 +8,17 @@ drives the solver's own `init` / `step` / `terminate` API from Python. The step 
 solver step plus the bookkeeping) is compiled once with `equinox.filter_jit`; each
 iteration then costs one compiled call and one small device-to-host copy of scalars.
 
-Solvers: `"adam"` and `"sgd"` (optax, through `optimistix.OptaxMinimiser`), `"bfgs"`
-(`optimistix.BFGS`), `"lbfgs"` (`optimistix.LBFGS`), any optax `GradientTransformation`,
-or any optimistix minimizer instance.
+Solvers: `"adam"` and `"sgd"` (optax), `"bfgs"` (`optimistix.BFGS`), `"lbfgs"`
+(`optimistix.LBFGS`), any optax `GradientTransformation`, any optimistix minimizer
+instance, and `"lbfgsb"` (jaxopt's `LBFGSB`, for box bounds; the optional extra
+`voxax[bounds]`). Only the libraries' public APIs are used: optax's `init`/`update`,
+optimistix's `init`/`step`/`terminate`, jaxopt's `init_state`/`update` and the fields of
+its documented state.
 
-jaxopt is not used: it is in maintenance mode (its solvers are being merged into
-optax), and optax (first-order methods, schedules) plus optimistix (BFGS, L-BFGS, line
-searches, trust regions, and the `init`/`step`/`terminate` API this driver needs) cover
-everything the applications require; jaxopt would add no solver we need.
+Box bounds (`bounds=(lower, upper)`, e.g. every vertex inside a build volume) keep every
+iterate inside the box: optax steps are projected onto it
+(`optax.projections.projection_box`, projected gradient descent), and L-BFGS-B handles
+the bounds itself. optimistix has no constrained minimizers, so its solvers take no bounds.
 """
 
 from __future__ import annotations
@@ -33,9 +36,41 @@ import numpy as np
 import optax
 import optimistix as optx
 
+from ._optional import require
 from ._progress import ProgressBar
+from ._values import ValueEquality
 
-__all__ = ["StopRules", "MinimizeResult", "minimize"]
+__all__ = ["StopReason", "StopRules", "MinimizeResult", "minimize"]
+
+
+class StopReason:
+    """Why `minimize` stopped: the values of `MinimizeResult.stop_reason`.
+
+    Plain strings, so `result.stop_reason == voxax.StopReason.CONVERGED` and
+    `result.stop_reason == "converged"` are the same test. A solver failure is reported
+    as `FAILED + ": " + message`, e.g. `"failed: The linear solver returned non-finite
+    output."` (test it with `result.stop_reason.startswith(StopReason.FAILED)`).
+
+    - `MAX_STEPS` (`"max_steps"`): `StopRules.max_steps` steps were taken.
+    - `MAX_W` (`"max_w"`): `aux["max_w"] <= StopRules.max_w_threshold`.
+    - `MIN_STEP` (`"min_step"`): the step size stayed below `StopRules.min_step`.
+    - `ENERGY_TOL` (`"energy_tol"`): the energy changed by less than `StopRules.energy_tol`.
+    - `CONVERGED` (`"converged"`): the solver's own convergence test (`rtol`/`atol`) held.
+    - `CALLBACK` (`"callback"`): the callback returned True.
+    - `NONFINITE` (`"nonfinite"`): the energy became NaN or infinite.
+    - `INTERRUPTED` (`"interrupted"`): KeyboardInterrupt.
+    - `FAILED` (`"failed"`): the solver reported a failure (followed by its message).
+    """
+
+    MAX_STEPS = "max_steps"
+    MAX_W = "max_w"
+    MIN_STEP = "min_step"
+    ENERGY_TOL = "energy_tol"
+    CONVERGED = "converged"
+    CALLBACK = "callback"
+    NONFINITE = "nonfinite"
+    INTERRUPTED = "interrupted"
+    FAILED = "failed"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,15 +128,16 @@ class StopRules:
         object.__setattr__(self, "patience", int(self.patience))
 
 
-@dataclasses.dataclass(frozen=True)
-class MinimizeResult:
+@dataclasses.dataclass(frozen=True, eq=False)
+class MinimizeResult(ValueEquality):
     """What `minimize` returns.
 
     **Attributes:**
 
     - `y`: the final iterate (same structure as `y0`).
     - `steps`: int, the number of solver steps taken.
-    - `stop_reason`: str, the rule that stopped the run: `"max_steps"`, `"max_w"`,
+    - `stop_reason`: str, the rule that stopped the run, one of the
+      [`StopReason`][voxax.StopReason] constants: `"max_steps"`, `"max_w"`,
       `"min_step"`, `"energy_tol"`, `"converged"`, `"callback"`, `"nonfinite"`,
       `"interrupted"` or `"failed: <message>"`.
     - `history`: dict of 1D NumPy arrays, one entry per step: `"energy"`, `"step_size"`,
@@ -109,6 +145,8 @@ class MinimizeResult:
       aux term under its name.
     - `energy`: float, the energy at `y`.
     - `aux`: the aux at `y` (None without `has_aux`).
+
+    Compares with `==` by value (arrays entry by entry); pickles and deep-copies.
     """
 
     y: Any
@@ -136,25 +174,71 @@ class _WithAux(eqx.Module):
         return jnp.asarray(f), aux
 
 
-def _make_solver(solver, learning_rate, rtol, atol):
+_NAMES = "'adam', 'sgd', 'bfgs', 'lbfgs', 'lbfgsb', an optax GradientTransformation or an optimistix minimizer"
+
+
+def _make_solver(solver, learning_rate):
+    """`(kind, solver)`: kind is "optax" (a GradientTransformation), "lbfgsb" (None),
+    "quasi_newton" or "optimistix" (an optimistix minimizer)."""
     if isinstance(solver, str):
         name = solver.lower()
         if name == "adam":
-            return optx.OptaxMinimiser(optax.adam(learning_rate), rtol=rtol, atol=atol)
+            return "optax", optax.adam(learning_rate)
         if name == "sgd":
-            return optx.OptaxMinimiser(optax.sgd(learning_rate), rtol=rtol, atol=atol)
-        if name == "bfgs":
-            return optx.BFGS(rtol=rtol, atol=atol)
-        if name == "lbfgs":
-            return optx.LBFGS(rtol=rtol, atol=atol)
-        raise ValueError(f"minimize: unknown solver {solver!r}; use 'adam', 'sgd', 'bfgs', 'lbfgs', "
-                         "an optax GradientTransformation or an optimistix minimizer")
+            return "optax", optax.sgd(learning_rate)
+        if name == "lbfgsb":
+            return "lbfgsb", None
+        if name in ("bfgs", "lbfgs"):
+            return "quasi_newton", name
+        raise ValueError(f"minimize: unknown solver {solver!r}; use {_NAMES}")
     if isinstance(solver, optax.GradientTransformation):
-        return optx.OptaxMinimiser(solver, rtol=rtol, atol=atol)
+        return "optax", solver
     if isinstance(solver, optx.AbstractMinimiser):
-        return solver
-    raise TypeError(f"minimize: `solver` must be a name, an optax GradientTransformation or an "
-                    f"optimistix minimizer, got {type(solver).__name__}")
+        return ("quasi_newton" if isinstance(solver, optx.AbstractQuasiNewton) else "optimistix"), solver
+    raise TypeError(f"minimize: `solver` must be {_NAMES}; got {type(solver).__name__}")
+
+
+def _box(bounds, y0):
+    """`(lower, upper)` pytrees shaped like `y0` from scalars, arrays or pytrees (None: unbounded)."""
+    if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
+        raise TypeError("minimize: `bounds` must be a pair (lower, upper) of scalars, arrays or pytrees like y0")
+    leaves, treedef = jtu.tree_flatten(y0)
+
+    def side(b, fill, name):
+        if b is None:
+            return [jnp.full(jnp.shape(x), fill, jnp.result_type(x)) for x in leaves]
+        b_leaves = jtu.tree_leaves(b)
+        if jtu.tree_structure(b) == treedef:
+            pairs = zip(b_leaves, leaves)
+        elif len(b_leaves) == 1:
+            pairs = ((b_leaves[0], x) for x in leaves)
+        else:
+            raise ValueError(f"minimize: `bounds` {name} must be a scalar, an array or a pytree like y0")
+        out = []
+        for bl, x in pairs:
+            bl = jnp.asarray(bl, jnp.result_type(x))
+            try:
+                out.append(jnp.broadcast_to(bl, jnp.shape(x)))
+            except ValueError:
+                raise ValueError(
+                    f"minimize: `bounds` {name} of shape {bl.shape} does not broadcast to a variable of shape {jnp.shape(x)}"
+                ) from None
+            if jnp.any(jnp.isnan(out[-1])):
+                raise ValueError(f"minimize: `bounds` {name} contains NaN")
+        return out
+
+    lower, upper = side(bounds[0], -jnp.inf, "lower"), side(bounds[1], jnp.inf, "upper")
+    if any(bool(jnp.any(lo > hi)) for lo, hi in zip(lower, upper)):
+        raise ValueError("minimize: `bounds` need lower <= upper everywhere")
+    return jtu.tree_unflatten(treedef, lower), jtu.tree_unflatten(treedef, upper)
+
+
+def _cauchy(rtol, atol, y, y_diff, f, f_diff):
+    """optimistix's Cauchy test (max norm): small change in both y and f."""
+    ratios = [jnp.max(jnp.abs(d) / (atol + rtol * jnp.abs(v))) for v, d in zip(jtu.tree_leaves(y), jtu.tree_leaves(y_diff)) if jnp.size(v)]
+    y_small = jnp.max(jnp.stack(ratios)) < 1 if ratios else jnp.array(True)
+    f_small = jnp.abs(f_diff) / (atol + rtol * jnp.abs(f)) < 1
+    return y_small & f_small
 
 
 def _default_step_size(y_new, y_old):
@@ -203,20 +287,29 @@ def minimize(
     atol: float = 1e-10,
     step_size_fn: Callable | None = None,
     options: dict | None = None,
+    bounds=None,
 ) -> MinimizeResult:
     """Minimizes `fn(y, args)` step by step, with progress bar, history and stopping rules.
 
-    One compiled step (compiled once, on the first call) runs the solver's `step`, its
-    `terminate` check, and the bookkeeping; Python then records the history, updates the
+    One compiled step (compiled once, on the first call) runs one solver step, its
+    convergence check, and the bookkeeping; Python then records the history, updates the
     progress bar, calls `callback` and checks the `StopRules`.
 
     Which point a history entry describes: for optax solvers (`"adam"`, `"sgd"`), step
     `k` evaluates the energy at the iterate it starts from (the usual training-loss
-    convention), so `history["energy"][0]` is the energy at `y0`. For line-search solvers
-    (BFGS, L-BFGS) it is the energy of the last accepted iterate after the step; steps
-    whose line search rejected the trial point move nothing (and do not count for
-    `min_step` / `energy_tol`). For any other optimistix minimizer the energy and aux are
-    evaluated at the new iterate (one extra evaluation per step).
+    convention), so `history["energy"][0]` is the energy at `y0`. For optimistix
+    minimizers the energy and aux are evaluated at the iterate the step returns (one
+    extra evaluation per step); for the line-search solvers (BFGS, L-BFGS) that is the
+    last accepted iterate, and steps whose line search rejected the trial point move
+    nothing (and do not count for `min_step` / `energy_tol`). For `"lbfgsb"` it is the
+    new iterate (jaxopt evaluates it anyway).
+
+    With `bounds=(lower, upper)` every iterate stays in the box `lower <= y <= upper`
+    (elementwise; `y0` is first clipped into it): optax steps are projected onto the box
+    (projected gradient methods) and `"lbfgsb"` (jaxopt's L-BFGS-B) keeps to it by
+    construction. `lower` and `upper` are scalars, arrays that broadcast to `y0` (for
+    vertices `(V, 3)`, a `(3,)` corner of a build volume), pytrees like `y0`, or None
+    (unbounded on that side).
 
     The step size of a step is the largest move of a point — `max(norm(y_new - y_old,
     axis=-1))` when `y` is a single array of points `(..., 3)` (or `(..., 2)`) — and the
@@ -231,8 +324,9 @@ def minimize(
     - `y0`: the initial point: an array (e.g. vertices `(V, 3)`) or a pytree of arrays.
     - `args`: passed to `fn` unchanged (arrays are traced; other leaves such as a
       `voxax.Grid` are static).
-    - `solver`: `"adam"` (default), `"sgd"`, `"bfgs"`, `"lbfgs"`, an optax
-      `GradientTransformation`, or an optimistix minimizer instance.
+    - `solver`: `"adam"` (default), `"sgd"`, `"bfgs"`, `"lbfgs"`, `"lbfgsb"` (needs
+      jaxopt: `pip install "voxax[bounds]"`), an optax `GradientTransformation`, or an
+      optimistix minimizer instance.
     - `learning_rate`: for `"adam"` / `"sgd"`.
     - `stop`: a `StopRules`.
     - `has_aux`: whether `fn` returns `(scalar, aux)`.
@@ -245,9 +339,13 @@ def minimize(
       the energy is not finite or `max_w` already met its threshold.
     - `jit`: compile the step (default). `jit=False` runs it eagerly, for debugging.
     - `rtol`, `atol`: the solver's own (Cauchy) convergence tolerances, for solvers built
-      from a name or an optax transformation.
+      from a name or an optax transformation (stop when both the step and the energy
+      change are below `atol + rtol * |value|`); for `"lbfgsb"`, `atol` bounds the
+      projected gradient's norm.
     - `step_size_fn`: optional `step_size_fn(y_new, y_old) -> scalar`.
     - `options`: optimistix solver options.
+    - `bounds`: optional `(lower, upper)` box constraints (see above); for optax
+      solvers and `"lbfgsb"` only.
 
     **Returns:**
 
@@ -264,7 +362,7 @@ def minimize(
     """
     if not isinstance(stop, StopRules):
         raise TypeError(f"minimize: `stop` must be a StopRules, got {type(stop).__name__}")
-    solver = _make_solver(solver, learning_rate, rtol, atol)
+    kind, solver = _make_solver(solver, learning_rate)
     options = {} if options is None else dict(options)
     tags = frozenset()
     y0 = jtu.tree_map(_as_inexact, y0)
@@ -280,36 +378,82 @@ def minimize(
         raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
                          "aux['max_w'] (e.g. W.max()) from `fn`")
 
-    if isinstance(solver, optx.OptaxMinimiser):
-        kind = "optax"
-    elif isinstance(solver, optx.AbstractQuasiNewton):
-        kind = "quasi_newton"
+    if bounds is not None:
+        if kind in ("quasi_newton", "optimistix"):
+            raise ValueError("minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
+                             "GradientTransformation) or solver='lbfgsb'; optimistix minimizers are unconstrained")
+        lower, upper = _box(bounds, y0)
+        y0 = optax.projections.projection_box(y0, lower, upper)
+    elif kind == "lbfgsb":
+        lower = jtu.tree_map(lambda x: jnp.full(x.shape, -jnp.inf, x.dtype), y0)
+        upper = jtu.tree_map(lambda x: jnp.full(x.shape, jnp.inf, x.dtype), y0)
+
+    def _info(energy, aux, step_size, accepted, done, failed):
+        return {"energy": energy, "step_size": step_size, "aux": _scalar_aux(aux),
+                "accepted": accepted, "done": done, "failed": failed}
+
+    failure = None  # maps the step's `result` to a failure message
+
+    if kind == "optax":
+        opt = solver
+        extra = isinstance(opt, optax.GradientTransformationExtraArgs)
+        f_max = jnp.array(jnp.finfo(f_struct.dtype).max, f_struct.dtype)
+
+        def _init(y, args):
+            return opt.init(y), f_max
+
+        def _step(y, state, args):
+            opt_state, f_prev = state
+            (f, aux), grads = eqx.filter_value_and_grad(fn_aux, has_aux=True)(y, args)
+            if extra:
+                updates, opt_state = opt.update(grads, opt_state, y, value=f, grad=grads,
+                                                value_fn=lambda z: fn_aux(z, args)[0])
+            else:
+                updates, opt_state = opt.update(grads, opt_state, y)
+            y_new = optax.apply_updates(y, updates)
+            if bounds is not None:
+                y_new = optax.projections.projection_box(y_new, lower, upper)
+            y_diff = jtu.tree_map(lambda a, b: a - b, y_new, y)
+            done = _cauchy(rtol, atol, y, y_diff, f, f - f_prev)
+            info = _info(f, aux, step_size_fn(y_new, y), jnp.array(True), done, jnp.array(False))
+            return y_new, (opt_state, f), info, jnp.array(0)
+
+    elif kind == "lbfgsb":
+        jaxopt = require("jaxopt", 'minimize(solver="lbfgsb")')
+        lbfgsb = jaxopt.LBFGSB(fun=fn_aux, has_aux=True, tol=atol, maxiter=max(stop.max_steps, 1))
+        box = (lower, upper)
+
+        def _init(y, args):
+            return lbfgsb.init_state(y, box, args)
+
+        def _step(y, state, args):
+            y_new, state = lbfgsb.update(y, state, box, args)
+            done = state.error <= lbfgsb.tol
+            info = _info(state.value, state.aux, step_size_fn(y_new, y), jnp.array(True), done, state.failed_linesearch)
+            return y_new, state, info, jnp.array(0)
+
+        failure = lambda result: "the line search failed"  # noqa: E731
+
     else:
-        kind = "generic"
+        if isinstance(solver, str):
+            solver = optx.BFGS(rtol=rtol, atol=atol) if solver == "bfgs" else optx.LBFGS(rtol=rtol, atol=atol)
+        optimizer = solver
 
-    def _init(y, args):
-        return solver.init(fn_aux, y, args, options, f_struct, aux_struct, tags)
+        def _init(y, args):
+            return optimizer.init(fn_aux, y, args, options, f_struct, aux_struct, tags)
 
-    def _step(y, state, args):
-        y_new, new_state, aux = solver.step(fn_aux, y, args, options, state, tags)
-        done, result = solver.terminate(fn_aux, y_new, args, options, new_state, tags)
-        if kind == "optax":
-            energy, accepted = new_state.f, jnp.array(True)
-        elif kind == "quasi_newton":
-            energy, aux = new_state.f_info.f, new_state.aux
-            accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
-        else:
-            energy, aux = fn_aux(y_new, args)
-            accepted = jnp.array(True)
-        info = {
-            "energy": energy,
-            "step_size": step_size_fn(y_new, y),
-            "aux": _scalar_aux(aux),
-            "accepted": accepted,
-            "done": done,
-            "successful": result == optx.RESULTS.successful,
-        }
-        return y_new, new_state, info, result
+        def _step(y, state, args):
+            y_new, new_state, _ = optimizer.step(fn_aux, y, args, options, state, tags)
+            done, result = optimizer.terminate(fn_aux, y_new, args, options, new_state, tags)
+            energy, aux = fn_aux(y_new, args)  # at the (accepted) iterate the step returns
+            step_size = step_size_fn(y_new, y)
+            # A line search that rejects its trial point returns the previous iterate.
+            moved = jnp.any(jnp.stack([jnp.any(a != b) for a, b in zip(jtu.tree_leaves(y_new), jtu.tree_leaves(y))]))
+            accepted = moved if kind == "quasi_newton" else jnp.array(True)
+            failed = done & (result != optx.RESULTS.successful)
+            return y_new, new_state, _info(energy, aux, step_size, accepted, done, failed), result
+
+        failure = lambda result: str(optx.RESULTS[result])  # noqa: E731
 
     if jit:
         _init = eqx.filter_jit(_init)
@@ -325,7 +469,7 @@ def minimize(
     for name in aux_names:
         records[_record_name(name)] = []
 
-    stop_reason = "max_steps"
+    stop_reason = StopReason.MAX_STEPS
     steps = 0
     y_out = y0
     out_energy = None  # known energy at y_out (None: evaluate at the end)
@@ -365,7 +509,7 @@ def minimize(
                 stop_by_callback = False
 
             if not math.isfinite(energy):
-                stop_reason = "nonfinite"
+                stop_reason = StopReason.NONFINITE
                 if last_finite is not None:
                     y_out, out_energy, out_aux = last_finite
                 else:
@@ -374,37 +518,37 @@ def minimize(
             last_finite = (point, energy, None)
 
             if stop.max_w_threshold is not None and aux_vals["max_w"] <= stop.max_w_threshold:
-                stop_reason = "max_w"
+                stop_reason = StopReason.MAX_W
                 y_out, out_energy = point, energy
                 break
 
             y, y_out, out_energy = y_new, y_new, (None if kind == "optax" else energy)
 
             if stop_by_callback:
-                stop_reason = "callback"
+                stop_reason = StopReason.CALLBACK
                 break
 
-            if not bool(info["successful"]) and bool(info["done"]):
-                stop_reason = f"failed: {optx.RESULTS[result]}"
+            if bool(info["failed"]):
+                stop_reason = f"{StopReason.FAILED}: {failure(result)}"
                 break
             if bool(info["done"]):
-                stop_reason = "converged"
+                stop_reason = StopReason.CONVERGED
                 break
             accepted = bool(info["accepted"])
             if stop.min_step is not None and accepted:
                 streak_step = streak_step + 1 if step_size < stop.min_step else 0
                 if streak_step >= stop.patience:
-                    stop_reason = "min_step"
+                    stop_reason = StopReason.MIN_STEP
                     break
             if stop.energy_tol is not None and accepted:
                 if prev_energy is not None:
                     streak_energy = streak_energy + 1 if abs(energy - prev_energy) < stop.energy_tol else 0
                     if streak_energy >= stop.patience:
-                        stop_reason = "energy_tol"
+                        stop_reason = StopReason.ENERGY_TOL
                         break
                 prev_energy = energy
     except KeyboardInterrupt:
-        stop_reason = "interrupted"
+        stop_reason = StopReason.INTERRUPTED
     finally:
         if bar is not None:
             bar.close(stop_reason)

@@ -9,17 +9,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _ffi
+from . import _ffi, _validate
 from ._grid import Grid
 
 __all__ = ["voxelize", "voxelize_corner_gradients", "use_host_callback"]
 
-_INT32_MAX = np.iinfo(np.int32).max
-# Largest coordinate magnitude accepted (the kernels check the same bound).
-MAX_ABS_COORDINATE = 1e75
+_INT32_MAX = _validate.INT32_MAX
 
 
-def voxelize(vertices, faces, grid: Grid) -> jax.Array:
+def voxelize(vertices, faces=None, grid: Grid | None = None) -> jax.Array:
     """Voxelizes a closed triangle mesh (3D) or closed polyline (2D) on `grid`.
 
     Every cell holds the *box-filtered winding number*: the average over the cell of the
@@ -33,6 +31,9 @@ def voxelize(vertices, faces, grid: Grid) -> jax.Array:
     sub-triangle splat (see the docs, "How gradients are computed"). `voxelize` works
     under `jax.jit`, `jax.grad`/`jax.vjp` and `jax.vmap`; leading axes of `vertices` and
     `faces` are batch axes and broadcast against each other.
+
+    A mesh object (a `voxax.Mesh` or a `trimesh.Trimesh`) may take the place of
+    `vertices, faces`: `voxelize(mesh, grid)`.
 
     The count uses rays along +z (+y in 2D). For closed surfaces this is the winding
     number; for open surfaces (holes, lone sheets) it depends on the ray direction — use
@@ -70,6 +71,7 @@ def voxelize(vertices, faces, grid: Grid) -> jax.Array:
     1.0
     ```
     """
+    vertices, faces, (grid,) = _validate.unpack_mesh("voxelize", vertices, faces, grid)
     vertices, faces = _check(vertices, faces, grid)
     try:
         return _voxelize(vertices, faces, grid)
@@ -86,64 +88,18 @@ def voxelize(vertices, faces, grid: Grid) -> jax.Array:
 # -- validation ----------------------------------------------------------------------------
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
-def _check(vertices, faces, grid):
-    if not isinstance(grid, Grid):
-        raise TypeError(f"voxelize: `grid` must be a voxax.Grid, got {type(grid).__name__}")
-    if not hasattr(vertices, "dtype"):
-        vertices = np.asarray(vertices)
-        if vertices.dtype.kind in "iu":
-            raise TypeError("voxelize: `vertices` must be float32 or float64, got integers")
-    if not hasattr(faces, "dtype"):
-        faces = np.asarray(faces)
+def _check(vertices, faces, grid, where="voxelize"):
+    grid = _validate.grid(where, grid)
+    vertices, faces = _validate.mesh(where, vertices, faces, dim=grid.dim, batch=True)
     vdtype = np.dtype(vertices.dtype)
-    if vdtype not in (np.float32, np.float64):
-        raise TypeError(f"voxelize: `vertices` must be float32 or float64, got {vdtype}")
     if vdtype == np.float64 and not jax.config.jax_enable_x64:
         vdtype = np.dtype(np.float32)
-    fdtype = np.dtype(faces.dtype)
-    if fdtype.kind not in "iu":
-        raise TypeError(f"voxelize: `faces` must be an integer array, got {fdtype}")
-    d = grid.dim
-    if vertices.ndim < 2 or vertices.shape[-1] != d:
-        raise ValueError(
-            f"voxelize: `vertices` must have shape (..., V, {d}) for a {d}D grid, got {tuple(vertices.shape)}"
-        )
-    if faces.ndim < 2 or faces.shape[-1] != d:
-        kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
-        raise ValueError(f"voxelize: `faces` must hold {kind} for a {d}D grid, got shape {tuple(faces.shape)}")
-    nv, nf = vertices.shape[-2], faces.shape[-2]
-    if nv == 0 or nf == 0:
-        raise ValueError(f"voxelize: empty mesh ({nv} vertices, {nf} faces)")
-    if nv > _INT32_MAX or nf > _INT32_MAX:
-        raise ValueError("voxelize: at most 2^31 - 1 vertices and faces are supported")
-    try:
-        batch = np.broadcast_shapes(tuple(vertices.shape[:-2]), tuple(faces.shape[:-2]))
-    except ValueError:
-        raise ValueError(
-            f"voxelize: batch axes of vertices {tuple(vertices.shape)} and faces {tuple(faces.shape)} do not broadcast"
-        ) from None
+    batch = np.broadcast_shapes(tuple(vertices.shape[:-2]), tuple(faces.shape[:-2]))
     _check_memory(grid, batch, vdtype)
-
-    if _is_concrete(vertices):
-        v = np.asarray(vertices)
-        if not np.all(np.isfinite(v)):
-            raise ValueError("voxelize: `vertices` contain NaN or Inf")
-        if v.size and float(np.max(np.abs(v))) > MAX_ABS_COORDINATE:
-            raise ValueError("voxelize: vertex coordinates must have magnitude <= 1e75")
-    if _is_concrete(faces) and np.size(faces):
-        f = np.asarray(faces)
-        lo, hi = int(f.min()), int(f.max())
-        if lo < 0:
-            raise ValueError(f"voxelize: negative face index {lo}")
-        if hi >= nv:
-            raise ValueError(f"voxelize: face index {hi} is out of range for {nv} vertices")
     vertices = jnp.asarray(vertices, dtype=vdtype)
+    fdtype = np.dtype(faces.dtype)
     if fdtype != np.int32:
-        if _is_concrete(faces):
+        if _validate.is_concrete(faces):
             faces = np.asarray(faces).astype(np.int32)  # in range: checked above
         else:
             # Traced indices are checked in the kernel; clipping first keeps values
@@ -260,23 +216,34 @@ def _host_jit(target, result, grid):
     return jax.jit(lambda *a: call(*a, **_ffi.grid_attributes(grid)))
 
 
-def voxelize_corner_gradients(vertices, faces, cotangent, grid: Grid):
+def voxelize_corner_gradients(vertices, faces=None, grid: Grid | None = None, cotangent=None):
     """Per-face-corner gradients of `sum(cotangent * voxelize(vertices, faces, grid))`.
 
     This is the raw output of the backward kernel: for each face and each of its
     corners, the gradient with respect to that corner's position. `voxelize`'s VJP sums
-    them into the vertices.
+    them into the vertices. The arguments come in the order of
+    `voxax.reference.voxelize_backward`, which computes the summed result in NumPy.
 
     **Arguments:**
 
-    - `vertices`: `(..., V, d)` float, `faces`: `(..., F, d)` int, as for `voxelize`.
-    - `cotangent`: `(..., *grid.shape)` float of the vertices' dtype.
+    - `vertices`: `(..., V, d)` float, `faces`: `(..., F, d)` int, as for `voxelize`
+      (or a mesh object in their place: `voxelize_corner_gradients(mesh, grid, cotangent)`).
     - `grid`: the `voxax.Grid`.
+    - `cotangent`: `(..., *grid.shape)` float of the vertices' dtype.
 
     **Returns:**
 
     `(..., F, d, d)` array: `out[..., f, c, :]` is the gradient for corner `c` of face `f`.
     """
+    where = "voxelize_corner_gradients"
+    vertices, faces, (grid, cotangent) = _validate.unpack_mesh(where, vertices, faces, grid, cotangent)
+    if cotangent is None:
+        raise TypeError(f"{where}: missing `cotangent`")
+    vertices, faces = _check(vertices, faces, grid, where)
+    return _corner_gradients(vertices, faces, grid, cotangent)
+
+
+def _corner_gradients(vertices, faces, grid, cotangent):
     v, f, batch = _lead(vertices, faces)
     nf, d = f.shape[-2], f.shape[-1]
     g = jnp.asarray(cotangent, v.dtype)
@@ -313,7 +280,7 @@ def _voxelize_fwd(vertices, faces, grid):
 
 def _voxelize_bwd(grid, residuals, cotangent):
     vertices, faces = residuals
-    corners = voxelize_corner_gradients(vertices, faces, cotangent, grid)
+    corners = _corner_gradients(vertices, faces, grid, cotangent)
     return _sum_corners(corners, vertices, faces), None
 
 

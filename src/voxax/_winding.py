@@ -24,10 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["winding_number"]
+from . import _validate
+from ._constants import PAIR_BUDGET
 
-# Default number of (point, face) pairs evaluated at once.
-_PAIR_BUDGET = 1 << 20
+__all__ = ["winding_number", "winding_flat"]
 
 
 def _safe_norm(x):
@@ -77,8 +77,10 @@ def _angles_2d(corners, p):
 
 
 @functools.partial(jax.jit, static_argnums=(3,))
-def _winding_flat(vertices, faces, points, chunk_size: int):
-    """Winding numbers at `points` (P, d); chunks of `chunk_size` points (the last padded)."""
+def winding_flat(vertices, faces, points, chunk_size: int):
+    """Winding numbers of one mesh `(V, d)`, `(F, d)` at `points` (P, d), `chunk_size` points
+    at a time (the last chunk padded). Unchecked: the building block of `winding_number`
+    and `voxelize_mc`."""
     d = vertices.shape[-1]
     corners = vertices[faces]  # (F, d, d)
     fn = _angles_3d if d == 3 else _angles_2d
@@ -95,10 +97,10 @@ def _winding_flat(vertices, faces, points, chunk_size: int):
 
 
 def _auto_chunk(n_faces: int, n_points: int) -> int:
-    return int(max(1, min(max(n_points, 1), _PAIR_BUDGET // max(n_faces, 1))))
+    return int(max(1, min(max(n_points, 1), PAIR_BUDGET // max(n_faces, 1))))
 
 
-def winding_number(vertices, faces, points, *, chunk_size: int | None = None) -> jax.Array:
+def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None = None) -> jax.Array:
     """The exact generalised winding number of a mesh (or polyline) at points.
 
     3D: the sum of the signed solid angles of the triangles, by the formula of Van Oosterom
@@ -110,8 +112,9 @@ def winding_number(vertices, faces, points, *, chunk_size: int | None = None) ->
     a cube's edges). For open surfaces it is the generalised winding number, which is not
     an integer.
 
-    Pure JAX, works under `jax.jit`, `jax.grad` and `jax.vmap` (map over meshes with
-    `jax.vmap`). Differentiable in `vertices` and `points` by plain autodiff (away from
+    Pure JAX, works under `jax.jit`, `jax.grad` and `jax.vmap`; leading axes of
+    `vertices` and `faces` are batch axes that broadcast against each other, as for
+    `voxax.voxelize`, and every mesh of the batch is evaluated at all the points. Differentiable in `vertices` and `points` by plain autodiff (away from
     the surface the gradient of a closed mesh's winding number is zero, up to rounding).
     The cost is O(points x faces); the points are processed `chunk_size` at a time, so the
     memory is O(chunk_size x faces) also when differentiating (every chunk is recomputed
@@ -119,14 +122,16 @@ def winding_number(vertices, faces, points, *, chunk_size: int | None = None) ->
 
     **Arguments:**
 
-    - `vertices`: `(V, 3)` or `(V, 2)` float32 or float64.
-    - `faces`: `(F, 3)` int triangles or `(F, 2)` int segments, outward-oriented.
+    - `vertices`: `(..., V, 3)` or `(..., V, 2)` float32 or float64.
+    - `faces`: `(..., F, 3)` int triangles or `(..., F, 2)` int segments, outward-oriented
+      (or a mesh object in place of `vertices, faces`: `winding_number(mesh, points)`).
     - `points`: `(..., d)` float, any leading shape.
     - `chunk_size`: points per chunk; by default about 2^20 / F (at least 1).
 
     **Returns:**
 
-    `points.shape[:-1]` array of the promoted float dtype of `vertices` and `points`.
+    `batch + points.shape[:-1]` array of the promoted float dtype of `vertices` and
+    `points`, where `batch` is the broadcast of the mesh's batch axes (none for one mesh).
 
     **Example:**
 
@@ -138,42 +143,26 @@ def winding_number(vertices, faces, points, *, chunk_size: int | None = None) ->
 
     ```
     """
-    vertices = jnp.asarray(vertices)
-    if not jnp.issubdtype(vertices.dtype, jnp.floating):
-        raise TypeError(f"winding_number: `vertices` must be float32 or float64, got {vertices.dtype}")
-    points = jnp.asarray(points)
-    if not hasattr(faces, "dtype"):
-        faces = np.asarray(faces)
-    if not jnp.issubdtype(faces.dtype, jnp.integer):
-        raise TypeError(f"winding_number: `faces` must be an integer array, got {faces.dtype}")
-    if vertices.ndim != 2 or vertices.shape[-1] not in (2, 3):
-        raise ValueError(
-            f"winding_number: `vertices` must have shape (V, 3) or (V, 2) (use jax.vmap for batches), "
-            f"got {tuple(vertices.shape)}"
-        )
+    where = "winding_number"
+    vertices, faces, (points,) = _validate.unpack_mesh(where, vertices, faces, points)
+    vertices, faces = _validate.mesh(where, vertices, faces, batch=True)
     d = vertices.shape[-1]
-    if faces.ndim != 2 or faces.shape[-1] != d:
-        kind = "triangles (F, 3)" if d == 3 else "segments (F, 2)"
-        raise ValueError(f"winding_number: `faces` must hold {kind}, got shape {tuple(faces.shape)}")
+    if points is None:
+        raise TypeError(f"{where}: missing `points`")
+    points = jnp.asarray(points)
     if points.ndim < 1 or points.shape[-1] != d:
-        raise ValueError(f"winding_number: `points` must have shape (..., {d}), got {tuple(points.shape)}")
-    if faces.shape[0] == 0:
-        raise ValueError("winding_number: empty mesh (no faces)")
-    if not isinstance(faces, jax.core.Tracer):
-        f = np.asarray(faces)
-        if f.min() < 0 or f.max() >= vertices.shape[0]:
-            raise ValueError(
-                f"winding_number: face indices must lie in [0, {vertices.shape[0]}), got [{f.min()}, {f.max()}]"
-            )
+        raise ValueError(f"{where}: `points` must have shape (..., {d}), got {tuple(points.shape)}")
     dtype = jnp.result_type(vertices.dtype, points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype)
-    vertices = vertices.astype(dtype)
+    vertices = jnp.asarray(vertices).astype(dtype)
+    faces = jnp.asarray(faces)
+    batch = tuple(np.broadcast_shapes(vertices.shape[:-2], faces.shape[:-2]))
     lead = points.shape[:-1]
     flat = points.astype(dtype).reshape(-1, d)
     if flat.shape[0] == 0:
-        return jnp.zeros(lead, dtype)
+        return jnp.zeros(batch + lead, dtype)
     if chunk_size is None:
-        chunk_size = _auto_chunk(faces.shape[0], flat.shape[0])
-    chunk_size = int(chunk_size)
-    if chunk_size < 1:
-        raise ValueError(f"winding_number: chunk_size must be >= 1, got {chunk_size}")
-    return _winding_flat(vertices, jnp.asarray(faces), flat, chunk_size).reshape(lead)
+        chunk_size = _auto_chunk(faces.shape[-2], flat.shape[0])
+    chunk_size = _validate.positive_int(where, "chunk_size", chunk_size)
+    one = lambda v, f: winding_flat(v, f, flat, chunk_size)
+    out = jnp.vectorize(one, signature="(n,d),(m,k)->(p)")(vertices, faces)
+    return out.reshape(batch + lead)

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _validate
 from ._grid import Grid
 from ._winding import winding_number
 
@@ -63,7 +64,7 @@ def interpolate(W, grid: Grid, points) -> jax.Array:
     return out.reshape(lead)
 
 
-def point_sampled(vertices, faces, grid: Grid, *, supersample: int = 1, points=None, chunk_size: int | None = None):
+def point_sampled(vertices, faces=None, grid: Grid | None = None, *, supersample: int = 1, points=None, chunk_size: int | None = None):
     """Point-sampled winding numbers: the "discretise, then differentiate" baseline.
 
     The sharp winding number `round(w)` (w the generalised winding number of
@@ -81,29 +82,32 @@ def point_sampled(vertices, faces, grid: Grid, *, supersample: int = 1, points=N
 
     **Arguments:**
 
-    - `vertices`: `(V, d)` float; `faces`: `(F, d)` int, as for `voxax.voxelize`.
+    - `vertices`: `(..., V, d)` float; `faces`: `(..., F, d)` int, as for `voxax.voxelize`
+      (leading axes broadcast; or a mesh object in place of `vertices, faces`).
     - `grid`: the `voxax.Grid`.
     - `supersample`: int >= 1, samples per voxel and axis.
     - `points`: optional `(..., d)` float query points.
     - `chunk_size`: passed to `winding_number`.
 
-    **Returns:** `grid.shape` array (or `points.shape[:-1]` with `points`).
+    **Returns:** `batch + grid.shape` array (or `batch + points.shape[:-1]` with `points`),
+    `batch` the broadcast batch axes of the mesh (none for one mesh).
     """
-    if not isinstance(grid, Grid):
-        raise TypeError(f"point_sampled: `grid` must be a voxax.Grid, got {type(grid).__name__}")
-    s = int(supersample)
-    if s < 1 or s != supersample:
-        raise ValueError(f"point_sampled: supersample must be an integer >= 1, got {supersample!r}")
+    where = "point_sampled"
+    vertices, faces, (grid,) = _validate.unpack_mesh(where, vertices, faces, grid)
+    grid = _validate.grid(where, grid)
+    s = _validate.positive_int(where, "supersample", supersample)
+    vertices, faces = _validate.mesh(where, vertices, faces, dim=grid.dim, batch=True)
     vertices = jnp.asarray(vertices)
-    if vertices.ndim != 2 or vertices.shape[-1] != grid.dim:
-        raise ValueError(f"point_sampled: `vertices` must have shape (V, {grid.dim}), got {tuple(vertices.shape)}")
     fine = Grid(grid.lower, grid.upper, tuple(n * s for n in grid.shape))
     centres = jnp.asarray(fine.centers(), vertices.dtype)
     w = jnp.round(winding_number(vertices, faces, centres, chunk_size=chunk_size))
     d = grid.dim
+    batch = w.shape[: w.ndim - d]
     # (n0 s, n1 s, ...) -> (n0, s, n1, s, ...) -> mean over the s axes.
     split = sum(((n, s) for n in grid.shape), ())
-    W = w.reshape(split).mean(axis=tuple(range(1, 2 * d, 2)))
+    W = w.reshape(batch + split).mean(axis=tuple(len(batch) + a for a in range(1, 2 * d, 2)))
     if points is None:
         return W
-    return interpolate(W, grid, points)
+    flat = W.reshape((-1,) + grid.shape)
+    out = jax.vmap(lambda Wi: interpolate(Wi, grid, points))(flat)
+    return out.reshape(batch + out.shape[1:])

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._grid import Grid
-from . import _filters
+from . import _filters, _validate
 
 __all__ = [
     "Curve",
@@ -164,7 +164,7 @@ def bezier_closed(control_points, samples_per_segment: int = 16) -> Curve:
 
 def _curve_forward(curve, params, key, st, segments):
     verts = curve(params, jnp.arange(segments, dtype=params.dtype) / segments)
-    return _filters._forward(verts, jnp.asarray(_ring(segments)), key, st)
+    return _filters.mc_forward(verts, jnp.asarray(_ring(segments)), key, st)
 
 
 def _curve_backward(curve, params, key, g, st, n):
@@ -175,7 +175,7 @@ def _curve_backward(curve, params, key, g, st, n):
     bkey = jax.random.fold_in(key, 1)
     t = (jnp.arange(n, dtype=dtype) + jax.random.uniform(bkey, (n,), dtype)) / n
     x, dx = jax.jvp(lambda s: curve(params, s), (t,), (jnp.ones_like(t),))
-    G = _filters._gather(g.astype(dtype), x, st.grid, st.kernel)  # (n,)
+    G = _filters.kernel_gather(g.astype(dtype), x, st)  # (n,)
     cot = G[:, None] * jnp.stack([dx[:, 1], -dx[:, 0]], axis=-1) / n
     _, pullback = jax.vjp(lambda p: curve(p, t), params)
     return pullback(cot.astype(x.dtype))[0]
@@ -237,19 +237,18 @@ def voxelize_curve_mc(
     **Arguments:**
 
     - `curve`: the point function; `params`: its float parameters (a single array).
-    - `grid`: a 2D `voxax.Grid`; `kernel`: `voxax.Box` or `voxax.Gaussian`; `key`: a PRNG key.
+    - `grid`: a 2D `voxax.Grid`; `kernel`: a [`Kernel`][voxax.Kernel] such as `voxax.Box` or `voxax.Gaussian`; `key`: a PRNG key.
     - `samples`, `strata`: forward samples per voxel and strata per axis (see `voxelize_mc`).
     - `curve_samples`: samples along the curve for the backward.
     - `segments`: polyline segments for the forward.
 
     **Returns:** `grid.shape` array.
     """
-    if not isinstance(grid, Grid) or grid.dim != 2:
-        raise ValueError("voxelize_curve_mc: needs a 2D voxax.Grid")
-    st = _filters._settings(grid, kernel, samples, strata, 1, "voxelize_curve_mc")
+    where = "voxelize_curve_mc"
+    _validate.grid(where, grid, dim=2)
+    st = _filters.mc_settings(grid, kernel, samples, strata, 1, where)
     params = _float(params)
-    key = _filters._check_key(key)
-    segments, curve_samples = int(segments), int(curve_samples)
-    if segments < 3 or curve_samples < 1:
-        raise ValueError("voxelize_curve_mc: need segments >= 3 and curve_samples >= 1")
+    key = _validate.key(where, key)
+    segments = _validate.positive_int(where, "segments", segments, minimum=3)
+    curve_samples = _validate.positive_int(where, "curve_samples", curve_samples)
     return _curve_mc_jit(curve, params, key, st, segments, curve_samples)

@@ -40,6 +40,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from . import _validate
+from ._values import ValueEquality
 from ._mesh import Mesh, from_manifold
 from ._grid import Grid
 
@@ -74,10 +76,7 @@ def _check_axis(axis) -> int:
 def _is_grid_input(shape, grid) -> bool:
     if grid is None:
         return False
-    if not isinstance(grid, Grid):
-        raise TypeError(f"grid must be a voxax.Grid, got {type(grid).__name__}")
-    if grid.dim != 3:
-        raise ValueError(f"grid must be 3D, got a {grid.dim}D grid")
+    _validate.grid("fabricate", grid, dim=3)
     return True
 
 
@@ -92,21 +91,10 @@ def _as_grid_values(W, grid: Grid) -> np.ndarray:
     return W
 
 
-def _mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
-    from .io import as_arrays
-
-    vertices, faces = as_arrays(mesh)
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.shape[1:] != (3,):
-        raise ValueError(
-            f"expected a 3D triangle mesh, got vertices {vertices.shape} and faces {faces.shape}"
-        )
-    if len(faces) == 0:
-        raise ValueError("the mesh has no faces")
-    if not np.all(np.isfinite(vertices)):
-        raise ValueError("the mesh has NaN or Inf vertex coordinates")
-    return vertices, faces
+def _mesh_arrays(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
+    vertices, faces = _validate.mesh_like(where, mesh)
+    vertices, faces = _validate.mesh(where, vertices, faces, dim=3, context="a 3D triangle mesh")
+    return np.asarray(vertices, dtype=np.float64), np.asarray(faces)
 
 
 def _mesh_cross_section(vertices: np.ndarray, faces: np.ndarray, axis: int):
@@ -173,11 +161,11 @@ def _polygons_cross_section(polygons):
     return CrossSection(loops, FillRule.EvenOdd) if loops else CrossSection()
 
 
-def _cross_sections(shape, axes, grid, threshold):
+def _cross_sections(shape, axes, grid, threshold, where):
     if _is_grid_input(shape, grid):
         W = _as_grid_values(shape, grid)
         return [_grid_cross_section(W, grid, a, threshold) for a in axes]
-    vertices, faces = _mesh_arrays(shape)
+    vertices, faces = _mesh_arrays(shape, where)
     return [_mesh_cross_section(vertices, faces, a) for a in axes]
 
 
@@ -203,7 +191,7 @@ def silhouette_polygons(shape: Any, axis: int | None = None, *, grid: Grid | Non
     `axis=None`, a tuple of three such lists (along x, y, z).
     """
     axes = (0, 1, 2) if axis is None else (_check_axis(axis),)
-    sections = _cross_sections(shape, axes, grid, threshold)
+    sections = _cross_sections(shape, axes, grid, threshold, "silhouette_polygons")
     polys = [[np.asarray(p, dtype=np.float64) for p in cs.to_polygons()] for cs in sections]
     return tuple(polys) if axis is None else polys[0]
 
@@ -272,7 +260,7 @@ def cut_solid(shape: Any, *, grid: Grid | None = None, threshold: float = 0.5, b
     ):
         sections = [_polygons_cross_section(s) for s in shape]
     else:
-        sections = _cross_sections(shape, (0, 1, 2), grid, threshold)
+        sections = _cross_sections(shape, (0, 1, 2), grid, threshold, "cut_solid")
     if any(cs.is_empty() for cs in sections):
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
     box = _polygon_bounds(sections) if bounds is None else np.asarray(bounds, dtype=np.float64).reshape(2, 3)
@@ -428,7 +416,7 @@ def write_svg(
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class BandsawTemplates:
+class BandsawTemplates(ValueEquality):
     """What [`bandsaw_templates`][voxax.fabricate.bandsaw_templates] produced.
 
     - `silhouettes`: the three silhouettes (along x, y, z), each a list of `(n, 2)`
@@ -488,7 +476,7 @@ def bandsaw_templates(
     """
     from .io import save
 
-    vertices, faces = _mesh_arrays(mesh)
+    vertices, faces = _mesh_arrays(mesh, "bandsaw_templates")
     shape = Mesh(vertices, faces)
     os.makedirs(out_dir, exist_ok=True)
     bounds = shape.bounds

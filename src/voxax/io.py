@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from . import _validate
 from ._mesh import Mesh, fit
 
 __all__ = ["load", "save", "normalize", "as_arrays", "is_watertight"]
@@ -25,11 +26,6 @@ __all__ = ["load", "save", "normalize", "as_arrays", "is_watertight"]
 # --------------------------------------------------------------------------------------
 # Conversion
 # --------------------------------------------------------------------------------------
-
-
-def _is_plain(x: Any) -> bool:
-    """True for inputs that we convert to NumPy (NumPy arrays, lists, tuples, scalars)."""
-    return isinstance(x, (np.ndarray, list, tuple, np.generic, int, float))
 
 
 def as_arrays(mesh: Any) -> tuple[Any, Any]:
@@ -61,47 +57,7 @@ def as_arrays(mesh: Any) -> tuple[Any, Any]:
     >>> v.dtype, f.dtype, f.shape
     (dtype('float64'), dtype('int32'), (3, 2))
     """
-    if isinstance(mesh, Mesh):
-        return mesh.vertices, mesh.faces
-    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh.Trimesh and friends
-        m = Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces))
-        return m.vertices, m.faces
-    if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-        vertices, faces = mesh
-        if _is_plain(vertices):
-            vertices = np.asarray(vertices)
-            if not np.issubdtype(vertices.dtype, np.floating):
-                if not np.issubdtype(vertices.dtype, np.integer) and vertices.dtype != bool:
-                    raise TypeError(f"vertices must be numeric, got dtype {vertices.dtype}")
-                vertices = vertices.astype(np.float64)
-            vertices = np.ascontiguousarray(vertices)
-        if _is_plain(faces):
-            faces = np.asarray(faces)
-            if faces.size == 0:
-                d = np.shape(vertices)[-1] if np.ndim(vertices) >= 1 else 3
-                faces = faces.astype(np.int32).reshape(0, d)
-            if not np.issubdtype(faces.dtype, np.integer):
-                raise TypeError(f"faces must be an integer array, got dtype {faces.dtype}")
-        v_shape, f_shape = np.shape(vertices), np.shape(faces)
-        if len(v_shape) < 2 or v_shape[-1] not in (2, 3):
-            raise ValueError(f"vertices must have shape (..., V, 2) or (..., V, 3), got {v_shape}")
-        if len(f_shape) != 2 or f_shape[1] != v_shape[-1]:
-            kind = "triangles (F, 3)" if v_shape[-1] == 3 else "segments (F, 2)"
-            raise ValueError(
-                f"{v_shape[-1]}D vertices need faces as {kind}, got faces of shape {f_shape}"
-            )
-        if isinstance(faces, np.ndarray):
-            n = v_shape[-2]
-            if faces.size and (faces.min() < 0 or faces.max() >= n):
-                raise ValueError(
-                    f"face indices must lie in [0, {n}), got range [{faces.min()}, {faces.max()}]"
-                )
-            faces = np.ascontiguousarray(faces.astype(np.int32))
-        return vertices, faces
-    raise TypeError(
-        "expected a voxax Mesh, a trimesh.Trimesh or a (vertices, faces) pair, "
-        f"got {type(mesh).__name__}"
-    )
+    return _validate.mesh_like("as_arrays", mesh)
 
 
 # --------------------------------------------------------------------------------------
@@ -109,7 +65,7 @@ def as_arrays(mesh: Any) -> tuple[Any, Any]:
 # --------------------------------------------------------------------------------------
 
 
-def is_watertight(vertices: Any, faces: Any, *, strict: bool = False) -> bool:
+def is_watertight(vertices: Any, faces: Any = None, *, strict: bool = False) -> bool:
     """Whether a triangle mesh (3D) or segment polyline (2D) is closed and consistently oriented.
 
     By default this checks the condition under which winding numbers (and hence the
@@ -128,7 +84,8 @@ def is_watertight(vertices: Any, faces: Any, *, strict: bool = False) -> bool:
 
     **Arguments:**
 
-    - `vertices`: `(..., V, d)` array; only its shape is used (so tracers are fine).
+    - `vertices`: `(..., V, d)` array; only its shape is used (so tracers are fine); or a
+      mesh object (`voxax.Mesh`, `trimesh.Trimesh`) in place of `vertices, faces`.
     - `faces`: `(F, 3)` triangles or `(F, 2)` segments; must be concrete (not traced).
     - `strict`: also require manifold edges (3D) / vertices (2D).
 
@@ -139,27 +96,21 @@ def is_watertight(vertices: Any, faces: Any, *, strict: bool = False) -> bool:
     >>> is_watertight(m.vertices, m.faces), is_watertight(m.vertices, m.faces[1:])
     (True, False)
     """
+    where = "is_watertight"
+    if _validate.is_mesh_object(vertices) and faces is None:
+        vertices, faces = _validate.mesh_object_arrays(where, vertices)
     faces = np.asarray(faces)
+    if faces.size == 0 and faces.ndim < 2:
+        faces = faces.astype(np.int32).reshape(0, 3 if vertices is None else np.shape(vertices)[-1])
     if faces.ndim != 2 or faces.shape[1] not in (2, 3):
-        raise ValueError(f"faces must have shape (F, 3) or (F, 2), got {faces.shape}")
-    if faces.size and not np.issubdtype(faces.dtype, np.integer):
-        raise TypeError(f"faces must be an integer array, got dtype {faces.dtype}")
+        raise ValueError(f"{where}: `faces` must have shape (F, 3) or (F, 2), got {faces.shape}")
+    if vertices is None:
+        vertices = np.zeros((int(faces.max()) + 1 if faces.size else 0, faces.shape[1]))
+    # Only the shape of the vertices is used (tracers are fine): check it with dummy values.
+    shape_only = np.broadcast_to(np.zeros((), np.float64), np.shape(vertices))
+    _validate.mesh(where, shape_only, faces, batch=True, allow_empty=True, finite=False)
     faces = faces.astype(np.int64)
     k = faces.shape[1]
-    if vertices is not None:
-        v_shape = np.shape(vertices)
-        if len(v_shape) < 2 or v_shape[-1] != k:
-            raise ValueError(
-                f"vertices of shape {v_shape} do not match faces of shape {faces.shape} "
-                "(triangles need (V, 3) vertices, segments (V, 2))"
-            )
-        n = v_shape[-2]
-        if faces.size and (faces.min() < 0 or faces.max() >= n):
-            raise ValueError(
-                f"face indices must lie in [0, {n}), got range [{faces.min()}, {faces.max()}]"
-            )
-    elif faces.size and faces.min() < 0:
-        raise ValueError("face indices must be non-negative")
 
     # Drop index-degenerate faces (padding): they have no area and no boundary.
     if k == 3:

@@ -27,6 +27,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ._optional import require
+
 __all__ = ["slices", "silhouettes", "projections", "mesh", "gradient_field", "history", "mesh_plotly", "pyplot"]
 
 _NAMES = "xyz"
@@ -49,7 +51,7 @@ def pyplot():
     >>> plt.close(fig)
     ```
     """
-    import matplotlib
+    matplotlib = require("matplotlib", "voxax.plot")
 
     if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
         try:

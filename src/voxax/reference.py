@@ -20,7 +20,8 @@ from exact convex-polygon clipping:
 Meshes follow trimesh's convention: `vertices` `(V, 3)` float with `faces` `(F, 3)` int
 triangles, or `(V, 2)` vertices with `(F, 2)` segments in 2D, oriented so that normals point
 outwards (counter-clockwise seen from outside). With that orientation `W` is 1 inside a
-closed mesh and 0 outside.
+closed mesh and 0 outside. A mesh object (`voxax.Mesh`, `trimesh.Trimesh`) may take the
+place of `vertices, faces` in every function, e.g. `voxelize(mesh, grid)`.
 
 The +z crossing count equals the generalised winding number only for *closed* surfaces;
 for an open surface the value depends on the ray direction. Likewise the backward formula
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _validate
 from ._grid import Grid
 
 __all__ = [
@@ -49,37 +51,13 @@ __all__ = [
 
 
 def _check_mesh(vertices, faces, dim: int | None = None, where: str = "reference"):
-    """Return `(vertices, faces)` as float64 / int64 arrays after checking their shapes."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] not in (2, 3):
-        raise ValueError(f"{where}: `vertices` must have shape (V, 2) or (V, 3), got {v.shape}")
-    d = v.shape[1]
-    if dim is not None and d != dim:
-        raise ValueError(f"{where}: the grid is {dim}D but `vertices` has shape {v.shape}")
-    if f.size == 0:
-        f = f.reshape(0, d)
-    if f.ndim != 2 or f.shape[1] != d:
-        raise ValueError(
-            f"{where}: `faces` must have shape (F, {d}) for {d}D vertices "
-            f"({'triangles' if d == 3 else 'segments'}), got {f.shape}"
-        )
-    if f.dtype.kind not in "iu":
-        raise TypeError(f"{where}: `faces` must be an integer array, got dtype {f.dtype}")
-    f = f.astype(np.int64)
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(
-            f"{where}: face indices must lie in [0, {len(v)}), got range [{f.min()}, {f.max()}]"
-        )
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{where}: `vertices` contain NaN or Inf")
-    return v, f
+    """Return `(vertices, faces)` as float64 / int64 NumPy arrays after checking them."""
+    v, f = _validate.mesh(where, vertices, faces, dim=dim, integer_vertices=True, allow_empty=True)
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
 def _check_grid(grid, where: str) -> Grid:
-    if not isinstance(grid, Grid):
-        raise TypeError(f"{where}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
-    return grid
+    return _validate.grid(where, grid)
 
 
 # ---------------------------------------------------------------------------------------
@@ -274,7 +252,7 @@ def _voxelize_2d(v: np.ndarray, f: np.ndarray, grid: Grid) -> np.ndarray:
     return out / grid.voxel_volume
 
 
-def voxelize(vertices, faces, grid: Grid) -> np.ndarray:
+def voxelize(vertices, faces=None, grid: Grid | None = None) -> np.ndarray:
     """Box-filtered winding numbers of a mesh on a grid, exactly, in float64.
 
     `W[i, j, k]` is the average over voxel `(i, j, k)` of the winding number `w(p)`, where
@@ -301,6 +279,7 @@ def voxelize(vertices, faces, grid: Grid) -> np.ndarray:
 
     `(*grid.shape)` float64, the voxel averages `W[i, j, k]` (x, then y, then z).
     """
+    vertices, faces, (grid,) = _validate.unpack_mesh("voxelize", vertices, faces, grid)
     grid = _check_grid(grid, "voxelize")
     v, f = _check_mesh(vertices, faces, grid.dim, "voxelize")
     if grid.dim == 3:
@@ -377,7 +356,7 @@ def _backward_2d(v: np.ndarray, f: np.ndarray, grid: Grid, g: np.ndarray) -> np.
     return grad / grid.voxel_volume
 
 
-def voxelize_backward(vertices, faces, grid: Grid, cotangent) -> np.ndarray:
+def voxelize_backward(vertices, faces=None, grid: Grid | None = None, cotangent=None) -> np.ndarray:
     """Gradient of `L = sum(cotangent * voxelize(vertices, faces, grid))` w.r.t. the vertices.
 
     The closed form of the transport theorem (the "sub-triangle splat"): every face is
@@ -406,6 +385,7 @@ def voxelize_backward(vertices, faces, grid: Grid, cotangent) -> np.ndarray:
 
     `(V, 3)` float64 (or `(V, 2)`), `dL / d vertices`.
     """
+    vertices, faces, (grid, cotangent) = _validate.unpack_mesh("voxelize_backward", vertices, faces, grid, cotangent)
     grid = _check_grid(grid, "voxelize_backward")
     v, f = _check_mesh(vertices, faces, grid.dim, "voxelize_backward")
     g = np.asarray(cotangent, dtype=np.float64)
@@ -421,7 +401,7 @@ def voxelize_backward(vertices, faces, grid: Grid, cotangent) -> np.ndarray:
 # ---------------------------------------------------------------------------------------
 
 
-def signed_volume(vertices, faces) -> float:
+def signed_volume(vertices, faces=None) -> float:
     """The signed volume enclosed by a closed triangle mesh (signed area of closed polylines in 2D).
 
     3D: `sum over triangles of det(a, b, c) / 6`; 2D: `sum over segments of cross(a, b) / 2`.
@@ -436,6 +416,7 @@ def signed_volume(vertices, faces) -> float:
 
     float, the signed volume (area).
     """
+    vertices, faces, _ = _validate.unpack_mesh("signed_volume", vertices, faces)
     v, f = _check_mesh(vertices, faces, None, "signed_volume")
     if v.shape[1] == 3:
         a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -444,7 +425,7 @@ def signed_volume(vertices, faces) -> float:
     return float(_cross2(a, b).sum() / 2.0)
 
 
-def volume_gradient(vertices, faces) -> np.ndarray:
+def volume_gradient(vertices, faces=None) -> np.ndarray:
     """Exact gradient of `signed_volume` with respect to the vertices.
 
     3D: each triangle adds `area * nhat / 3 = N_t / 6` to each of its corners, with
@@ -460,6 +441,7 @@ def volume_gradient(vertices, faces) -> np.ndarray:
 
     `(V, 3)` float64 (or `(V, 2)`).
     """
+    vertices, faces, _ = _validate.unpack_mesh("volume_gradient", vertices, faces)
     v, f = _check_mesh(vertices, faces, None, "volume_gradient")
     grad = np.zeros_like(v)
     if v.shape[1] == 3:
@@ -487,7 +469,7 @@ def _edge_side(p0, p1, q):
     return np.where(e != 0.0, np.sign(e), np.sign(tie))
 
 
-def winding_number_ray(vertices, faces, points) -> np.ndarray:
+def winding_number_ray(vertices, faces=None, points=None) -> np.ndarray:
     """Signed ray-crossing count at points, with the ray going straight up (+z; +y in 2D).
 
     Each triangle whose xy-projection contains the point and which lies strictly above it
@@ -507,6 +489,7 @@ def winding_number_ray(vertices, faces, points) -> np.ndarray:
 
     `(P,)` float64, the crossing counts.
     """
+    vertices, faces, (points,) = _validate.unpack_mesh("winding_number_ray", vertices, faces, points)
     v, f = _check_mesh(vertices, faces, None, "winding_number_ray")
     d = v.shape[1]
     q = np.asarray(points, dtype=np.float64)

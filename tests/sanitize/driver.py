@@ -400,7 +400,7 @@ def jitted(kind, grid):
 
             fn = jax.jit(fn)
         elif kind == "corners":
-            fn = jax.jit(lambda v, f, cot: voxax.voxelize_corner_gradients(v, f, cot, grid))
+            fn = jax.jit(lambda v, f, cot: voxax.voxelize_corner_gradients(v, f, grid, cot))
         elif kind == "vmap_vjp":
 
             def one(v, f, cot):
@@ -449,7 +449,7 @@ def run_single(rng, family, dim, grid_name, grid, dtype, mode):
     cot = rng.normal(size=grid.shape).astype(dtype)
     if mode == "eager":
         W = voxax.voxelize(v, f, grid)
-        C = voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), jnp.asarray(cot), grid)
+        C = voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), grid, jnp.asarray(cot))
         CALLS["eager_forward"] += 1
         CALLS["eager_backward"] += 1
         check_result(label, W, [C], nf, grid)
@@ -510,7 +510,7 @@ def run_batched(rng, family, dim, grid_name, grid, dtype, B):
             fail(f"{label}: vmap item {k} differs from the single call")
     elif how == 1:  # leading axes on both
         W = voxax.voxelize(vs, fs, grid)
-        C = voxax.voxelize_corner_gradients(jnp.asarray(vs), jnp.asarray(fs), jnp.asarray(cot), grid)
+        C = voxax.voxelize_corner_gradients(jnp.asarray(vs), jnp.asarray(fs), grid, jnp.asarray(cot))
         CALLS["eager_batched_forward"] += 1
         CALLS["eager_batched_backward"] += 1
         check_result(label + "/leading", W, [C], nf, grid, (B,))

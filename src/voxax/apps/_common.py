@@ -12,25 +12,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _validate
+from .._values import ValueEquality
 from .._mesh import Mesh
 from .._grid import Grid
 from .. import io as _io
 from .. import _minimize as solve
 
 
-def as_mesh(mesh: Any) -> Mesh:
+def as_mesh(where: str, mesh: Any) -> Mesh:
     """A 3D voxax `Mesh` from a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair."""
-    if isinstance(mesh, Mesh):
-        out = mesh
-    else:
-        vertices, faces = _io.as_arrays(mesh)
-        out = Mesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
-    if out.dim != 3:
-        raise ValueError(f"the applications need a 3D triangle mesh, got a {out.dim}D mesh")
-    if out.n_faces == 0:
-        raise ValueError("the mesh has no faces")
-    if not np.all(np.isfinite(out.vertices)):
-        raise ValueError("the mesh has NaN or Inf vertex coordinates")
+    out = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like(where, mesh))
+    _validate.mesh(where, out.vertices, out.faces, dim=3, context="the applications need a 3D triangle mesh")
     return out
 
 
@@ -45,37 +38,17 @@ def warn_if_open(mesh: Mesh, where: str) -> None:
         )
 
 
-def float_dtype(dtype=None):
+def float_dtype(where: str, dtype=None):
     """The working float dtype: `dtype`, or float64 when x64 is enabled, else float32."""
-    if dtype is not None:
-        dtype = np.dtype(dtype)
-        if dtype not in (np.float32, np.float64):
-            raise TypeError(f"dtype must be float32 or float64, got {dtype}")
-        if dtype == np.float64 and not jax.config.jax_enable_x64:
-            raise ValueError(
-                "dtype=float64 needs 64-bit JAX: call jax.config.update('jax_enable_x64', True) first"
-            )
-        return dtype
-    return np.dtype(np.float64) if jax.config.jax_enable_x64 else np.dtype(np.float32)
+    return _validate.float_dtype(where, dtype)
 
 
-def check_resolution(resolution: int, multiple: int = 1, name: str = "resolution") -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise TypeError(f"{name} must be an int, got {type(resolution).__name__}")
-    resolution = int(resolution)
-    if resolution < max(2, multiple):
-        raise ValueError(f"{name} must be at least {max(2, multiple)}, got {resolution}")
-    if resolution % multiple:
-        raise ValueError(f"{name} must be a multiple of {multiple}, got {resolution}")
-    return resolution
+def check_resolution(where: str, resolution: int, multiple: int = 1, name: str = "resolution") -> int:
+    return _validate.positive_int(where, name, resolution, minimum=max(2, multiple), multiple=multiple)
 
 
-def check_positive(value: float, name: str, allow_zero: bool = False) -> float:
-    value = float(value)
-    ok = value >= 0 if allow_zero else value > 0
-    if not (ok and math.isfinite(value)):
-        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
-    return value
+def check_positive(where: str, value: float, name: str, allow_zero: bool = False) -> float:
+    return _validate.positive_float(where, name, value, allow_zero=allow_zero)
 
 
 def prepare(mesh: Mesh, normalize: bool, max_abs: float, grid: Grid, where: str):
@@ -108,7 +81,7 @@ def history_dict(history: Mapping[str, Any]) -> dict[str, np.ndarray]:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Report:
+class Report(ValueEquality):
     """What an optimization did: the fields shared by every application's report.
 
     - `energy_history`: `(steps,)` total energy per step.
@@ -118,6 +91,8 @@ class Report:
     - `stop_reason`: why the optimization stopped (from `voxax.minimize`).
     - `energy`: the final total energy.
     - `resolution`: cells per axis of the `[-1, 1]^3` grid used.
+
+    Reports pickle, deep-copy and compare with `==` by value (arrays entry by entry).
     """
 
     energy_history: np.ndarray

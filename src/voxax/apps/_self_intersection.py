@@ -109,15 +109,15 @@ def resolve_self_intersections(
 
     ```
     """
-    source = _common.as_mesh(mesh)
+    source = _common.as_mesh("resolve_self_intersections", mesh)
     _common.warn_if_open(source, "resolve_self_intersections")
-    resolution = _common.check_resolution(resolution)
-    eps = _common.check_positive(eps, "eps", allow_zero=True)
-    alpha = _common.check_positive(arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive(learning_rate, "learning_rate")
+    resolution = _common.check_resolution("resolve_self_intersections", resolution)
+    eps = _common.check_positive("resolve_self_intersections", eps, "eps", allow_zero=True)
+    alpha = _common.check_positive("resolve_self_intersections", arap_weight, "arap_weight", allow_zero=True)
+    learning_rate = _common.check_positive("resolve_self_intersections", learning_rate, "learning_rate")
     grid = Grid.cube(resolution)
     work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "resolve_self_intersections")
-    dt = _common.float_dtype(dtype)
+    dt = _common.float_dtype("resolve_self_intersections", dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
     threshold = 1.0 + eps

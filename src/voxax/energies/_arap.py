@@ -6,21 +6,25 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from .. import _validate
 
 __all__ = ["cotangent_weights", "arap_rotations", "arap"]
 
 # Edge k of a triangle is the one opposite corner k: it runs from corner k+1 to corner k+2.
-_NEXT = jnp.array([1, 2, 0])
-_PREV = jnp.array([2, 0, 1])
+# (NumPy, not jnp: nothing may start the XLA backend at import.)
+_NEXT = np.array([1, 2, 0])
+_PREV = np.array([2, 0, 1])
 
 
 def _check_mesh(vertices, faces, name):
-    if vertices.ndim != 2 or vertices.shape[-1] not in (2, 3):
-        raise ValueError(f"{name}: `vertices` must have shape (V, 3) (or (V, 2)), got {vertices.shape}; use jax.vmap for batches")
-    if faces.ndim != 2 or faces.shape[-1] != 3:
-        raise ValueError(f"{name}: `faces` must have shape (F, 3), got {faces.shape}")
-    if not jnp.issubdtype(faces.dtype, jnp.integer):
-        raise TypeError(f"{name}: `faces` must be integers, got {faces.dtype}")
+    _validate.mesh(name, vertices, faces, batch=True, faces_dim=3, finite=False)
+
+
+def _batch(fn, signature, *args):
+    """Applies the one-mesh `fn` over the broadcast leading axes of `args`."""
+    return jnp.vectorize(fn, signature=signature)(*args)
 
 
 def _as_float(x):
@@ -50,13 +54,13 @@ def cotangent_weights(vertices, faces, min_weight: float = 1e-4, max_weight: flo
 
     **Arguments:**
 
-    - `vertices`: `(V, 3)` float vertex positions.
-    - `faces`: `(F, 3)` int triangles.
+    - `vertices`: `(..., V, 3)` float vertex positions.
+    - `faces`: `(..., F, 3)` int triangles.
     - `min_weight`, `max_weight`: the clamp range (applied to `cot / 2`).
 
     **Returns:**
 
-    `(F, 3)` float weights.
+    `(..., F, 3)` float weights (leading axes: the broadcast batch axes of the inputs).
 
     **Example:**
 
@@ -68,6 +72,11 @@ def cotangent_weights(vertices, faces, min_weight: float = 1e-4, max_weight: flo
     vertices = _as_float(vertices)
     faces = jnp.asarray(faces)
     _check_mesh(vertices, faces, "cotangent_weights")
+    one = functools.partial(_cotangent_weights, min_weight=min_weight, max_weight=max_weight)
+    return _batch(one, "(v,d),(f,k)->(f,k)", vertices, faces)
+
+
+def _cotangent_weights(vertices, faces, min_weight, max_weight):
     corners = vertices[faces]  # (F, 3, d)
     u = corners[:, _NEXT] - corners  # from corner k to corner k+1
     v = corners[:, _PREV] - corners  # from corner k to corner k+2
@@ -107,14 +116,14 @@ def arap_rotations(vertices, rest_vertices, faces, weights=None):
 
     **Arguments:**
 
-    - `vertices`: `(V, 3)` current vertex positions.
-    - `rest_vertices`: `(V, 3)` rest positions.
-    - `faces`: `(F, 3)` int triangles.
+    - `vertices`: `(..., V, 3)` current vertex positions.
+    - `rest_vertices`: `(..., V, 3)` rest positions.
+    - `faces`: `(..., F, 3)` int triangles.
     - `weights`: optional `(F, 3)` edge weights (default: `cotangent_weights(rest_vertices, faces)`).
 
     **Returns:**
 
-    `(V, 3, 3)` rotations (identity-like but arbitrary for vertices in no face).
+    `(..., V, 3, 3)` rotations (identity-like but arbitrary for vertices in no face).
 
     **Example:**
 
@@ -129,10 +138,15 @@ def arap_rotations(vertices, rest_vertices, faces, weights=None):
     rest_vertices = _as_float(rest_vertices).astype(vertices.dtype)
     faces = jnp.asarray(faces)
     _check_mesh(vertices, faces, "arap_rotations")
-    if rest_vertices.shape != vertices.shape:
+    if rest_vertices.shape[-2:] != vertices.shape[-2:]:
         raise ValueError(f"arap_rotations: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
     if weights is None:
         weights = cotangent_weights(rest_vertices, faces)
+    weights = jnp.asarray(weights, vertices.dtype)
+    return _batch(_arap_rotations, "(v,d),(v,d),(f,k),(f,k)->(v,d,d)", vertices, rest_vertices, faces, weights)
+
+
+def _arap_rotations(vertices, rest_vertices, faces, weights):
     vertices = jax.lax.stop_gradient(vertices)
     rest_vertices = jax.lax.stop_gradient(rest_vertices)
     weights = jax.lax.stop_gradient(jnp.asarray(weights, vertices.dtype))
@@ -171,9 +185,9 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
 
     **Arguments:**
 
-    - `vertices`: `(V, 3)` float, the deformed positions (differentiated).
-    - `rest_vertices`: `(V, 3)` float, the rest positions.
-    - `faces`: `(F, 3)` int triangles.
+    - `vertices`: `(..., V, 3)` float, the deformed positions (differentiated).
+    - `rest_vertices`: `(..., V, 3)` float, the rest positions.
+    - `faces`: `(..., F, 3)` int triangles.
     - `weights`: optional `(F, 3)` edge weights (default: cotangent weights of the rest
       shape). Precompute them once with `cotangent_weights` in a loop if you like.
     - `rotations`: optional `(V, 3, 3)` fixed rotations (default: `arap_rotations`).
@@ -181,7 +195,9 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
 
     **Returns:**
 
-    A scalar. Use `jax.vmap` over instances.
+    A scalar per mesh: leading axes of `vertices`, `rest_vertices`, `faces` (and of
+    `weights`, `rotations`) are batch axes that broadcast against each other, so
+    `(B, V, 3)` vertices give `(B,)` energies; `jax.vmap` works too.
 
     **Example:**
 
@@ -199,16 +215,22 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
     rest_vertices = _as_float(rest_vertices).astype(vertices.dtype)
     faces = jnp.asarray(faces)
     _check_mesh(vertices, faces, "arap")
-    if rest_vertices.shape != vertices.shape:
+    if rest_vertices.shape[-2:] != vertices.shape[-2:]:
         raise ValueError(f"arap: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
     if weights is None:
         weights = cotangent_weights(rest_vertices, faces)
     weights = jnp.asarray(weights, vertices.dtype)
-    if weights.shape != faces.shape:
+    if weights.shape[-2:] != faces.shape[-2:]:
         raise ValueError(f"arap: `weights` must have shape {faces.shape} (one per face edge), got {weights.shape}")
     if rotations is None:
         rotations = arap_rotations(vertices, rest_vertices, faces, weights)
     rotations = jax.lax.stop_gradient(jnp.asarray(rotations, vertices.dtype))
+    one = functools.partial(_arap, normalize=normalize)
+    sig = "(v,d),(v,d),(f,k),(f,k),(v,d,d)->()"
+    return _batch(one, sig, vertices, rest_vertices, faces, weights, rotations)
+
+
+def _arap(vertices, rest_vertices, faces, weights, rotations, normalize):
     e_rest = _edges(rest_vertices, faces)  # (F, 3 edges, d)
     e_cur = _edges(vertices, faces)
     R = rotations[faces]  # (F, 3 corners, d, d)

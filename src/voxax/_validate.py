@@ -1,0 +1,295 @@
+"""Input checks shared by every public entry point.
+
+Every function that takes meshes, grids, PRNG keys, dtypes or counts checks them here, so
+that the same mistake gives the same message everywhere: `"<function>: `<argument>` must
+..."`. Checks that need values (NaN, index ranges) run only on concrete arrays; under
+`jax.jit` the C++ kernels (or the pure-JAX code) see the traced values instead.
+
+Nothing here builds JAX arrays: callers convert after checking.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+
+import numpy as np
+
+from ._constants import MAX_ABS_COORDINATE
+
+__all__ = [
+    "INT32_MAX",
+    "is_concrete",
+    "is_mesh_object",
+    "mesh_object_arrays",
+    "unpack_mesh",
+    "mesh_like",
+    "mesh",
+    "grid",
+    "key",
+    "float_dtype",
+    "positive_int",
+    "positive_float",
+    "face_kind",
+]
+
+INT32_MAX = int(np.iinfo(np.int32).max)
+
+
+def is_concrete(x) -> bool:
+    """Whether `x` holds values (not a JAX tracer)."""
+    import jax
+
+    return not isinstance(x, jax.core.Tracer)
+
+
+def is_mesh_object(x) -> bool:
+    """A `voxax.Mesh`, a `trimesh.Trimesh` or anything else with `.vertices` and `.faces`."""
+    return not hasattr(x, "shape") and hasattr(x, "vertices") and hasattr(x, "faces")
+
+
+def mesh_object_arrays(where: str, obj) -> tuple:
+    """`(vertices, faces)` of a mesh object (see `is_mesh_object`)."""
+    if not is_mesh_object(obj):
+        raise TypeError(
+            f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or a (vertices, faces) pair, got {type(obj).__name__}"
+        )
+    vertices, faces = obj.vertices, obj.faces
+    if not hasattr(vertices, "dtype"):
+        vertices = np.asarray(vertices)
+    if not hasattr(faces, "dtype"):
+        faces = np.asarray(faces)
+    if vertices.dtype.kind in "iub":  # trimesh keeps float64; other mesh types may not
+        vertices = np.asarray(vertices, dtype=np.float64)
+    return vertices, faces
+
+
+def unpack_mesh(where: str, vertices, faces, *params):
+    """Resolves the `f(mesh, p1, p2, ...)` overload of `f(vertices, faces, p1, p2, ...)`.
+
+    When `vertices` is a mesh object, the values passed positionally after it sit one
+    slot to the left (the `faces` slot holds `p1`); values given by keyword sit in their
+    own slots. Required parameters default to None, so the positional values are the
+    leading run of non-None slots. Returns `(vertices, faces, (p1, p2, ...))`.
+    """
+    if not is_mesh_object(vertices):
+        if faces is None:
+            raise TypeError(f"{where}: missing `faces` (pass `vertices, faces` or a voxax.Mesh)")
+        return vertices, faces, params
+    v, f = mesh_object_arrays(where, vertices)
+    slots = (faces,) + params
+    n = 0
+    while n < len(slots) and slots[n] is not None:
+        n += 1
+    if n > len(params):
+        raise TypeError(f"{where}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
+    shifted = tuple(slots[j] if j < n else params[j] for j in range(len(params)))
+    return v, f, shifted
+
+
+def _is_plain(x) -> bool:
+    """True for inputs converted to NumPy (NumPy arrays, lists, tuples, scalars)."""
+    return isinstance(x, (np.ndarray, list, tuple, np.generic, int, float))
+
+
+def mesh_like(where: str, value) -> tuple:
+    """`(vertices, faces)` from a `voxax.Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair.
+
+    Mesh objects give float64 vertices and int32 faces. In a pair, NumPy arrays and nested
+    lists are converted (integer vertices to float64, faces to int32; floating vertices
+    keep their dtype) and other array types (JAX arrays, tracers) are returned unchanged;
+    leading batch axes are allowed. Shapes and concrete face indices are checked.
+    """
+    if is_mesh_object(value):
+        vertices, faces = mesh_object_arrays(where, value)
+        vertices, faces = mesh(where, vertices, faces, allow_empty=True, finite=False)
+        return np.asarray(vertices, dtype=np.float64), np.ascontiguousarray(np.asarray(faces, dtype=np.int32))
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        vertices, faces = value
+        if _is_plain(vertices):
+            vertices = np.asarray(vertices)
+            if vertices.dtype.kind in "iub":
+                vertices = vertices.astype(np.float64)
+            vertices = np.ascontiguousarray(vertices)
+        if _is_plain(faces):
+            faces = np.asarray(faces)
+            if faces.size == 0:
+                d = np.shape(vertices)[-1] if np.ndim(vertices) >= 1 else 3
+                faces = faces.astype(np.int32).reshape(0, d)
+        vertices, faces = mesh(where, vertices, faces, batch=True, allow_empty=True, finite=False)
+        if isinstance(faces, np.ndarray):
+            faces = np.ascontiguousarray(faces.astype(np.int32))
+        return vertices, faces
+    raise TypeError(
+        f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or a (vertices, faces) pair, got {type(value).__name__}"
+    )
+
+
+def face_kind(d: int) -> str:
+    return "triangles (F, 3)" if d == 3 else "segments (F, 2)"
+
+
+def mesh(
+    where: str,
+    vertices,
+    faces,
+    *,
+    dim: int | None = None,
+    batch: bool = False,
+    integer_vertices: bool = False,
+    allow_empty: bool = False,
+    finite: bool = True,
+    faces_dim: int | None = None,
+    context: str | None = None,
+):
+    """Checks a `(vertices, faces)` pair; returns them (array-likes made NumPy arrays).
+
+    **Arguments:**
+
+    - `where`: the public function's name, which starts every message.
+    - `vertices`: `(V, d)` (or `(..., V, d)` with `batch`) float array.
+    - `faces`: `(F, d)` (or `(..., F, d)` with `batch`) int array.
+    - `dim`: the required `d` (the grid's), or None for 2 or 3.
+    - `batch`: whether leading batch axes are allowed (they must broadcast).
+    - `integer_vertices`: accept integer vertices (converted to float64).
+    - `allow_empty`: accept meshes without vertices or faces.
+    - `finite`: check that concrete vertices are finite and within
+      `MAX_ABS_COORDINATE` (face index ranges are always checked on concrete faces).
+    - `faces_dim`: the required number of corners per face when it is not `d` (ARAP
+      takes triangles of 2D vertices).
+    - `context`: why `dim` is required, for the message (default: "for a {dim}D grid").
+    """
+    if is_mesh_object(vertices) or is_mesh_object(faces):
+        raise TypeError(f"{where}: pass a mesh object in place of both `vertices` and `faces`, not as one of them")
+    if not hasattr(vertices, "dtype"):
+        vertices = np.asarray(vertices)
+    if not hasattr(faces, "dtype"):
+        faces = np.asarray(faces)
+        if faces.size == 0 and faces.ndim <= 1:
+            d0 = vertices.shape[-1] if vertices.ndim >= 1 else 3
+            faces = np.zeros((0, d0), np.int32)
+    vdtype = np.dtype(vertices.dtype)
+    if vdtype.kind in "iub" and integer_vertices:
+        vertices = np.asarray(vertices, dtype=np.float64)
+        vdtype = np.dtype(np.float64)
+    if vdtype not in (np.float32, np.float64):
+        got = "integers" if vdtype.kind in "iub" else str(vdtype)
+        raise TypeError(f"{where}: `vertices` must be float32 or float64, got {got}")
+    fdtype = np.dtype(faces.dtype)
+    if fdtype.kind not in "iu":
+        raise TypeError(f"{where}: `faces` must be an integer array, got {fdtype}")
+    dims = (2, 3) if dim is None else (dim,)
+    lead = "(..., V, {})" if batch else "(V, {})"
+    if vertices.ndim < 2 or vertices.shape[-1] not in dims or (not batch and vertices.ndim != 2):
+        want = " or ".join(lead.format(d) for d in dims)
+        grid_note = "" if dim is None else f" ({context})" if context else f" for a {dim}D grid"
+        batch_note = "" if batch else " (use jax.vmap for batches)" if vertices.ndim > 2 else ""
+        raise ValueError(f"{where}: `vertices` must have shape {want}{grid_note}{batch_note}, got {tuple(vertices.shape)}")
+    d = vertices.shape[-1]
+    k = d if faces_dim is None else faces_dim
+    if faces.ndim < 2 or faces.shape[-1] != k or (not batch and faces.ndim != 2):
+        kind = face_kind(k) if faces_dim is None else f"triangles (F, {k})"
+        raise ValueError(
+            f"{where}: `faces` of shape {tuple(faces.shape)} do not match the vertices: "
+            f"{d}D vertices need {kind}"
+        )
+    nv, nf = vertices.shape[-2], faces.shape[-2]
+    if not allow_empty and (nv == 0 or nf == 0):
+        raise ValueError(f"{where}: empty mesh ({nv} vertices, {nf} faces)")
+    if nv > INT32_MAX or nf > INT32_MAX:
+        raise ValueError(f"{where}: at most 2^31 - 1 vertices and faces are supported")
+    if batch:
+        try:
+            np.broadcast_shapes(tuple(vertices.shape[:-2]), tuple(faces.shape[:-2]))
+        except ValueError:
+            raise ValueError(
+                f"{where}: batch axes of `vertices` {tuple(vertices.shape)} and `faces` "
+                f"{tuple(faces.shape)} do not broadcast"
+            ) from None
+    if finite and is_concrete(vertices) and vertices.size:
+        v = np.asarray(vertices)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{where}: `vertices` contain NaN or Inf")
+        if float(np.max(np.abs(v))) > MAX_ABS_COORDINATE:
+            raise ValueError(f"{where}: vertex coordinates must have magnitude <= {MAX_ABS_COORDINATE:g}".replace("e+", "e"))
+    if is_concrete(faces) and faces.size:
+        f = np.asarray(faces)
+        lo, hi = int(f.min()), int(f.max())
+        if lo < 0 or hi >= nv:
+            raise ValueError(f"{where}: face indices out of range: they must lie in [0, {nv}), got [{lo}, {hi}]")
+    return vertices, faces
+
+
+def grid(where: str, value, dim: int | None = None):
+    """Checks that `value` is a `voxax.Grid` (of dimension `dim` when given)."""
+    from ._grid import Grid
+
+    if value is None:
+        raise TypeError(f"{where}: missing `grid` (a voxax.Grid)")
+    if not isinstance(value, Grid):
+        raise TypeError(f"{where}: `grid` must be a voxax.Grid, got {type(value).__name__}")
+    if dim is not None and value.dim != dim:
+        raise ValueError(f"{where}: `grid` must be {dim}D, got a {value.dim}D grid")
+    return value
+
+
+def key(where: str, value):
+    """Checks a JAX PRNG key (new-style `jax.random.key` or legacy `PRNGKey`); returns it as an array."""
+    import jax
+    import jax.numpy as jnp
+
+    if value is None or isinstance(value, (bool, int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: `key` must be a JAX PRNG key, e.g. jax.random.key(0), not {type(value).__name__}")
+    value = value if isinstance(value, jax.Array) else jnp.asarray(value)
+    typed = jnp.issubdtype(value.dtype, jax.dtypes.prng_key)
+    if not typed and not (value.dtype == jnp.uint32 and value.shape == (2,)):
+        raise TypeError(
+            f"{where}: `key` must be a JAX PRNG key (jax.random.key or PRNGKey), got {value.dtype}{tuple(value.shape)}"
+        )
+    return value
+
+
+def float_dtype(where: str, dtype=None) -> np.dtype:
+    """The working float dtype: `dtype` (float32 or float64), or float64 when x64 is on, else float32."""
+    import jax
+
+    if dtype is None:
+        return np.dtype(np.float64) if jax.config.jax_enable_x64 else np.dtype(np.float32)
+    try:
+        dtype = np.dtype(dtype)
+    except TypeError:
+        raise TypeError(f"{where}: `dtype` must be float32 or float64, got {dtype!r}") from None
+    if dtype not in (np.float32, np.float64):
+        raise TypeError(f"{where}: `dtype` must be float32 or float64, got {dtype}")
+    if dtype == np.float64 and not jax.config.jax_enable_x64:
+        raise ValueError(
+            f"{where}: dtype=float64 needs 64-bit JAX: call jax.config.update('jax_enable_x64', True) first"
+        )
+    return dtype
+
+
+def positive_int(where: str, name: str, value, minimum: int = 1, multiple: int = 1) -> int:
+    """Checks an integer argument `>= minimum` (and a multiple of `multiple`); returns it as int."""
+    if isinstance(value, bool):
+        raise TypeError(f"{where}: `{name}` must be an int, got bool")
+    try:
+        out = operator.index(value)
+    except TypeError:
+        raise TypeError(f"{where}: `{name}` must be an int, got {type(value).__name__}") from None
+    if out < minimum:
+        raise ValueError(f"{where}: `{name}` must be at least {minimum}, got {out}")
+    if out % multiple:
+        raise ValueError(f"{where}: `{name}` must be a multiple of {multiple}, got {out}")
+    return int(out)
+
+
+def positive_float(where: str, name: str, value, allow_zero: bool = False) -> float:
+    """Checks a finite number `> 0` (or `>= 0`); returns it as float."""
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{where}: `{name}` must be a number, got {type(value).__name__}") from None
+    ok = out >= 0 if allow_zero else out > 0
+    if not (ok and math.isfinite(out)):
+        raise ValueError(f"{where}: `{name}` must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
+    return out
