@@ -14,7 +14,7 @@ import numpy as np
 from . import _ffi
 from ._grid import Grid
 
-__all__ = ["IsoMesh", "isosurface", "isosurface_topology", "isosurface_vertices"]
+__all__ = ["IsoMesh", "isosurface", "isosurface_fn", "isosurface_topology", "isosurface_vertices"]
 
 _INT32_MAX = np.iinfo(np.int32).max
 
@@ -406,3 +406,281 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
         faces = faces[..., ::-1] if d == 2 else faces[..., jnp.array([0, 2, 1])]
     vertices, min_gap = _interpolate(values, edges, nv, grid, level)
     return IsoMesh(vertices, faces, edges, nv, nf, min_gap)
+
+
+# -- fields given as functions (MeshSDF) -----------------------------------------------------
+
+_RULES = ("meshsdf", "theorem1", "level_set", "interpolation")
+
+
+def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
+    """`fn(params, points)` in chunks, as a float64 NumPy array (no gradient)."""
+    out = np.empty(points.shape[0], np.float64)
+    for s in range(0, points.shape[0], chunk):
+        out[s : s + chunk] = np.asarray(fn(params, jnp.asarray(points[s : s + chunk])), np.float64).reshape(-1)
+    return out
+
+
+def _active_corners(values: np.ndarray, level: float) -> np.ndarray:
+    """Cells that are corners of at least one cube (square) whose corners differ in sign."""
+    pos = values >= level
+    d = values.ndim
+    lo = np.ones(tuple(n - 1 for n in values.shape), bool)
+    hi = np.zeros_like(lo)
+    for corner in np.ndindex(*(2,) * d):
+        sl = tuple(slice(c, c + n - 1) for c, n in zip(corner, values.shape))
+        lo &= pos[sl]
+        hi |= pos[sl]
+    active = hi & ~lo
+    out = np.zeros(values.shape, bool)
+    for corner in np.ndindex(*(2,) * d):
+        sl = tuple(slice(c, c + n - 1) for c, n in zip(corner, values.shape))
+        out[sl] |= active
+    return out
+
+
+def _with_pad(values: np.ndarray, pad) -> np.ndarray:
+    return values if pad is None else np.pad(values, 1, constant_values=pad)
+
+
+def _strip_pad(mask: np.ndarray, pad) -> np.ndarray:
+    return mask if pad is None else mask[(slice(1, -1),) * mask.ndim]
+
+
+def _dilate(mask: np.ndarray, width: int) -> np.ndarray:
+    from scipy.ndimage import maximum_filter
+
+    return maximum_filter(mask, size=2 * width + 1, mode="constant", cval=False)
+
+
+def _lipschitz_samples(fn, params, grid: Grid, level: float, lipschitz: float, pad, chunk: int):
+    """Coarse-to-fine samples: exact where marching cubes reads them, sign-exact elsewhere."""
+    n = np.array(grid.shape)
+    h = np.array(grid.spacing)
+    lower = np.array(grid.lower)
+    d = grid.dim
+    values = np.zeros(grid.shape, np.float64)
+    exact = np.zeros(grid.shape, bool)
+    evaluated = 0
+    size = 1
+    while size < min(16, int(n.max())):
+        size *= 2
+    axes = [np.arange(0, m, size) for m in n]
+    origins = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, d)
+    while len(origins):
+        count = np.minimum(size, n - origins)
+        centre = lower + (origins + (count - 1) / 2.0 + 0.5) * h
+        radius = 0.5 * np.sqrt((((count - 1) * h) ** 2).sum(-1))
+        g = _evaluate_np(fn, params, centre, chunk) - level
+        evaluated += len(origins)
+        if size == 1:
+            idx = tuple(origins.T)
+            values[idx] = g + level
+            exact[idx] = True
+            break
+        decided = np.abs(g) > lipschitz * radius
+        for o, c, gv, r in zip(origins[decided], count[decided], g[decided], radius[decided]):
+            sl = tuple(slice(a, a + b) for a, b in zip(o, c))
+            values[sl] = level + np.sign(gv) * (abs(gv) - lipschitz * r)
+        size //= 2
+        rest = origins[~decided]
+        children = [rest + np.array(off) * size for off in np.ndindex(*(2,) * d)]
+        origins = np.concatenate(children)
+        origins = origins[np.all(origins < n, axis=1)]
+    need = _strip_pad(_active_corners(_with_pad(values, pad), level), pad) & ~exact
+    if need.any():
+        pts = grid.centers()[need]
+        values[need] = _evaluate_np(fn, params, pts, chunk)
+        evaluated += len(pts)
+    return values, evaluated
+
+
+def _band_samples(fn, params, grid: Grid, level: float, previous: np.ndarray, pad, chunk: int):
+    """Re-evaluates the field near the previous surface, widening the band until it holds it."""
+    previous = np.asarray(previous, np.float64)
+    if previous.shape != grid.shape:
+        raise ValueError(f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}")
+    core = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
+    centers = grid.centers()
+    values = previous.copy()
+    done = np.zeros(grid.shape, bool)
+    evaluated = 0
+    width = 2
+    while True:
+        mask = _dilate(core, width) if core.any() else np.ones(grid.shape, bool)
+        todo = mask & ~done
+        if todo.any():
+            values[todo] = _evaluate_np(fn, params, centers[todo], chunk)
+            evaluated += int(todo.sum())
+            done |= todo
+        if mask.all():
+            return values, evaluated
+        corners = _strip_pad(_active_corners(_with_pad(values, pad), level), pad)
+        rim = mask & _dilate(~mask, 1)
+        moved = (values[rim] >= level) != (previous[rim] >= level)
+        if not (corners & ~mask).any() and not moved.any():
+            return values, evaluated
+        width *= 2
+
+
+def _field_gradient(fn, params, points):
+    return jax.grad(lambda x: jnp.sum(fn(params, x)))(points)
+
+
+def isosurface_fn(
+    fn,
+    params,
+    grid: Grid,
+    level: float = 0.0,
+    *,
+    rule: str = "meshsdf",
+    inside: str = "below",
+    close=False,
+    capacity=None,
+    band=None,
+    lipschitz=None,
+    chunk: int = 1 << 16,
+) -> IsoMesh:
+    """Iso-surface of a field given as a function, differentiable in its parameters (MeshSDF).
+
+    The field `fn(params, x)` is sampled at the cell centres of `grid`, marching cubes gives
+    the mesh, and the vertices `v0` (interpolated along the grid edges) are made
+    differentiable in `params` by one of these rules, each a first-order model of how a surface
+    point moves when the field changes by `δf` (`g = ∇f(v0)`, `n = g/|g|`):
+
+    | `rule=` | `∂v` per unit `δf` | right when |
+    |---|---|---|
+    | `"meshsdf"` | `-n` | `f` is a signed distance (`|∇f| = 1`); the MeshSDF authors' implementation of Eq. 4 |
+    | `"theorem1"` | `-∇f` | as written in Theorem 1 / Eq. 4; equal to `meshsdf` for true SDFs, scaled by `|∇f|` otherwise |
+    | `"level_set"` | `-∇f/|∇f|²` | any field: the exact first-order motion of the level set along its normal |
+    | `"interpolation"` | through the samples | the exact derivative of the discrete marching-cubes output |
+
+    For a field that is not a distance (a scaled SDF `3(|x| - r)`, occupancies, networks that
+    drift from `|∇f| = 1`), `meshsdf` is off by the factor `|∇f|` and `theorem1` by `|∇f|²`;
+    `level_set` stays exact to first order. The first three are built with the
+    straight-through construction `v = sg(v0) - sg(d)·(f(v0; θ) - sg(f(v0; θ)))` (`sg` =
+    `stop_gradient`, `d` the rule's direction): forward values are exactly `v0`, and it
+    composes with `jit`, `grad` and `vmap` (over `params`, with `capacity`).
+
+    Fast paths for expensive fields (eager calls only; the mesh is identical to dense
+    evaluation when their assumptions hold):
+
+    - `band=previous.samples`: re-evaluate only cells within a band (2 cells, widened until it
+      holds the new surface) around the previous surface; other cells keep their previous
+      values. A component appearing far from the previous surface is not seen: refresh with a
+      dense call (or `lipschitz`) from time to time.
+    - `lipschitz=L`: coarse-to-fine evaluation that skips blocks whose centre value exceeds
+      `L` times the block's radius (their sign is certain), then evaluates exactly every cell
+      marching cubes reads. Exact whenever `L` bounds `|∇f|` (`L = 1` for SDFs).
+
+    **Arguments:**
+
+    - `fn`: `fn(params, x) -> f`, with `x` `(N, d)` float points and `f` `(N,)` values.
+    - `params`: any pytree of parameters (latent codes, network weights).
+    - `grid`, `level`, `inside`, `capacity`: as in [`isosurface`][voxax.isosurface].
+    - `close`: `False`, `True` (pads with `level ± max(spacing)`, a distance of one cell) or
+      a pad value.
+    - `rule`: one of `"meshsdf"`, `"theorem1"`, `"level_set"`, `"interpolation"`.
+    - `band`: `None` or the `samples` of a previous result on the same grid.
+    - `lipschitz`: `None` or a Lipschitz bound of `fn` in `x`.
+    - `chunk`: points per evaluation of `fn` on the eager paths.
+
+    **Returns:**
+
+    An [`IsoMesh`][voxax.IsoMesh] whose `vertices` carry the rule's gradient, with `samples`
+    (the grid of values used) and `n_evaluated` (eager calls).
+
+    **Example:**
+
+    ```python
+    >>> import jax, jax.numpy as jnp, voxax
+    >>> sphere = lambda r, x: jnp.linalg.norm(x, axis=-1) - r
+    >>> grid = voxax.Grid.cube(32)
+    >>> loss = lambda r: jnp.mean(jnp.sum(voxax.isosurface_fn(sphere, r, grid).vertices ** 2, -1))
+    >>> bool(abs(jax.grad(loss)(0.6) - 1.2) < 0.01)
+    True
+    ```
+    """
+    name = "isosurface_fn"
+    if not callable(fn):
+        raise TypeError(f"{name}: `fn` must be callable as fn(params, x), got {type(fn).__name__}")
+    if rule not in _RULES:
+        raise ValueError(f"{name}: `rule` must be one of {_RULES}, got {rule!r}")
+    level = _check_level(level, name)
+    inside = _check_inside(inside, name)
+    if not isinstance(grid, Grid):
+        raise TypeError(f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+    if lipschitz is not None and not (np.isfinite(lipschitz) and lipschitz > 0):
+        raise ValueError(f"{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}")
+    outward = 1.0 if inside == "below" else -1.0
+    pad = None
+    if close is True:
+        pad = level + outward * max(grid.spacing)
+    elif close is not False:
+        pad = float(close)
+    p0 = jax.lax.stop_gradient(params)
+    evaluated = None
+    fast = band is not None or lipschitz is not None
+    if fast:
+        if capacity is not None or _concrete_tree(p0) is None:
+            raise TypeError(f"{name}: `band` and `lipschitz` work on eager calls only (no jit, no capacity)")
+        p0 = _concrete_tree(p0)
+        if band is not None:
+            samples, evaluated = _band_samples(fn, p0, grid, level, band, pad, chunk)
+        else:
+            samples, evaluated = _lipschitz_samples(fn, p0, grid, level, float(lipschitz), pad, chunk)
+        samples = jnp.asarray(samples, _float())
+    else:
+        pts = grid.centers().reshape(-1, grid.dim)
+        concrete = _concrete_tree(p0)
+        if capacity is None and concrete is not None:
+            samples = jnp.asarray(_evaluate_np(fn, concrete, pts, chunk).reshape(grid.shape), _float())
+            evaluated = grid.size
+        else:
+            samples = jnp.asarray(fn(p0, jnp.asarray(pts, _float()))).astype(_float()).reshape(grid.shape)
+    iso = isosurface(samples, grid, level, inside=inside, close=False if pad is None else pad, capacity=capacity)
+    v0 = jax.lax.stop_gradient(iso.vertices)
+    valid = (jnp.arange(v0.shape[-2]) < iso.n_vertices[..., None])[..., None]
+    if rule == "interpolation":
+        g = _padded(grid) if pad is not None else grid
+        ia, ib = iso.edges[..., 0], iso.edges[..., 1]
+        pa, pb = _cell_points(ia, g), _cell_points(ib, g)
+
+        def at(idx, p):
+            f = jnp.asarray(fn(params, p)).astype(_float())
+            if pad is None:
+                return f
+            coords = jnp.stack(jnp.unravel_index(idx, g.shape), -1)
+            border = jnp.any((coords == 0) | (coords == jnp.asarray(g.shape) - 1), -1)
+            return jnp.where(border, pad, f)
+
+        fa, fb = at(ia, pa), at(ib, pb)
+        safe = jnp.where(valid[..., 0], fb - fa, 1.0)
+        t = jnp.where(valid[..., 0], (level - fa) / safe, 0.0)
+        v = jnp.where(valid, pa + t[..., None] * (pb - pa), 0.0)
+    else:
+        grad = jax.lax.stop_gradient(_field_gradient(fn, p0, v0))
+        norm2 = jnp.sum(grad * grad, -1, keepdims=True)
+        safe2 = jnp.where(norm2 > 0, norm2, 1.0)
+        if rule == "meshsdf":
+            direction = grad / jnp.sqrt(safe2)
+        elif rule == "theorem1":
+            direction = grad
+        else:
+            direction = grad / safe2
+        direction = jnp.where(valid & (norm2 > 0), direction, 0.0)
+        f = jnp.asarray(fn(params, v0)).astype(_float())
+        delta = f - jax.lax.stop_gradient(f)
+        v = v0 - direction * delta[..., None]
+    return dataclasses.replace(iso, vertices=v, samples=samples, n_evaluated=evaluated)
+
+
+def _concrete_tree(tree):
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    out = []
+    for leaf in leaves:
+        c = _concrete(leaf)
+        if c is None:
+            return None
+        out.append(jnp.asarray(c))
+    return jax.tree_util.tree_unflatten(treedef, out)
