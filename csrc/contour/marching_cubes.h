@@ -135,14 +135,63 @@ struct CubeTable {
         seen[e] = true;
         loop[len++] = e;
       }
-      for (int i = 1; i + 1 < len; ++i) {
-        tri[idx][n][0] = uint8_t(loop[0]);
-        tri[idx][n][1] = uint8_t(loop[i]);
-        tri[idx][n][2] = uint8_t(loop[i + 1]);
-        ++n;
-      }
+      int out[kMaxTriangles][3], m = 0;
+      if (!triangulate(loop, len, out, &m)) m = 0;  // cannot happen: checked by the tests
+      for (int t = 0; t < m; ++t, ++n)
+        for (int v = 0; v < 3; ++v) tri[idx][n][v] = uint8_t(out[t][v]);
     }
     count[idx] = uint8_t(n);
+  }
+
+  // The cube faces edge e lies on, as a bit mask.
+  static int faces_of_edge(int e) {
+    const int a = edge_axis(e), base = edge_base(e);
+    int mask = 0;
+    for (int u = 0; u < 3; ++u)
+      if (u != a) mask |= 1 << (2 * u + ((base >> u) & 1));
+    return mask;
+  }
+
+  // Triangulates a loop so that no triangle has all three vertices on one cube
+  // face (such a triangle would lie in the face and could repeat the
+  // neighbouring cube's). Tries each fan apex first, then any triangulation.
+  static bool triangulate(const int* loop, int len, int out[][3], int* m) {
+    for (int apex = 0; apex < len; ++apex) {
+      int rot[12];
+      for (int i = 0; i < len; ++i) rot[i] = loop[(apex + i) % len];
+      bool ok = true;
+      for (int i = 1; i + 1 < len && ok; ++i)
+        ok = !(faces_of_edge(rot[0]) & faces_of_edge(rot[i]) & faces_of_edge(rot[i + 1]));
+      if (!ok) continue;
+      for (int i = 1; i + 1 < len; ++i) {
+        out[*m][0] = rot[0];
+        out[*m][1] = rot[i];
+        out[*m][2] = rot[i + 1];
+        ++*m;
+      }
+      return true;
+    }
+    return split(loop, len, out, m);
+  }
+
+  static bool split(const int* poly, int len, int out[][3], int* m) {
+    if (len < 3) return true;
+    const int start = *m;
+    for (int k = 2; k < len; ++k) {
+      if (faces_of_edge(poly[0]) & faces_of_edge(poly[1]) & faces_of_edge(poly[k])) continue;
+      *m = start;
+      out[*m][0] = poly[0];
+      out[*m][1] = poly[1];
+      out[*m][2] = poly[k];
+      ++*m;
+      int left[12], right[12], nl = 0, nr = 0;
+      for (int i = 1; i <= k; ++i) left[nl++] = poly[i];
+      for (int i = k; i < len; ++i) right[nr++] = poly[i];
+      right[nr++] = poly[0];
+      if (split(left, nl, out, m) && split(right, nr, out, m)) return true;
+    }
+    *m = start;
+    return false;
   }
 };
 

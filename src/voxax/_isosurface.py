@@ -73,8 +73,12 @@ def _threads() -> int:
     return max(1, min(os.cpu_count() or 1, 64))
 
 
-def _host_topology(values: np.ndarray, level: float):
-    """Exact-size topology of one field: `edges (V, 2)`, `faces (F, d)` (int32)."""
+def host_topology(values: np.ndarray, level: float, threads: int | None = None):
+    """Exact-size topology of one field: `edges (V, 2)`, `faces (F, d)` (int32).
+
+    `values` is a NumPy array (float32 or float64) of the grid's shape; `threads` defaults to
+    the number of CPUs (the result does not depend on it). No input checks: see `isosurface`.
+    """
     lib = _ffi.library()
     values = np.ascontiguousarray(values)
     dim = values.ndim
@@ -96,7 +100,7 @@ def _host_topology(values: np.ndarray, level: float):
     lib.voxax_mc_release.restype = None
     lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
     rc = lib.voxax_mc_count(
-        values.ctypes.data, dtype, dim, shape, float(level), _threads(), ctypes.byref(ctx), counts, err, 512
+        values.ctypes.data, dtype, dim, shape, float(level), threads or _threads(), ctypes.byref(ctx), counts, err, 512
     )
     if rc != 0:
         msg = err.value.decode(errors="replace")
@@ -250,7 +254,7 @@ def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
     pa, pb = _cell_points(ia, grid), _cell_points(ib, grid)
     v = pa + t[..., None] * (pb - pa)
     v = jnp.where(valid[..., None], v, 0.0)
-    min_gap = jnp.min(jnp.where(valid, jnp.abs(jax.lax.stop_gradient(gap)), jnp.inf), axis=-1)
+    min_gap = jnp.min(jnp.where(valid, jnp.abs(jax.lax.stop_gradient(gap)), jnp.inf), axis=-1, initial=jnp.inf)
     return v, min_gap
 
 
@@ -376,7 +380,7 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
             raise ValueError(
                 "isosurface: batched values need a static `capacity=` (results of different sizes are padded)"
             )
-        edges, faces = _host_topology(flat[0] if flat.shape[0] else np.zeros(grid.shape), level)
+        edges, faces = host_topology(flat[0] if flat.shape[0] else np.zeros(grid.shape), level)
         if len(faces) == 0:
             warnings.warn(
                 f"isosurface: the field does not cross level {level} (values in "
