@@ -13,6 +13,8 @@ The public API:
   tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
+- `voxax.isosurface(values, grid, level)`: marching cubes (squares in 2D), differentiable in
+  the samples; `voxax.isosurface_fn(fn, params, grid)`: MeshSDF for fields given as functions.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
@@ -25,6 +27,7 @@ from . import apps, fabricate
 from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
+from ._isosurface import IsoMesh, isosurface, isosurface_fn, isosurface_topology, isosurface_vertices
 
 __version__ = "0.1.0"
 
@@ -41,6 +44,11 @@ __all__ = [
     "Box",
     "Gaussian",
     "minimize",
+    "isosurface",
+    "isosurface_fn",
+    "isosurface_topology",
+    "isosurface_vertices",
+    "IsoMesh",
     "MinimizeResult",
     "StopRules",
     "apps",

@@ -9,10 +9,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "MARCHING_CUBES", "library", "library_path", "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
+MARCHING_CUBES = "voxax_marching_cubes"
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -45,12 +46,17 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD):
+    for name in (FORWARD, BACKWARD, MARCHING_CUBES):
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 
 
 _LIB = _register()
+
+
+def library() -> ctypes.CDLL:
+    """The loaded kernel library (for its plain C entry points)."""
+    return _LIB
 
 
 def grid_attributes(grid) -> dict:
