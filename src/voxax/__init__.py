@@ -13,6 +13,9 @@ The public API:
   tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
+- `voxax.BVH`, `voxax.closest_points`, `voxax.first_hits`, `voxax.any_hits`,
+  `voxax.all_hits`: exact closest points and watertight ray hits on triangle meshes.
+- `voxax.fields`: analytic signed distances, implicit surfaces, CSG, SIREN and DeepSDF.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
@@ -25,6 +28,8 @@ from . import apps, fabricate
 from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
+from ._spatial import BVH, AllHits, ClosestPoints, RayHits, all_hits, any_hits, closest_points, first_hits
+from . import fields
 
 __version__ = "0.1.0"
 
@@ -43,6 +48,15 @@ __all__ = [
     "minimize",
     "MinimizeResult",
     "StopRules",
+    "BVH",
+    "ClosestPoints",
+    "RayHits",
+    "AllHits",
+    "closest_points",
+    "first_hits",
+    "any_hits",
+    "all_hits",
+    "fields",
     "apps",
     "fabricate",
     "baselines",

@@ -9,7 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "library", "library_path", "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
@@ -51,6 +51,11 @@ def _register() -> ctypes.CDLL:
 
 
 _LIB = _register()
+
+
+def library() -> ctypes.CDLL:
+    """The loaded kernel library (for the eager host entry points called through ctypes)."""
+    return _LIB
 
 
 def grid_attributes(grid) -> dict:
