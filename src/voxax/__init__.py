@@ -15,6 +15,8 @@ The public API:
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.BVH`, `voxax.closest_points`, `voxax.first_hits`, `voxax.any_hits`,
   `voxax.all_hits`: exact closest points and watertight ray hits on triangle meshes.
+- `voxax.metrics`: surface sampling, Chamfer, Hausdorff, F-score, triangle quality,
+  topology reports and IoU.
 - `voxax.fields`: analytic signed distances, implicit surfaces, CSG, SIREN and DeepSDF.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
@@ -29,7 +31,7 @@ from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangen
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
 from ._spatial import BVH, AllHits, ClosestPoints, RayHits, all_hits, any_hits, closest_points, first_hits
-from . import fields
+from . import fields, metrics
 
 __version__ = "0.1.0"
 
@@ -57,6 +59,7 @@ __all__ = [
     "any_hits",
     "all_hits",
     "fields",
+    "metrics",
     "apps",
     "fabricate",
     "baselines",
