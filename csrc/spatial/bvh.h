@@ -81,6 +81,7 @@ struct Node {
 struct ClosestResult {
   double dist2 = std::numeric_limits<double>::infinity();
   int32_t face = -1;
+  int32_t slot = -1;  // position of the face in tree order (a warm start for a nearby query)
   double bary[3] = {0, 0, 0};
   double point[3] = {0, 0, 0};
 };
@@ -117,24 +118,40 @@ inline double closest_on_segment(const double* p, const double* a, const double*
   return d2;
 }
 
+// Whether a triangle's area is negligible: |n|^2 <= 1e-24 e_max^4 (then it is
+// treated as the union of its edges).
+inline bool triangle_degenerate(const double* a, const double* b, const double* c) {
+  double ab[3], ac[3], bc[3];
+  for (int i = 0; i < 3; ++i) {
+    ab[i] = b[i] - a[i];
+    ac[i] = c[i] - a[i];
+    bc[i] = c[i] - b[i];
+  }
+  const double n[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+                       ab[0] * ac[1] - ab[1] * ac[0]};
+  const double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+  const double lab = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+  const double lac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
+  const double lbc = bc[0] * bc[0] + bc[1] * bc[1] + bc[2] * bc[2];
+  const double emax = std::max(lab, std::max(lac, lbc));
+  return !(n2 > 1e-24 * emax * emax);
+}
+
+inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
+                                  double* bary, double* q, bool degenerate);
 inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
                                   double* bary, double* q) {
+  return closest_on_triangle(p, a, b, c, bary, q, triangle_degenerate(a, b, c));
+}
+inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
+                                  double* bary, double* q, bool degenerate) {
   double ab[3], ac[3], ap[3];
   for (int i = 0; i < 3; ++i) {
     ab[i] = b[i] - a[i];
     ac[i] = c[i] - a[i];
     ap[i] = p[i] - a[i];
   }
-  const double n[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
-                       ab[0] * ac[1] - ab[1] * ac[0]};
-  const double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
-  double bc[3];
-  for (int i = 0; i < 3; ++i) bc[i] = c[i] - b[i];
-  const double lab = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
-  const double lac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
-  const double lbc = bc[0] * bc[0] + bc[1] * bc[1] + bc[2] * bc[2];
-  const double emax = std::max(lab, std::max(lac, lbc));
-  if (!(n2 > 1e-24 * emax * emax)) {
+  if (degenerate) {
     // Degenerate (or nearly): the triangle is (within rounding) the union of its edges.
     double best = std::numeric_limits<double>::infinity(), t, tmp[3];
     const double* ends[3][2] = {{a, b}, {b, c}, {c, a}};
@@ -314,6 +331,8 @@ class Bvh {
     const int32_t n = static_cast<int32_t>(nf);
     tris_.assign(static_cast<size_t>(n) * 9, 0.0);
     ids_.resize(n);
+    degenerate_.assign(n, 0);
+    tri_boxes_.assign(n, Box3());
     nodes_.clear();
     std::vector<Box3> boxes(n);
     std::vector<std::array<double, 3>> cent(n);
@@ -361,29 +380,47 @@ class Bvh {
       for (int k = 0; k < 3; ++k)
         for (int a = 0; a < 3; ++a)
           tris_[9 * static_cast<size_t>(i) + 3 * k + a] = V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
+      tri_boxes_[i] = boxes[f];
     }
   }
 
   int64_t node_count() const { return static_cast<int64_t>(nodes_.size()); }
   int64_t face_count() const { return static_cast<int64_t>(ids_.size()); }
 
-  ClosestResult closest(const double* p) const {
+  // The closest point to p. `hint` (a slot from an earlier result, or -1) seeds the
+  // search with that triangle's distance; the answer does not depend on it: it is
+  // always the smallest (distance, face index).
+  ClosestResult closest(const double* p, int32_t hint = -1) const {
     ClosestResult best;
     if (nodes_.empty()) return best;
     int32_t stack[128];
     int sp = 0;
     stack[sp++] = 0;
     double bary[3], q[3];
+    if (hint >= 0 && hint < static_cast<int32_t>(ids_.size())) {
+      const double* t = &tris_[9 * static_cast<size_t>(hint)];
+      best.dist2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[hint] != 0);
+      best.face = ids_[hint];
+      best.slot = hint;
+      for (int a = 0; a < 3; ++a) {
+        best.bary[a] = bary[a];
+        best.point[a] = q[a];
+      }
+    }
     while (sp > 0) {
       const Node& node = nodes_[stack[--sp]];
       if (node.box.dist2(p) > best.dist2) continue;
       if (node.count > 0) {
         for (int32_t i = node.first; i < node.first + node.count; ++i) {
+          if (tri_boxes_[i].dist2(p) > best.dist2) continue;
           const double* t = &tris_[9 * static_cast<size_t>(i)];
-          const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q);
+          const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[i] != 0);
           if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
             best.dist2 = d2;
             best.face = ids_[i];
+            best.slot = i;
             for (int a = 0; a < 3; ++a) {
               best.bary[a] = bary[a];
               best.point[a] = q[a];
@@ -496,6 +533,8 @@ class Bvh {
   std::vector<Node> nodes_;
   std::vector<double> tris_;
   std::vector<int32_t> ids_;
+  std::vector<uint8_t> degenerate_;
+  std::vector<Box3> tri_boxes_;
 
   ClosestResult brute_closest(const double* p) const {
     ClosestResult best;
@@ -506,6 +545,7 @@ class Bvh {
       if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
         best.dist2 = d2;
         best.face = ids_[i];
+        best.slot = static_cast<int32_t>(i);
         for (int a = 0; a < 3; ++a) {
           best.bary[a] = bary[a];
           best.point[a] = q[a];

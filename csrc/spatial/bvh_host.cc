@@ -11,7 +11,9 @@
 //   voxax_bvh_all_hits(handle, O, D, n, tmin, tmax, threads, counts (n,), &hits, err, errlen)
 //   voxax_hits_copy(hits, t, face, bary, sign); voxax_hits_free(hits)
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <cstdint>
 #include <cstring>
 #include <exception>
@@ -54,6 +56,45 @@ bool check_coords(const double* x, int64_t count, const char* what, std::string*
     }
   }
   return true;
+}
+
+// The query order: queries sorted along a Morton curve over their bounding box
+// (ties by index), so that consecutive queries are close in space. Results are
+// written back by index, and each query's answer does not depend on the order.
+std::vector<int64_t> spatial_order(const double* X, int64_t n) {
+  std::vector<int64_t> order(n);
+  for (int64_t i = 0; i < n; ++i) order[i] = i;
+  if (n < 2) return order;
+  double lo[3] = {X[0], X[1], X[2]}, hi[3] = {X[0], X[1], X[2]};
+  for (int64_t i = 1; i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], X[3 * i + a]);
+      hi[a] = std::max(hi[a], X[3 * i + a]);
+    }
+  auto spread = [](uint64_t x) {  // 21 bits -> every third bit
+    x &= 0x1fffff;
+    x = (x | x << 32) & 0x1f00000000ffffULL;
+    x = (x | x << 16) & 0x1f0000ff0000ffULL;
+    x = (x | x << 8) & 0x100f00f00f00f00fULL;
+    x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+    x = (x | x << 2) & 0x1249249249249249ULL;
+    return x;
+  };
+  std::vector<uint64_t> key(n);
+  for (int64_t i = 0; i < n; ++i) {
+    uint64_t k = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double ext = hi[a] - lo[a];
+      double u = ext > 0.0 ? (X[3 * i + a] - lo[a]) / ext : 0.0;
+      u = std::min(1.0, std::max(0.0, u));
+      k |= spread(static_cast<uint64_t>(u * 2097151.0)) << a;
+    }
+    key[i] = k;
+  }
+  std::sort(order.begin(), order.end(), [&](int64_t x, int64_t y) {
+    return key[x] < key[y] || (key[x] == key[y] && x < y);
+  });
+  return order;
 }
 
 struct Hits {
@@ -139,9 +180,13 @@ VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int
       return false;
     }
     if (!check_coords(P, 3 * n, "points", msg)) return false;
+    const std::vector<int64_t> order = spatial_order(P, n);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i) {
-        const auto r = bvh->closest(P + 3 * i);
+      int32_t hint = -1;
+      for (int64_t j = b; j < e; ++j) {
+        const int64_t i = order[j];
+        const auto r = bvh->closest(P + 3 * i, hint);
+        hint = r.slot;
         dist[i] = std::sqrt(r.dist2);
         face[i] = r.face;
         for (int a = 0; a < 3; ++a) {
@@ -164,8 +209,10 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
       return false;
     }
     if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
+    const std::vector<int64_t> order = spatial_order(O, n);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i) {
+      for (int64_t j = b; j < e; ++j) {
+        const int64_t i = order[j];
         const auto ray = voxax::spatial::make_ray(O + 3 * i, D + 3 * i, tmin, tmax);
         RayHit h;
         if (bvh->first_hit(ray, any != 0, &h)) {
