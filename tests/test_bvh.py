@@ -241,3 +241,32 @@ def test_bad_input():
         voxax.BVH(data.polygon_square())
     with pytest.raises(ValueError, match="threads"):
         bvh.closest_points(np.zeros((1, 3)), threads=0)
+
+
+def test_jit_path_matches_the_host_path():
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(6)
+    V, F = random_soup(rng, nf=200)
+    P = rng.uniform(-1, 1, (500, 3))
+    o, d = rng.uniform(-1, 1, (500, 3)), rng.normal(size=(500, 3))
+    host = voxax.closest_points((V, F), P)
+    jit = jax.jit(lambda v, p: voxax.closest_points((v, jnp.asarray(F)), p))(jnp.asarray(V), jnp.asarray(P))
+    for x, y in zip(host, jit):
+        np.testing.assert_array_equal(np.asarray(y), x)
+    host = voxax.first_hits((V, F), o, d, t_max=2.0)
+    jit = jax.jit(lambda v, a, b: voxax.first_hits((v, F), a, b, t_max=2.0))(V, o, d)
+    for x, y in zip(host, jit):
+        np.testing.assert_array_equal(np.asarray(y), x)
+    # vmap over meshes (a batch of scaled copies)
+    vs = jnp.stack([jnp.asarray(V), 2 * jnp.asarray(V)])
+    dist = jax.vmap(lambda v: voxax.closest_points((v, F), P[:20]).distance)(vs)
+    np.testing.assert_array_equal(dist[1], voxax.closest_points((2 * V, F), P[:20]).distance)
+    # errors under jit carry the same messages
+    with pytest.raises(Exception, match="NaN or Inf"):
+        jax.jit(lambda p: voxax.closest_points((V, F), p))(jnp.full((2, 3), jnp.nan))
+    with pytest.raises(Exception, match="out of range"):
+        jax.jit(lambda f: voxax.closest_points((V, f), jnp.zeros((1, 3))))(jnp.asarray(F).at[0, 0].set(10**6))
+    with pytest.raises(Exception, match="direction 1 is zero"):
+        jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(jnp.array([[1.0, 0, 0], [0, 0, 0]]))

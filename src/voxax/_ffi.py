@@ -9,10 +9,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "CLOSEST_POINTS", "FIRST_HITS", "library", "library_path", "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
+CLOSEST_POINTS = "voxax_closest_points"
+FIRST_HITS = "voxax_first_hits"
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -45,7 +47,7 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD):
+    for name in (FORWARD, BACKWARD, CLOSEST_POINTS, FIRST_HITS):
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 

@@ -7,6 +7,11 @@ that do not depend on the number of threads. The module functions
 [`any_hits`][voxax.any_hits] and [`all_hits`][voxax.all_hits] take a `Mesh`, a
 `(vertices, faces)` pair or a `BVH`.
 
+Under `jax.jit` (when the points, rays or vertices are traced), `closest_points` and
+`first_hits` run as XLA FFI kernels with static output shapes instead (the BVH is rebuilt
+inside every call; float64, so `jax_enable_x64` must be on); their results are then JAX
+arrays. Neither path is differentiable.
+
 Exactness: closest points use the exact point-triangle distance (region classification;
 degenerate triangles handled as their edges); ray hits use the watertight ray-triangle test
 of Woop, Benthin and Wald (2013), with a tie rule that counts a ray through an edge or a
@@ -20,6 +25,7 @@ import os
 import weakref
 from typing import NamedTuple
 
+import jax
 import numpy as np
 
 from . import _ffi
@@ -349,6 +355,89 @@ def _as_bvh(mesh) -> BVH:
     return BVH(mesh)
 
 
+def _traced(*xs) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
+
+
+def _mesh_arrays(mesh):
+    """(vertices (V, 3) f64, faces (F, 3) int32) as JAX arrays, for the FFI path."""
+    import jax.numpy as jnp
+
+    if isinstance(mesh, BVH):
+        mesh = mesh.mesh
+    if isinstance(mesh, Mesh):
+        v, f = mesh.vertices, mesh.faces
+    elif isinstance(mesh, tuple) and len(mesh) == 2:
+        v, f = mesh
+    else:
+        raise TypeError("mesh must be a Mesh, a (vertices, faces) pair or a BVH")
+    if not jax.config.jax_enable_x64:
+        raise ValueError("the jit path of the BVH queries computes in float64: enable jax_enable_x64")
+    v, f = jnp.asarray(v), jnp.asarray(f)
+    if v.ndim != 2 or v.shape[-1] != 3:
+        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[-1] != 3:
+        raise ValueError(f"faces must have shape (F, 3), got {f.shape}")
+    if not jnp.issubdtype(f.dtype, jnp.integer):
+        raise TypeError(f"faces must be an integer array, got dtype {f.dtype}")
+    return v.astype(jnp.float64), f.astype(jnp.int32)
+
+
+def _rows(x, name):
+    import jax.numpy as jnp
+
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(x.dtype, jnp.integer):
+        raise TypeError(f"{name} must be a real array, got dtype {x.dtype}")
+    if x.ndim < 1 or x.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3), got {x.shape}")
+    return x.astype(jnp.float64)
+
+
+def _closest_points_ffi(mesh, points) -> ClosestPoints:
+    v, f = _mesh_arrays(mesh)
+    p = _rows(points, "points")
+    lead = p.shape[:-1]
+    flat = p.reshape(-1, 3)
+    n = flat.shape[0]
+    out = (
+        jax.ShapeDtypeStruct((n,), np.float64),
+        jax.ShapeDtypeStruct((n,), np.int32),
+        jax.ShapeDtypeStruct((n, 3), np.float64),
+        jax.ShapeDtypeStruct((n, 3), np.float64),
+    )
+    d, fc, b, q = jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, out, vmap_method="sequential")(v, f, flat)
+    return ClosestPoints(d.reshape(lead), fc.reshape(lead), b.reshape(lead + (3,)), q.reshape(lead + (3,)))
+
+
+def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
+    import jax.numpy as jnp
+
+    v, f = _mesh_arrays(mesh)
+    o, d = _rows(origins, "ray origins"), _rows(directions, "ray directions")
+    try:
+        lead = jnp.broadcast_shapes(o.shape[:-1], d.shape[:-1])
+    except ValueError:
+        raise ValueError(
+            f"ray origins {o.shape} and directions {d.shape} must broadcast to one shape (..., 3)"
+        ) from None
+    o = jnp.broadcast_to(o, lead + (3,)).reshape(-1, 3)
+    d = jnp.broadcast_to(d, lead + (3,)).reshape(-1, 3)
+    t_min, t_max = float(t_min), float(t_max)
+    if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
+        raise ValueError(f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]")
+    n = o.shape[0]
+    out = (
+        jax.ShapeDtypeStruct((n,), np.float64),
+        jax.ShapeDtypeStruct((n,), np.int32),
+        jax.ShapeDtypeStruct((n, 3), np.float64),
+        jax.ShapeDtypeStruct((n,), np.int32),
+    )
+    call = jax.ffi.ffi_call(_ffi.FIRST_HITS, out, vmap_method="sequential")
+    t, fc, b, sg = call(v, f, o, d, t_min=np.float64(t_min), t_max=np.float64(t_max))
+    return RayHits(t.reshape(lead), fc.reshape(lead), b.reshape(lead + (3,)), sg.reshape(lead), (fc >= 0).reshape(lead))
+
+
 def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints:
     """The closest point on a triangle mesh to every query point (exact distances).
 
@@ -361,10 +450,15 @@ def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints
 
     **Returns:** [`ClosestPoints`][voxax.ClosestPoints] `(distance, face, barycentric, point)`.
 
+    Under `jax.jit` (traced points or vertices) this runs as an FFI kernel and returns JAX
+    arrays (`threads` is then XLA's pool).
+
     >>> from voxax import data
     >>> closest_points(data.cube(2.0), [[0.0, 0.0, 0.5]]).distance.tolist()
     [0.5]
     """
+    if _traced(mesh if isinstance(mesh, tuple) else (), points):
+        return _closest_points_ffi(mesh, points)
     return _as_bvh(mesh).closest_points(points, threads=threads)
 
 
@@ -372,10 +466,15 @@ def first_hits(mesh, origins, directions, *, t_min: float = 0.0, t_max: float = 
                threads: int | None = None) -> RayHits:
     """The nearest hit of every ray on a triangle mesh; see [`BVH.first_hits`][voxax.BVH.first_hits].
 
+    Under `jax.jit` (traced rays or vertices) this runs as an FFI kernel and returns JAX
+    arrays (`sign` as int32).
+
     >>> from voxax import data
     >>> first_hits(data.cube(2.0), [[0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]).t.tolist()
     [1.0]
     """
+    if _traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
+        return _first_hits_ffi(mesh, origins, directions, t_min, t_max)
     return _as_bvh(mesh).first_hits(origins, directions, t_min=t_min, t_max=t_max, threads=threads)
 
 
