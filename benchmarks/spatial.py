@@ -62,7 +62,12 @@ def run(n_faces: int, n_queries: int, threads: int, repeats: int, rng) -> dict:
     vol = rng.uniform(-1, 1, (n_queries, 3))
     s = voxax.metrics.sample_surface(mesh, n_queries, seed=1)
     near = s.points + rng.uniform(-0.01, 0.01, (n_queries, 1)) * s.normals
-    res = {"faces": mesh.n_faces, "nodes": bvh.n_nodes, "build_s": build, "queries": n_queries}
+    res = {
+        "faces": mesh.n_faces,
+        "nodes": bvh.n_nodes,
+        "build_s": build,
+        "queries": n_queries,
+    }
     hit_rate = float(np.mean(bvh.first_hits(o, d, threads=threads).hit))
     res["hit_rate"] = hit_rate
     sets = {
@@ -75,29 +80,43 @@ def run(n_faces: int, n_queries: int, threads: int, repeats: int, rng) -> dict:
         wall, cpu = best_time(fn, repeats)
         res[f"{name}_wall"] = n_queries / wall
         res[f"{name}_cpu"] = threads * n_queries / cpu
-    for name, fn in (("first_hits", lambda: bvh.first_hits(o, d, threads=1)),
-                     ("closest_near", lambda: bvh.closest_points(near, threads=1))):
+    for name, fn in (
+        ("first_hits", lambda: bvh.first_hits(o, d, threads=1)),
+        ("closest_near", lambda: bvh.closest_points(near, threads=1)),
+    ):
         res[f"{name}_1thread_cpu"] = n_queries / best_time(fn, 1)[1]
     return res
 
 
 def table(results: list[dict], threads: int) -> str:
-    m = lambda x: f"{x / 1e6:.2f} M"  # noqa: E731
+    m = lambda x: f"{x / 1e6:.2f} M"
     lines = [
-        "| mesh faces | BVH nodes | build (s) | query set | per s, CPU-time estimate "
-        f"({threads} cores) | per s, 1 thread (CPU time) | per s, wall clock |",
+        (
+            "| mesh faces | BVH nodes | build (s) | query set | per s, CPU-time estimate "
+            f"({threads} cores) | per s, 1 thread (CPU time) | per s, wall clock |"
+        ),
         "|---|---|---|---|---|---|---|",
     ]
-    names = {"first_hits": "first hits", "any_hits": "any hits", "closest_near": "closest points, near surface",
-             "closest_volume": "closest points, volume"}
+    names = {
+        "first_hits": "first hits",
+        "any_hits": "any hits",
+        "closest_near": "closest points, near surface",
+        "closest_volume": "closest points, volume",
+    }
     for r in results:
         for key, label in names.items():
             one = m(r[f"{key}_1thread_cpu"]) if f"{key}_1thread_cpu" in r else ""
-            lines.append(f"| {r['faces']:,} | {r['nodes']:,} | {r['build_s']:.2f} | {label} | {m(r[f'{key}_cpu'])} "
-                         f"| {one} | {m(r[f'{key}_wall'])} |")
+            lines.append(
+                f"| {r['faces']:,} | {r['nodes']:,} | {r['build_s']:.2f} | {label} | {m(r[f'{key}_cpu'])} "
+                f"| {one} | {m(r[f'{key}_wall'])} |"
+            )
     verdict = []
     for r in results:
-        rays, near, vol = r["first_hits_cpu"], r["closest_near_cpu"], r["closest_volume_cpu"]
+        rays, near, vol = (
+            r["first_hits_cpu"],
+            r["closest_near_cpu"],
+            r["closest_volume_cpu"],
+        )
         verdict.append(
             f"- {r['faces']:,} faces: first hits {m(rays)}/s ({'meets' if rays >= TARGET_RAYS else 'misses'} 2M/s; "
             f"{100 * r['hit_rate']:.0f}% of the rays hit), closest points near the surface {m(near)}/s "
@@ -119,12 +138,23 @@ def write_readme(text: str) -> None:
     readme = path.read_text()
     block = f"{BEGIN}\n{text}{END}"
     if BEGIN in readme:
-        readme = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END), lambda _: block, readme, flags=re.S)
+        readme = re.sub(
+            re.escape(BEGIN) + r".*?" + re.escape(END),
+            lambda _: block,
+            readme,
+            flags=re.DOTALL,
+        )
     else:
-        readme = readme.rstrip("\n") + "\n\n## Spatial queries (BVH)\n\n" + (
-            "`spatial.py` times `voxax.BVH` (closest points and ray hits) on `data.large` meshes; "
-            "see its docstring for the query sets.\n\n"
-        ) + block + "\n"
+        readme = (
+            readme.rstrip("\n")
+            + "\n\n## Spatial queries (BVH)\n\n"
+            + (
+                "`spatial.py` times `voxax.BVH` (closest points and ray hits) on `data.large` meshes; "
+                "see its docstring for the query sets.\n\n"
+            )
+            + block
+            + "\n"
+        )
     path.write_text(readme)
 
 

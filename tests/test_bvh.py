@@ -6,7 +6,6 @@ import pytest
 import voxax
 from voxax import data, fields
 
-
 # -- independent oracles ---------------------------------------------------------------------
 
 
@@ -32,7 +31,9 @@ def brute_distance(p, V, F):
     inside = ok.copy() & True
     for u, v in ((a, b), (b, c), (c, a)):
         inside = inside & (np.sum(np.cross(v - u, proj - u) * n, -1) >= 0)
-    edges = np.minimum(np.minimum(_seg_dist(q, a, b), _seg_dist(q, b, c)), _seg_dist(q, c, a))
+    edges = np.minimum(
+        np.minimum(_seg_dist(q, a, b), _seg_dist(q, b, c)), _seg_dist(q, c, a)
+    )
     d = np.where(inside, np.abs(h), edges)
     return d.min(axis=1)
 
@@ -81,14 +82,24 @@ def random_soup(rng, nf=150, degenerate=20):
 def test_closest_points_random_soup():
     rng = np.random.default_rng(0)
     V, F = random_soup(rng)
-    P = np.concatenate([rng.uniform(-1.5, 1.5, (400, 3)), V[:50] + 1e-3 * rng.normal(size=(50, 3))])
+    P = np.concatenate(
+        [rng.uniform(-1.5, 1.5, (400, 3)), V[:50] + 1e-3 * rng.normal(size=(50, 3))]
+    )
     res = voxax.closest_points((V, F), P)
-    np.testing.assert_allclose(res.distance, brute_distance(P, V, F), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(
+        res.distance, brute_distance(P, V, F), rtol=1e-12, atol=1e-14
+    )
     # the returned point lies on the returned face at the returned distance
     corners = V[F[res.face]]
-    np.testing.assert_allclose(np.einsum("pk,pkd->pd", res.barycentric, corners), res.point, atol=1e-13)
-    np.testing.assert_allclose(np.linalg.norm(P - res.point, axis=1), res.distance, rtol=1e-12, atol=1e-15)
-    assert np.all(res.barycentric >= -1e-12) and np.allclose(res.barycentric.sum(1), 1, atol=1e-12)
+    np.testing.assert_allclose(
+        np.einsum("pk,pkd->pd", res.barycentric, corners), res.point, atol=1e-13
+    )
+    np.testing.assert_allclose(
+        np.linalg.norm(P - res.point, axis=1), res.distance, rtol=1e-12, atol=1e-15
+    )
+    assert np.all(res.barycentric >= -1e-12) and np.allclose(
+        res.barycentric.sum(1), 1, atol=1e-12
+    )
     # leading shapes
     res2 = voxax.closest_points((V, F), P[:12].reshape(3, 4, 3))
     assert res2.distance.shape == (3, 4) and res2.point.shape == (3, 4, 3)
@@ -117,7 +128,9 @@ def test_closest_points_sphere_distances():
 
 
 def test_empty_mesh_and_degenerate_only():
-    res = voxax.closest_points((np.zeros((0, 3)), np.zeros((0, 3), int)), np.zeros((2, 3)))
+    res = voxax.closest_points(
+        (np.zeros((0, 3)), np.zeros((0, 3), int)), np.zeros((2, 3))
+    )
     assert np.all(np.isinf(res.distance)) and np.all(res.face == -1)
     V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
     res = voxax.closest_points((V, [[0, 1, 2]]), [[1.5, 1.0, 0.0], [3.0, 0.0, 0.0]])
@@ -157,7 +170,9 @@ def test_rays_random_soup_vs_brute_force():
     assert np.all((limited.t >= 0.5) & (limited.t <= 1.0))
     assert limited.t.size == np.sum((allh.t >= 0.5) & (allh.t <= 1.0))
     # sign: -1 against the normal
-    n = np.cross(V[F[allh.face, 1]] - V[F[allh.face, 0]], V[F[allh.face, 2]] - V[F[allh.face, 0]])
+    n = np.cross(
+        V[F[allh.face, 1]] - V[F[allh.face, 0]], V[F[allh.face, 2]] - V[F[allh.face, 0]]
+    )
     np.testing.assert_array_equal(allh.sign, np.sign(np.sum(n * d[allh.ray], 1)))
 
 
@@ -252,7 +267,9 @@ def test_jit_path_matches_the_host_path():
     P = rng.uniform(-1, 1, (500, 3))
     o, d = rng.uniform(-1, 1, (500, 3)), rng.normal(size=(500, 3))
     host = voxax.closest_points((V, F), P)
-    jit = jax.jit(lambda v, p: voxax.closest_points((v, jnp.asarray(F)), p))(jnp.asarray(V), jnp.asarray(P))
+    jit = jax.jit(lambda v, p: voxax.closest_points((v, jnp.asarray(F)), p))(
+        jnp.asarray(V), jnp.asarray(P)
+    )
     for x, y in zip(host, jit):
         np.testing.assert_array_equal(np.asarray(y), x)
     host = voxax.first_hits((V, F), o, d, t_max=2.0)
@@ -262,11 +279,17 @@ def test_jit_path_matches_the_host_path():
     # vmap over meshes (a batch of scaled copies)
     vs = jnp.stack([jnp.asarray(V), 2 * jnp.asarray(V)])
     dist = jax.vmap(lambda v: voxax.closest_points((v, F), P[:20]).distance)(vs)
-    np.testing.assert_array_equal(dist[1], voxax.closest_points((2 * V, F), P[:20]).distance)
+    np.testing.assert_array_equal(
+        dist[1], voxax.closest_points((2 * V, F), P[:20]).distance
+    )
     # errors under jit carry the same messages
     with pytest.raises(Exception, match="NaN or Inf"):
         jax.jit(lambda p: voxax.closest_points((V, F), p))(jnp.full((2, 3), jnp.nan))
     with pytest.raises(Exception, match="out of range"):
-        jax.jit(lambda f: voxax.closest_points((V, f), jnp.zeros((1, 3))))(jnp.asarray(F).at[0, 0].set(10**6))
+        jax.jit(lambda f: voxax.closest_points((V, f), jnp.zeros((1, 3))))(
+            jnp.asarray(F).at[0, 0].set(10**6)
+        )
     with pytest.raises(Exception, match="direction 1 is zero"):
-        jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(jnp.array([[1.0, 0, 0], [0, 0, 0]]))
+        jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(
+            jnp.array([[1.0, 0, 0], [0, 0, 0]])
+        )

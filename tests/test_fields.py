@@ -37,7 +37,9 @@ def test_sphere_box_torus_are_distances(pts):
     p = jnp.asarray(pts)
     # sphere: closed form from the definition of distance to a sphere surface
     s = fields.sphere(p, radius=0.7, center=jnp.array([0.1, -0.2, 0.3]))
-    np.testing.assert_allclose(s, np.linalg.norm(pts - [0.1, -0.2, 0.3], axis=1) - 0.7, atol=1e-14)
+    np.testing.assert_allclose(
+        s, np.linalg.norm(pts - [0.1, -0.2, 0.3], axis=1) - 0.7, atol=1e-14
+    )
     # box: |value| is the brute-force distance to the surface, sign from containment
     h = np.array([0.3, 0.5, 0.8])
     b = np.asarray(fields.box(p, half_extents=h))
@@ -73,10 +75,19 @@ def test_zero_level_sets():
     # torus around z: R + r cos(s) in the plane, r sin(s) along z
     a, s = rng.uniform(0, 2 * np.pi, (2, 100))
     R, r = 0.5, 0.2
-    tp = np.stack([(R + r * np.cos(s)) * np.cos(a), (R + r * np.cos(s)) * np.sin(a), r * np.sin(s)], 1)
+    tp = np.stack(
+        [
+            (R + r * np.cos(s)) * np.cos(a),
+            (R + r * np.cos(s)) * np.sin(a),
+            r * np.sin(s),
+        ],
+        1,
+    )
     np.testing.assert_allclose(fields.torus(tp, R, r), 0, atol=1e-15)
     # gyroid at lattice points: sin(0)=0 terms
-    np.testing.assert_allclose(fields.gyroid(jnp.array([[0.5, 0.5, 0.5], [0, 0, 0]])), 0, atol=1e-12)
+    np.testing.assert_allclose(
+        fields.gyroid(jnp.array([[0.5, 0.5, 0.5], [0, 0, 0]])), 0, atol=1e-12
+    )
     # 2D: circle and rectangle
     assert float(fields.sphere(jnp.array([3.0, 4.0]), 5.0)) == 0.0
     assert float(fields.box(jnp.array([1.0, 0.2]), [1.0, 0.5])) == 0.0
@@ -84,11 +95,15 @@ def test_zero_level_sets():
 
 def test_chebyshev_polynomials_and_surface():
     t = np.linspace(0, np.pi, 101)
-    for n in range(0, 10):
-        np.testing.assert_allclose(fields.chebyshev_polynomial(jnp.cos(t), n), np.cos(n * t), atol=1e-12)
+    for n in range(10):
+        np.testing.assert_allclose(
+            fields.chebyshev_polynomial(jnp.cos(t), n), np.cos(n * t), atol=1e-12
+        )
     x = np.linspace(-1.2, 1.2, 50)
     t8 = 128 * x**8 - 256 * x**6 + 160 * x**4 - 32 * x**2 + 1
-    np.testing.assert_allclose(fields.chebyshev_polynomial(jnp.asarray(x), 8), t8, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        fields.chebyshev_polynomial(jnp.asarray(x), 8), t8, rtol=1e-12, atol=1e-12
+    )
     # T8(1) = 1, T8(cos(pi/8)) = cos(pi) = -1
     p = jnp.array([1.0, np.cos(np.pi / 8), np.cos(np.pi / 8)])
     assert abs(float(fields.chebyshev(p)) + 1) < 1e-12
@@ -110,7 +125,9 @@ def test_blob_formula():
     p = np.random.default_rng(3).normal(size=(50, 3))
     x, y, z = p.T
     np.testing.assert_allclose(
-        fields.blob(p), x**2 + y**2 + z**2 + np.sin(4 * x) - np.cos(4 * y) + np.sin(4 * z), rtol=1e-13
+        fields.blob(p),
+        x**2 + y**2 + z**2 + np.sin(4 * x) - np.cos(4 * y) + np.sin(4 * z),
+        rtol=1e-13,
     )
 
 
@@ -122,7 +139,9 @@ def test_csg_on_points(pts):
     assert np.array_equal(np.asarray(fields.intersection(a, b)) < 0, ina & inb)
     assert np.array_equal(np.asarray(fields.difference(a, b)) < 0, ina & ~inb)
     c = fields.sphere(pts, 0.3, center=[0, 0.9, 0])
-    assert np.array_equal(np.asarray(fields.union(a, b, c)) < 0, ina | inb | (np.asarray(c) < 0))
+    assert np.array_equal(
+        np.asarray(fields.union(a, b, c)) < 0, ina | inb | (np.asarray(c) < 0)
+    )
     # smooth union: equal to min where far apart, below min and within k/4 elsewhere
     k = 0.2
     su = np.asarray(fields.smooth_union(a, b, k))
@@ -139,18 +158,27 @@ def test_csg_on_points(pts):
 
 def test_transforms(pts):
     f = fields.translated(fields.sphere, jnp.array([0.2, 0.0, -0.1]))
-    np.testing.assert_allclose(f(pts, 0.5), fields.sphere(pts, 0.5, center=[0.2, 0.0, -0.1]), atol=1e-15)
+    np.testing.assert_allclose(
+        f(pts, 0.5), fields.sphere(pts, 0.5, center=[0.2, 0.0, -0.1]), atol=1e-15
+    )
     g = fields.scaled(lambda p: fields.box(p, 0.5), 2.0)
     np.testing.assert_allclose(g(pts), fields.box(pts, 1.0), atol=1e-15)
 
 
 def test_jit_grad_vmap():
     p = jnp.array([[0.3, 0.2, 0.1], [1.0, -0.5, 0.2]])
-    for fn in (fields.sphere, fields.box, fields.torus, fields.gyroid, fields.chebyshev, fields.blob):
+    for fn in (
+        fields.sphere,
+        fields.box,
+        fields.torus,
+        fields.gyroid,
+        fields.chebyshev,
+        fields.blob,
+    ):
         v = jax.jit(fn)(p)
         np.testing.assert_allclose(v, fn(p), rtol=1e-14)
         np.testing.assert_allclose(jax.vmap(fn)(p), v, rtol=1e-14)
-        g = jax.grad(lambda q: jnp.sum(fn(q)))(p)
+        g = jax.grad(lambda q, fn=fn: jnp.sum(fn(q)))(p)
         eps = 1e-6
         e = eps * jnp.eye(3)
         fd = (fn(p[:, None, :] + e) - fn(p[:, None, :] - e)) / (2 * eps)
@@ -220,7 +248,9 @@ def test_siren_fits_a_height_field():
 
     @eqx.filter_jit
     def step(net, state):
-        loss, g = eqx.filter_value_and_grad(lambda m: jnp.mean((m(xy) - target) ** 2))(net)
+        loss, g = eqx.filter_value_and_grad(lambda m: jnp.mean((m(xy) - target) ** 2))(
+            net
+        )
         upd, state = opt.update(g, state)
         return eqx.apply_updates(net, upd), state, loss
 
@@ -243,12 +273,14 @@ def test_deepsdf_fits_two_spheres():
 
     @eqx.filter_jit
     def step(net, state):
-        loss, g = eqx.filter_value_and_grad(lambda m: fields.deepsdf_loss(m, pts, sdf, idx, clamp=1.0))(net)
+        loss, g = eqx.filter_value_and_grad(
+            lambda m: fields.deepsdf_loss(m, pts, sdf, idx, clamp=1.0)
+        )(net)
         upd, state = opt.update(g, state)
         return eqx.apply_updates(net, upd), state, loss
 
     for _ in range(500):
-        net, state, loss = step(net, state)
+        net, state, _ = step(net, state)
     test = jax.random.uniform(jax.random.key(5), (500, 3), minval=-0.8, maxval=0.8)
     for i, r in enumerate((0.3, 0.6)):
         err = jnp.abs(net(test, i) - (jnp.linalg.norm(test, axis=-1) - r))

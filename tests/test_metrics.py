@@ -33,9 +33,13 @@ def test_sample_surface_uniform_and_deterministic():
     np.testing.assert_allclose(np.sum((s1.points - a) * n, 1), 0, atol=1e-12)
     for u, v in ((a, b), (b, c), (c, a)):
         assert np.all(np.sum(np.cross(v - u, s1.points - u) * n, 1) >= -1e-12)
-    np.testing.assert_allclose(s1.normals, n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-15)
+    np.testing.assert_allclose(
+        s1.normals, n / np.linalg.norm(n, axis=1, keepdims=True), atol=1e-15
+    )
     # the six sides get 1/6 each (binomial standard deviation ~ 0.005)
-    side = np.argmax(np.abs(s1.points) > 1 - 1e-12, axis=1) * 2 + (s1.points.max(1) > 1 - 1e-12)
+    side = np.argmax(np.abs(s1.points) > 1 - 1e-12, axis=1) * 2 + (
+        s1.points.max(1) > 1 - 1e-12
+    )
     frac = np.bincount(side, minlength=6) / 6000
     assert np.all(np.abs(frac - 1 / 6) < 0.025)
     # area weighting: two triangles of areas 1 and 3
@@ -46,7 +50,10 @@ def test_sample_surface_uniform_and_deterministic():
     np.testing.assert_allclose(s.points[s.faces == 1].mean(0), [1, 2 / 3, 1], atol=0.02)
     # a jax key works and is deterministic
     k = jax.random.key(7)
-    assert np.array_equal(metrics.sample_surface(cube, 10, k).points, metrics.sample_surface(cube, 10, k).points)
+    assert np.array_equal(
+        metrics.sample_surface(cube, 10, k).points,
+        metrics.sample_surface(cube, 10, k).points,
+    )
     with pytest.raises(ValueError, match="zero area"):
         metrics.sample_surface((np.zeros((3, 3)), [[0, 1, 2]]), 5)
 
@@ -59,12 +66,20 @@ def test_chamfer_conventions_vs_brute_force():
     P, Q = rng.normal(size=(300, 3)), rng.normal(size=(200, 3)) + 0.3
     D = _pairwise(P, Q)
     dpq, dqp = D.min(1), D.min(0)
-    np.testing.assert_allclose(metrics.chamfer(P, Q, convention="l2"), (dpq**2).sum() + (dqp**2).sum(), rtol=1e-12)
+    np.testing.assert_allclose(
+        metrics.chamfer(P, Q, convention="l2"),
+        (dpq**2).sum() + (dqp**2).sum(),
+        rtol=1e-12,
+    )
     diag = np.linalg.norm(Q.max(0) - Q.min(0))
     np.testing.assert_allclose(
-        metrics.chamfer(P, Q, convention="l1_bbox"), 1000 * (dpq.mean() + dqp.mean()) / diag, rtol=1e-12
+        metrics.chamfer(P, Q, convention="l1_bbox"),
+        1000 * (dpq.mean() + dqp.mean()) / diag,
+        rtol=1e-12,
     )
-    np.testing.assert_allclose(metrics.chamfer(P, Q, convention="g2p"), (dqp**2).mean(), rtol=1e-12)
+    np.testing.assert_allclose(
+        metrics.chamfer(P, Q, convention="g2p"), (dqp**2).mean(), rtol=1e-12
+    )
     assert metrics.chamfer(P, P, convention="l2") == 0.0
     with pytest.raises(ValueError, match="convention"):
         metrics.chamfer(P, Q, convention="l3")
@@ -105,9 +120,13 @@ def test_hausdorff_vs_brute_force_on_small_meshes():
     from test_bvh import brute_distance
 
     a, b = data.icosphere(1, radius=0.8), data.torus()
-    samples = np.concatenate([a.vertices, metrics.sample_surface(a, 500, seed=0).points])
+    samples = np.concatenate(
+        [a.vertices, metrics.sample_surface(a, 500, seed=0).points]
+    )
     expect = brute_distance(samples, b.vertices, b.faces).max()
-    np.testing.assert_allclose(metrics.directed_hausdorff(a, b, n=500, seed=0), expect, rtol=1e-12)
+    np.testing.assert_allclose(
+        metrics.directed_hausdorff(a, b, n=500, seed=0), expect, rtol=1e-12
+    )
 
 
 def test_f_score():
@@ -116,7 +135,9 @@ def test_f_score():
     D = _pairwise(P, Q)
     t = 0.1
     prec, rec = np.mean(D.min(1) <= t), np.mean(D.min(0) <= t)
-    np.testing.assert_allclose(metrics.f_score(P, Q, t), 2 * prec * rec / (prec + rec), rtol=1e-12)
+    np.testing.assert_allclose(
+        metrics.f_score(P, Q, t), 2 * prec * rec / (prec + rec), rtol=1e-12
+    )
     assert metrics.f_score(P, P, 1e-9) == 1.0
     assert metrics.f_score(P, P + 10, 0.1) == 0.0
     with pytest.raises(ValueError, match="threshold"):
@@ -135,13 +156,25 @@ def test_triangle_quality():
     V = np.concatenate([eq, right, flat])
     q = metrics.triangle_quality((V, [[0, 1, 2], [3, 4, 5], [6, 7, 8], [0, 0, 1]]))
     # right isosceles: A = 1/2, p = 1 + 1/sqrt2, e_max = sqrt2 -> (6/sqrt3)(1/2) / (sqrt2 + 1)
-    np.testing.assert_allclose(q, [1.0, math.sqrt(3) / (math.sqrt(2) + 1), 0.0, 0.0], atol=1e-14)
+    np.testing.assert_allclose(
+        q, [1.0, math.sqrt(3) / (math.sqrt(2) + 1), 0.0, 0.0], atol=1e-14
+    )
     q = metrics.triangle_quality(data.icosphere(3))
     assert q.min() > 0.8 and q.max() <= 1.0
 
 
 def _bowtie():
-    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1.0]])
+    V = np.array(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],
+            [0, 0, 1],
+            [-1, 0, 0],
+            [0, -1, 0],
+            [0, 0, -1.0],
+        ]
+    )
     tet = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     tet2 = np.array([[0, 4, 5], [0, 6, 4], [0, 5, 6], [4, 6, 5]])
     return Mesh(V, np.concatenate([tet, tet2]))
@@ -161,7 +194,12 @@ def test_euler_characteristic():
 def test_manifold_report_cases():
     cube = data.cube()
     r = metrics.manifold_report(cube)
-    assert r.watertight and r.genus == 0 and r.n_components == 1 and r.n_boundary_loops == 0
+    assert (
+        r.watertight
+        and r.genus == 0
+        and r.n_components == 1
+        and r.n_boundary_loops == 0
+    )
     # one face removed: an open surface with one boundary loop of 3 edges
     r = metrics.manifold_report(Mesh(cube.vertices, cube.faces[1:]))
     assert not r.closed and r.manifold and r.oriented
@@ -175,8 +213,12 @@ def test_manifold_report_cases():
     r = metrics.manifold_report(Mesh(cube.vertices, f))
     assert not r.oriented and r.n_misoriented_edges == 3 and r.closed
     # a duplicated face: three non-manifold edges, one duplicate
-    r = metrics.manifold_report(Mesh(cube.vertices, np.concatenate([cube.faces, cube.faces[:1, ::-1]])))
-    assert r.n_duplicate_faces == 1 and r.n_nonmanifold_edges == 3 and not r.edge_manifold
+    r = metrics.manifold_report(
+        Mesh(cube.vertices, np.concatenate([cube.faces, cube.faces[:1, ::-1]]))
+    )
+    assert (
+        r.n_duplicate_faces == 1 and r.n_nonmanifold_edges == 3 and not r.edge_manifold
+    )
     # two tetrahedra sharing a vertex: edge-manifold, one non-manifold vertex
     r = metrics.manifold_report(_bowtie())
     assert r.edge_manifold and not r.vertex_manifold and r.n_nonmanifold_vertices == 1
@@ -186,7 +228,9 @@ def test_manifold_report_cases():
     r = metrics.manifold_report(two)
     assert r.n_nonmanifold_edges == 1
     # degenerate faces
-    r = metrics.manifold_report(Mesh(cube.vertices, np.concatenate([cube.faces, [[0, 0, 1]]])))
+    r = metrics.manifold_report(
+        Mesh(cube.vertices, np.concatenate([cube.faces, [[0, 0, 1]]]))
+    )
     assert r.n_degenerate_faces == 1
     # torus genus 1; two spheres two components
     assert metrics.manifold_report(data.torus()).genus == 1

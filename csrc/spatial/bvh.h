@@ -459,7 +459,11 @@ class Bvh {
     RayHit h;
     while (sp > 0) {
       const Node& node = nodes_[stack[--sp]];
-      if (ray_box(ray, node.box, best.t) == std::numeric_limits<double>::infinity()) continue;
+      // Boxes are culled against the best t with a relative margin: a triangle's computed
+      // t and its box's slab distance round differently, and a hit a few ulps before the
+      // best one must not be culled (the result is the smallest computed t).
+      const double cull = best.t + 1e-9 * std::fabs(best.t);
+      if (ray_box(ray, node.box, cull) == std::numeric_limits<double>::infinity()) continue;
       if (node.count > 0) {
         for (int32_t i = node.first; i < node.first + node.count; ++i) {
           if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], best.t, &h)) {
@@ -478,7 +482,7 @@ class Bvh {
       }
       if (sp + 2 > 128) return brute_first(ray, any, out);
       const int32_t l = node.first, r = l + 1;
-      const double tl = ray_box(ray, nodes_[l].box, best.t), tr = ray_box(ray, nodes_[r].box, best.t);
+      const double tl = ray_box(ray, nodes_[l].box, cull), tr = ray_box(ray, nodes_[r].box, cull);
       const double inf = std::numeric_limits<double>::infinity();
       if (tl <= tr) {
         if (tr != inf) stack[sp++] = r;

@@ -34,13 +34,13 @@ from ._mesh import Mesh
 
 __all__ = [
     "BVH",
+    "AllHits",
     "ClosestPoints",
     "RayHits",
-    "AllHits",
+    "all_hits",
+    "any_hits",
     "closest_points",
     "first_hits",
-    "any_hits",
-    "all_hits",
 ]
 
 _ERRLEN = 512
@@ -58,17 +58,50 @@ def _lib():
     if not _SETUP:
         i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
         sig = {
-            "voxax_bvh_build": (ctypes.c_int, [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64]),
+            "voxax_bvh_build": (
+                ctypes.c_int,
+                [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
+            ),
             "voxax_bvh_free": (None, [_VP]),
             "voxax_bvh_stats": (None, [_VP, _I64]),
-            "voxax_bvh_closest": (ctypes.c_int, [_VP, _D, i64, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64]),
+            "voxax_bvh_closest": (
+                ctypes.c_int,
+                [_VP, _D, i64, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
+            ),
             "voxax_bvh_first_hit": (
                 ctypes.c_int,
-                [_VP, _D, _D, i64, dbl, dbl, i32, i32, _D, _I32, _D, _I8, ctypes.c_char_p, i64],
+                [
+                    _VP,
+                    _D,
+                    _D,
+                    i64,
+                    dbl,
+                    dbl,
+                    i32,
+                    i32,
+                    _D,
+                    _I32,
+                    _D,
+                    _I8,
+                    ctypes.c_char_p,
+                    i64,
+                ],
             ),
             "voxax_bvh_all_hits": (
                 ctypes.c_int,
-                [_VP, _D, _D, i64, dbl, dbl, i32, _I64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
+                [
+                    _VP,
+                    _D,
+                    _D,
+                    i64,
+                    dbl,
+                    dbl,
+                    i32,
+                    _I64,
+                    ctypes.POINTER(_VP),
+                    ctypes.c_char_p,
+                    i64,
+                ],
             ),
             "voxax_hits_size": (i64, [_VP]),
             "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
@@ -196,7 +229,9 @@ class BVH:
             elif isinstance(vertices, tuple) and len(vertices) == 2:
                 mesh = Mesh(*vertices)
             else:
-                raise TypeError("BVH needs a Mesh, a (vertices, faces) pair, or vertices and faces")
+                raise TypeError(
+                    "BVH needs a Mesh, a (vertices, faces) pair, or vertices and faces"
+                )
         else:
             mesh = Mesh(vertices, faces)
         if mesh.dim != 3:
@@ -207,7 +242,13 @@ class BVH:
         handle = _VP()
         err = ctypes.create_string_buffer(_ERRLEN)
         status = lib.voxax_bvh_build(
-            _ptr(v, _D), len(v), _ptr(f, _I32), len(f), ctypes.byref(handle), err, _ERRLEN
+            _ptr(v, _D),
+            len(v),
+            _ptr(f, _I32),
+            len(f),
+            ctypes.byref(handle),
+            err,
+            _ERRLEN,
         )
         _check(status, err)
         self._handle = handle
@@ -249,12 +290,24 @@ class BVH:
         point = np.empty((n, 3), np.float64)
         err = ctypes.create_string_buffer(_ERRLEN)
         status = _lib().voxax_bvh_closest(
-            self._handle, _ptr(p, _D), n, _threads(threads), _ptr(dist, _D), _ptr(face, _I32),
-            _ptr(bary, _D), _ptr(point, _D), err, _ERRLEN,
+            self._handle,
+            _ptr(p, _D),
+            n,
+            _threads(threads),
+            _ptr(dist, _D),
+            _ptr(face, _I32),
+            _ptr(bary, _D),
+            _ptr(point, _D),
+            err,
+            _ERRLEN,
         )
         _check(status, err)
-        return ClosestPoints(dist.reshape(lead), face.reshape(lead), bary.reshape(lead + (3,)),
-                             point.reshape(lead + (3,)))
+        return ClosestPoints(
+            dist.reshape(lead),
+            face.reshape(lead),
+            bary.reshape(lead + (3,)),
+            point.reshape(lead + (3,)),
+        )
 
     def _rays(self, origins, directions, t_min, t_max):
         o = _coords(origins, "ray origins")
@@ -268,10 +321,14 @@ class BVH:
         o = np.ascontiguousarray(np.broadcast_to(o, lead + (3,)).reshape(-1, 3))
         d = np.ascontiguousarray(np.broadcast_to(d, lead + (3,)).reshape(-1, 3))
         if len(d) and np.any(np.all(d == 0, axis=1)):
-            raise ValueError(f"ray direction {int(np.flatnonzero(np.all(d == 0, axis=1))[0])} is zero")
+            raise ValueError(
+                f"ray direction {int(np.flatnonzero(np.all(d == 0, axis=1))[0])} is zero"
+            )
         t_min, t_max = float(t_min), float(t_max)
         if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
-            raise ValueError(f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]")
+            raise ValueError(
+                f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
+            )
         return o, d, lead, t_min, t_max
 
     def _first(self, origins, directions, t_min, t_max, any_hit, threads):
@@ -283,15 +340,39 @@ class BVH:
         sign = np.empty(n, np.int8)
         err = ctypes.create_string_buffer(_ERRLEN)
         status = _lib().voxax_bvh_first_hit(
-            self._handle, _ptr(o, _D), _ptr(d, _D), n, t_min, t_max, int(any_hit), _threads(threads),
-            _ptr(t, _D), _ptr(face, _I32), _ptr(bary, _D), _ptr(sign, _I8), err, _ERRLEN,
+            self._handle,
+            _ptr(o, _D),
+            _ptr(d, _D),
+            n,
+            t_min,
+            t_max,
+            int(any_hit),
+            _threads(threads),
+            _ptr(t, _D),
+            _ptr(face, _I32),
+            _ptr(bary, _D),
+            _ptr(sign, _I8),
+            err,
+            _ERRLEN,
         )
         _check(status, err)
-        return RayHits(t.reshape(lead), face.reshape(lead), bary.reshape(lead + (3,)), sign.reshape(lead),
-                       (face >= 0).reshape(lead))
+        return RayHits(
+            t.reshape(lead),
+            face.reshape(lead),
+            bary.reshape(lead + (3,)),
+            sign.reshape(lead),
+            (face >= 0).reshape(lead),
+        )
 
-    def first_hits(self, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-                   threads: int | None = None) -> RayHits:
+    def first_hits(
+        self,
+        origins,
+        directions,
+        *,
+        t_min: float = 0.0,
+        t_max: float = np.inf,
+        threads: int | None = None,
+    ) -> RayHits:
         """The nearest hit of every ray `origin + t * direction`, `t` in `[t_min, t_max]`.
 
         Directions need not be unit vectors (`t` is in units of the direction's length).
@@ -308,14 +389,28 @@ class BVH:
         """
         return self._first(origins, directions, t_min, t_max, False, threads)
 
-    def any_hits(self, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-                 threads: int | None = None) -> np.ndarray:
+    def any_hits(
+        self,
+        origins,
+        directions,
+        *,
+        t_min: float = 0.0,
+        t_max: float = np.inf,
+        threads: int | None = None,
+    ) -> np.ndarray:
         """Whether each ray hits the mesh within `[t_min, t_max]` (stops at the first hit
         found, so it is cheaper than `first_hits`). **Returns:** `(...)` bool."""
         return self._first(origins, directions, t_min, t_max, True, threads).hit
 
-    def all_hits(self, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-                 threads: int | None = None) -> AllHits:
+    def all_hits(
+        self,
+        origins,
+        directions,
+        *,
+        t_min: float = 0.0,
+        t_max: float = np.inf,
+        threads: int | None = None,
+    ) -> AllHits:
         """Every hit of every ray within `[t_min, t_max]`, sorted by ray, `t` and face.
 
         A ray through an edge or vertex shared by consistently oriented faces is counted
@@ -324,15 +419,24 @@ class BVH:
 
         **Returns:** [`AllHits`][voxax.AllHits] (ray indices in C order of the rays' shape).
         """
-        o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max)
+        o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max)
         n = len(o)
         counts = np.zeros(n, np.int64)
         out = _VP()
         err = ctypes.create_string_buffer(_ERRLEN)
         lib = _lib()
         status = lib.voxax_bvh_all_hits(
-            self._handle, _ptr(o, _D), _ptr(d, _D), n, t_min, t_max, _threads(threads), _ptr(counts, _I64),
-            ctypes.byref(out), err, _ERRLEN,
+            self._handle,
+            _ptr(o, _D),
+            _ptr(d, _D),
+            n,
+            t_min,
+            t_max,
+            _threads(threads),
+            _ptr(counts, _I64),
+            ctypes.byref(out),
+            err,
+            _ERRLEN,
         )
         _check(status, err)
         try:
@@ -341,7 +445,9 @@ class BVH:
             face = np.empty(h, np.int32)
             bary = np.empty((h, 3), np.float64)
             sign = np.empty(h, np.int8)
-            lib.voxax_hits_copy(out, _ptr(t, _D), _ptr(face, _I32), _ptr(bary, _D), _ptr(sign, _I8))
+            lib.voxax_hits_copy(
+                out, _ptr(t, _D), _ptr(face, _I32), _ptr(bary, _D), _ptr(sign, _I8)
+            )
         finally:
             lib.voxax_hits_free(out)
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -372,7 +478,9 @@ def _mesh_arrays(mesh):
     else:
         raise TypeError("mesh must be a Mesh, a (vertices, faces) pair or a BVH")
     if not jax.config.jax_enable_x64:
-        raise ValueError("the jit path of the BVH queries computes in float64: enable jax_enable_x64")
+        raise ValueError(
+            "the jit path of the BVH queries computes in float64: enable jax_enable_x64"
+        )
     v, f = jnp.asarray(v), jnp.asarray(f)
     if v.ndim != 2 or v.shape[-1] != 3:
         raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
@@ -387,7 +495,9 @@ def _rows(x, name):
     import jax.numpy as jnp
 
     x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(x.dtype, jnp.integer):
+    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(
+        x.dtype, jnp.integer
+    ):
         raise TypeError(f"{name} must be a real array, got dtype {x.dtype}")
     if x.ndim < 1 or x.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (..., 3), got {x.shape}")
@@ -406,8 +516,15 @@ def _closest_points_ffi(mesh, points) -> ClosestPoints:
         jax.ShapeDtypeStruct((n, 3), np.float64),
         jax.ShapeDtypeStruct((n, 3), np.float64),
     )
-    d, fc, b, q = jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, out, vmap_method="sequential")(v, f, flat)
-    return ClosestPoints(d.reshape(lead), fc.reshape(lead), b.reshape(lead + (3,)), q.reshape(lead + (3,)))
+    d, fc, b, q = jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, out, vmap_method="sequential")(
+        v, f, flat
+    )
+    return ClosestPoints(
+        d.reshape(lead),
+        fc.reshape(lead),
+        b.reshape(lead + (3,)),
+        q.reshape(lead + (3,)),
+    )
 
 
 def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
@@ -425,7 +542,9 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
     d = jnp.broadcast_to(d, lead + (3,)).reshape(-1, 3)
     t_min, t_max = float(t_min), float(t_max)
     if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
-        raise ValueError(f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]")
+        raise ValueError(
+            f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
+        )
     n = o.shape[0]
     out = (
         jax.ShapeDtypeStruct((n,), np.float64),
@@ -435,7 +554,13 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
     )
     call = jax.ffi.ffi_call(_ffi.FIRST_HITS, out, vmap_method="sequential")
     t, fc, b, sg = call(v, f, o, d, t_min=np.float64(t_min), t_max=np.float64(t_max))
-    return RayHits(t.reshape(lead), fc.reshape(lead), b.reshape(lead + (3,)), sg.reshape(lead), (fc >= 0).reshape(lead))
+    return RayHits(
+        t.reshape(lead),
+        fc.reshape(lead),
+        b.reshape(lead + (3,)),
+        sg.reshape(lead),
+        (fc >= 0).reshape(lead),
+    )
 
 
 def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints:
@@ -462,8 +587,15 @@ def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints
     return _as_bvh(mesh).closest_points(points, threads=threads)
 
 
-def first_hits(mesh, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-               threads: int | None = None) -> RayHits:
+def first_hits(
+    mesh,
+    origins,
+    directions,
+    *,
+    t_min: float = 0.0,
+    t_max: float = np.inf,
+    threads: int | None = None,
+) -> RayHits:
     """The nearest hit of every ray on a triangle mesh; see [`BVH.first_hits`][voxax.BVH.first_hits].
 
     Under `jax.jit` (traced rays or vertices) this runs as an FFI kernel and returns JAX
@@ -475,21 +607,41 @@ def first_hits(mesh, origins, directions, *, t_min: float = 0.0, t_max: float = 
     """
     if _traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
         return _first_hits_ffi(mesh, origins, directions, t_min, t_max)
-    return _as_bvh(mesh).first_hits(origins, directions, t_min=t_min, t_max=t_max, threads=threads)
+    return _as_bvh(mesh).first_hits(
+        origins, directions, t_min=t_min, t_max=t_max, threads=threads
+    )
 
 
-def any_hits(mesh, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-             threads: int | None = None) -> np.ndarray:
+def any_hits(
+    mesh,
+    origins,
+    directions,
+    *,
+    t_min: float = 0.0,
+    t_max: float = np.inf,
+    threads: int | None = None,
+) -> np.ndarray:
     """Whether each ray hits a triangle mesh; see [`BVH.any_hits`][voxax.BVH.any_hits]."""
-    return _as_bvh(mesh).any_hits(origins, directions, t_min=t_min, t_max=t_max, threads=threads)
+    return _as_bvh(mesh).any_hits(
+        origins, directions, t_min=t_min, t_max=t_max, threads=threads
+    )
 
 
-def all_hits(mesh, origins, directions, *, t_min: float = 0.0, t_max: float = np.inf,
-             threads: int | None = None) -> AllHits:
+def all_hits(
+    mesh,
+    origins,
+    directions,
+    *,
+    t_min: float = 0.0,
+    t_max: float = np.inf,
+    threads: int | None = None,
+) -> AllHits:
     """Every hit of every ray on a triangle mesh; see [`BVH.all_hits`][voxax.BVH.all_hits].
 
     >>> from voxax import data
     >>> all_hits(data.cube(2.0), [[0.0, 0.0, -5.0]], [[0.0, 0.0, 1.0]]).t.tolist()
     [4.0, 6.0]
     """
-    return _as_bvh(mesh).all_hits(origins, directions, t_min=t_min, t_max=t_max, threads=threads)
+    return _as_bvh(mesh).all_hits(
+        origins, directions, t_min=t_min, t_max=t_max, threads=threads
+    )

@@ -33,30 +33,31 @@ SIREN initialisation, for 3D fields and 2D height fields) and
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 __all__ = [
-    "sphere",
+    "DeepSDF",
+    "Siren",
+    "blob",
     "box",
-    "torus",
-    "gyroid",
     "chebyshev",
     "chebyshev_polynomial",
-    "blob",
-    "union",
-    "intersection",
-    "difference",
-    "smooth_union",
-    "translated",
-    "scaled",
-    "Siren",
-    "DeepSDF",
     "deepsdf_loss",
+    "difference",
+    "gyroid",
+    "intersection",
+    "scaled",
+    "smooth_union",
+    "sphere",
+    "torus",
+    "translated",
+    "union",
 ]
 
 
@@ -76,7 +77,9 @@ def _vector(x, d: int, name: str, dtype):
     if v.ndim == 0:
         v = jnp.broadcast_to(v, (d,))
     if v.shape[-1] != d:
-        raise ValueError(f"{name} must have {d} components to match the points, got shape {v.shape}")
+        raise ValueError(
+            f"{name} must have {d} components to match the points, got shape {v.shape}"
+        )
     return v
 
 
@@ -131,7 +134,9 @@ def box(points, half_extents=0.5, center=0.0):
     """
     p = _points(points)
     d = p.shape[-1]
-    q = jnp.abs(p - _vector(center, d, "center", p.dtype)) - _vector(half_extents, d, "half_extents", p.dtype)
+    q = jnp.abs(p - _vector(center, d, "center", p.dtype)) - _vector(
+        half_extents, d, "half_extents", p.dtype
+    )
     outside = _safe_norm(jnp.maximum(q, 0))
     inside = jnp.minimum(jnp.max(q, axis=-1), 0)
     return outside + inside
@@ -191,7 +196,12 @@ def gyroid(points, period=1.0, level=0.0):
     """
     p = _points(points, 3) * (2 * math.pi / period)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    return jnp.sin(x) * jnp.cos(y) + jnp.sin(y) * jnp.cos(z) + jnp.sin(z) * jnp.cos(x) - level
+    return (
+        jnp.sin(x) * jnp.cos(y)
+        + jnp.sin(y) * jnp.cos(z)
+        + jnp.sin(z) * jnp.cos(x)
+        - level
+    )
 
 
 def chebyshev_polynomial(x, degree: int):
@@ -427,10 +437,12 @@ class Siren(eqx.Module):
         sizes = [in_size] + [width] * depth + [out_size]
         keys = jax.random.split(key, 2 * (len(sizes) - 1))
         weights, biases = [], []
-        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        for i, (n_in, n_out) in enumerate(itertools.pairwise(sizes)):
             bound = 1.0 / n_in if i == 0 else math.sqrt(6.0 / n_in) / omega_0
             weights.append(_uniform(keys[2 * i], (n_out, n_in), bound, dtype))
-            biases.append(_uniform(keys[2 * i + 1], (n_out,), 1.0 / math.sqrt(n_in), dtype))
+            biases.append(
+                _uniform(keys[2 * i + 1], (n_out,), 1.0 / math.sqrt(n_in), dtype)
+            )
         self.weights, self.biases = weights, biases
         self.omega_0, self.first_omega_0 = float(omega_0), float(first_omega_0)
         self.in_size, self.out_size = int(in_size), int(out_size)
@@ -505,12 +517,18 @@ class DeepSDF(eqx.Module):
         dtype=None,
     ):
         if n_shapes < 1 or latent_size < 0 or width < 1 or depth < 1:
-            raise ValueError("n_shapes, width and depth must be >= 1 and latent_size >= 0")
+            raise ValueError(
+                "n_shapes, width and depth must be >= 1 and latent_size >= 0"
+            )
         if skip is not None and not 0 < skip < depth:
-            raise ValueError(f"skip must lie in [1, depth) = [1, {depth}), or be None; got {skip}")
+            raise ValueError(
+                f"skip must lie in [1, depth) = [1, {depth}), or be None; got {skip}"
+            )
         dtype = dtype or jnp.result_type(float)
         kc, *kl = jax.random.split(key, depth + 2)
-        self.codes = code_std * jax.random.normal(kc, (n_shapes, latent_size), dtype=dtype)
+        self.codes = code_std * jax.random.normal(
+            kc, (n_shapes, latent_size), dtype=dtype
+        )
         n_in = latent_size + dim
         layers = []
         size = n_in
@@ -543,10 +561,14 @@ class DeepSDF(eqx.Module):
         p = _points(points, self.dim)
         z = jnp.asarray(latent, dtype=p.dtype)
         if z.shape[-1:] != (self.latent_size,):
-            raise ValueError(f"latent must have shape (..., {self.latent_size}), got {z.shape}")
+            raise ValueError(
+                f"latent must have shape (..., {self.latent_size}), got {z.shape}"
+            )
         lead = jnp.broadcast_shapes(p.shape[:-1], z.shape[:-1])
         p = jnp.broadcast_to(p, lead + (self.dim,)).reshape(-1, self.dim)
-        z = jnp.broadcast_to(z, lead + (self.latent_size,)).reshape(-1, self.latent_size)
+        z = jnp.broadcast_to(z, lead + (self.latent_size,)).reshape(
+            -1, self.latent_size
+        )
         return jax.vmap(self._single)(z, p).reshape(lead)
 
     def __call__(self, points, index=0):
@@ -554,7 +576,15 @@ class DeepSDF(eqx.Module):
         return self.decode(self.codes[jnp.asarray(index)], points)
 
 
-def deepsdf_loss(model: DeepSDF, points, sdf, index=0, *, clamp: float = 0.1, code_sigma: float = 1e-2):
+def deepsdf_loss(
+    model: DeepSDF,
+    points,
+    sdf,
+    index=0,
+    *,
+    clamp: float = 0.1,
+    code_sigma: float = 1e-2,
+):
     """The DeepSDF training loss: clamped L1 plus the latent-code prior.
 
     `mean |clamp_d(f(z_i, x)) - clamp_d(s)| + (1 / sigma^2) * mean_i |z_i|^2 / n` where

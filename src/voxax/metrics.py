@@ -24,18 +24,18 @@ from ._mesh import Mesh
 from ._spatial import BVH
 
 __all__ = [
-    "SurfaceSamples",
-    "sample_surface",
-    "chamfer",
     "CHAMFER_CONVENTIONS",
-    "hausdorff",
-    "directed_hausdorff",
-    "f_score",
-    "triangle_quality",
-    "euler_characteristic",
     "ManifoldReport",
-    "manifold_report",
+    "SurfaceSamples",
+    "chamfer",
+    "directed_hausdorff",
+    "euler_characteristic",
+    "f_score",
+    "hausdorff",
     "iou",
+    "manifold_report",
+    "sample_surface",
+    "triangle_quality",
 ]
 
 
@@ -47,7 +47,9 @@ def _mesh(mesh, name: str = "mesh") -> Mesh:
     elif isinstance(mesh, tuple) and len(mesh) == 2:
         m = Mesh(*mesh)
     else:
-        raise TypeError(f"{name} must be a voxax.Mesh or a (vertices, faces) pair, got {type(mesh).__name__}")
+        raise TypeError(
+            f"{name} must be a voxax.Mesh or a (vertices, faces) pair, got {type(mesh).__name__}"
+        )
     if m.dim != 3:
         raise ValueError(f"{name} must be a 3D triangle mesh, got a 2D polyline")
     return m
@@ -61,8 +63,10 @@ def _seed(seed) -> np.random.Generator:
 
         bits = np.asarray(jax.random.bits(seed, (2,), dtype=np.uint32))
         return np.random.default_rng([int(b) for b in bits])
-    except Exception as exc:  # noqa: BLE001
-        raise TypeError(f"seed must be an int or a jax.random key, got {type(seed).__name__}") from exc
+    except Exception as exc:
+        raise TypeError(
+            f"seed must be an int or a jax.random key, got {type(seed).__name__}"
+        ) from exc
 
 
 def _face_geometry(m: Mesh):
@@ -116,7 +120,9 @@ def sample_surface(mesh, n: int, seed=0) -> SurfaceSamples:
         raise ValueError("cannot sample a surface of zero area")
     rng = _seed(seed)
     cdf = np.cumsum(area)
-    faces = np.searchsorted(cdf, rng.random(n) * cdf[-1] if n else np.zeros(0), side="right")
+    faces = np.searchsorted(
+        cdf, rng.random(n) * cdf[-1] if n else np.zeros(0), side="right"
+    )
     faces = np.minimum(faces, len(area) - 1).astype(np.int64)
     r1, r2 = rng.random(n), rng.random(n)
     s1 = np.sqrt(r1)
@@ -132,7 +138,9 @@ def _cloud(x, n: int, seed, name: str) -> tuple[np.ndarray, Mesh | None]:
         return sample_surface(m, n, seed).points, m
     p = np.asarray(x, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"{name} must be a mesh or a point cloud (N, 3), got shape {p.shape}")
+        raise ValueError(
+            f"{name} must be a mesh or a point cloud (N, 3), got shape {p.shape}"
+        )
     if not np.all(np.isfinite(p)):
         raise ValueError(f"{name} contains NaN or Inf")
     if len(p) == 0:
@@ -147,7 +155,9 @@ def _nearest(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return d
 
 
-def _distances(src: np.ndarray, dst: np.ndarray, dst_mesh: Mesh | None, to_surface: bool) -> np.ndarray:
+def _distances(
+    src: np.ndarray, dst: np.ndarray, dst_mesh: Mesh | None, to_surface: bool
+) -> np.ndarray:
     if to_surface:
         if dst_mesh is None:
             raise ValueError("to_surface=True needs meshes, not point clouds")
@@ -159,7 +169,9 @@ def _distances(src: np.ndarray, dst: np.ndarray, dst_mesh: Mesh | None, to_surfa
 CHAMFER_CONVENTIONS = ("l2", "l1_bbox", "g2p")
 
 
-def chamfer(a, b, *, convention: str = "l2", n: int = 10_000, seed=0, to_surface: bool = False) -> float:
+def chamfer(
+    a, b, *, convention: str = "l2", n: int = 10_000, seed=0, to_surface: bool = False
+) -> float:
     """The Chamfer distance between two surfaces, in one of three published conventions.
 
     With `P` the samples of `a` (the prediction) and `Q` those of `b` (the reference), and
@@ -193,8 +205,12 @@ def chamfer(a, b, *, convention: str = "l2", n: int = 10_000, seed=0, to_surface
     True
     """
     if convention not in CHAMFER_CONVENTIONS:
-        raise ValueError(f"convention must be one of {CHAMFER_CONVENTIONS}, got {convention!r}")
-    seed_b = seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
+        raise ValueError(
+            f"convention must be one of {CHAMFER_CONVENTIONS}, got {convention!r}"
+        )
+    seed_b = (
+        seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
+    )
     P, ma = _cloud(a, n, seed, "a")
     Q, mb = _cloud(b, n, seed_b, "b")
     d_qp = _distances(Q, P, ma, to_surface)
@@ -247,10 +263,15 @@ def hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
     >>> round(hausdorff(data.icosphere(2, radius=1.0), data.icosphere(2, radius=0.75)), 12)
     0.25
     """
-    return max(directed_hausdorff(a, b, n=n, seed=seed), directed_hausdorff(b, a, n=n, seed=seed))
+    return max(
+        directed_hausdorff(a, b, n=n, seed=seed),
+        directed_hausdorff(b, a, n=n, seed=seed),
+    )
 
 
-def f_score(a, b, threshold: float, *, n: int = 10_000, seed=0, to_surface: bool = False) -> float:
+def f_score(
+    a, b, threshold: float, *, n: int = 10_000, seed=0, to_surface: bool = False
+) -> float:
     """The F-score at distance `threshold` between a prediction `a` and a reference `b`.
 
     Precision is the fraction of `a`'s samples within `threshold` of `b`, recall the
@@ -263,7 +284,9 @@ def f_score(a, b, threshold: float, *, n: int = 10_000, seed=0, to_surface: bool
     """
     if not threshold > 0:
         raise ValueError(f"threshold must be > 0, got {threshold}")
-    seed_b = seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
+    seed_b = (
+        seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
+    )
     P, ma = _cloud(a, n, seed, "a")
     Q, mb = _cloud(b, n, seed_b, "b")
     precision = float(np.mean(_distances(P, Q, mb, to_surface) <= threshold))
@@ -291,18 +314,31 @@ def triangle_quality(mesh) -> np.ndarray:
     """
     m = _mesh(mesh)
     a, b, c, _, norm = _face_geometry(m)
-    e = np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1)], 1)
+    e = np.stack(
+        [
+            np.linalg.norm(b - a, axis=1),
+            np.linalg.norm(c - b, axis=1),
+            np.linalg.norm(a - c, axis=1),
+        ],
+        1,
+    )
     p = 0.5 * e.sum(1)
     emax = e.max(1)
     den = p * emax
-    q = np.where(den > 0, (6.0 / np.sqrt(3.0)) * (0.5 * norm) / np.where(den > 0, den, 1), 0.0)
+    q = np.where(
+        den > 0, (6.0 / np.sqrt(3.0)) * (0.5 * norm) / np.where(den > 0, den, 1), 0.0
+    )
     return np.clip(q, 0.0, 1.0)
 
 
 def _edges(faces: np.ndarray):
     """Directed half-edges (3F, 2) in face order, and the undirected unique edges with
     inverse indices and counts."""
-    he = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2).astype(np.int64)
+    he = (
+        np.stack([faces, np.roll(faces, -1, axis=1)], axis=2)
+        .reshape(-1, 2)
+        .astype(np.int64)
+    )
     und = np.sort(he, axis=1)
     uniq, inv, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
     return he, uniq, inv.reshape(-1), cnt
@@ -345,7 +381,9 @@ class ManifoldReport:
     vertex_manifold: bool
     oriented: bool  #: consistently oriented: no edge traversed twice in one direction
     closed: bool  #: edge-manifold without boundary
-    genus: int | None  #: (2 C - chi) / 2 for closed, oriented, 2-manifold meshes, else None
+    genus: (
+        int | None
+    )  #: (2 C - chi) / 2 for closed, oriented, 2-manifold meshes, else None
 
     @property
     def manifold(self) -> bool:
@@ -365,7 +403,9 @@ def _components(n_nodes: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
     if n_nodes == 0:
         return 0, np.zeros(0, np.int64)
     pairs = pairs.reshape(-1, 2)
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n_nodes, n_nodes))
+    g = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n_nodes, n_nodes)
+    )
     return connected_components(g, directed=False)
 
 
@@ -395,7 +435,9 @@ def manifold_report(mesh) -> ManifoldReport:
     F = m.faces.astype(np.int64)
     nf = len(F)
     if nf == 0:
-        return ManifoldReport(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, True, True, True, True, None)
+        return ManifoldReport(
+            0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, True, True, True, True, None
+        )
     he, uniq, inv, cnt = _edges(F)
     used = np.unique(F)
     chi = int(len(used) - len(uniq) + nf)
@@ -418,8 +460,14 @@ def manifold_report(mesh) -> ManifoldReport:
     _, labels = _components(nf + len(uniq), pairs)
     n_comp = len(np.unique(labels[:nf]))
     # vertex fans: nodes are (vertex, neighbour) pairs; face (v, a, b) links (v,a)-(v,b)
-    corners = np.concatenate([F, np.roll(F, -1, 1), np.roll(F, -2, 1)], 0)  # rows (v, a, b)
-    good = (corners[:, 0] != corners[:, 1]) & (corners[:, 0] != corners[:, 2]) & (corners[:, 1] != corners[:, 2])
+    corners = np.concatenate(
+        [F, np.roll(F, -1, 1), np.roll(F, -2, 1)], 0
+    )  # rows (v, a, b)
+    good = (
+        (corners[:, 0] != corners[:, 1])
+        & (corners[:, 0] != corners[:, 2])
+        & (corners[:, 1] != corners[:, 2])
+    )
     corners = corners[good]
     va = np.concatenate([corners[:, [0, 1]], corners[:, [0, 2]]], 0)
     keys, kinv = np.unique(va, axis=0, return_inverse=True)
@@ -445,8 +493,8 @@ def manifold_report(mesh) -> ManifoldReport:
         g2 = 2 * n_comp - chi
         genus = g2 // 2 if g2 % 2 == 0 else None
     return ManifoldReport(
-        n_vertices=int(len(used)),
-        n_edges=int(len(uniq)),
+        n_vertices=len(used),
+        n_edges=len(uniq),
         n_faces=int(nf),
         euler_characteristic=chi,
         n_components=int(n_comp),
