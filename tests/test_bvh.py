@@ -293,3 +293,65 @@ def test_jit_path_matches_the_host_path():
         jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(
             jnp.array([[1.0, 0, 0], [0, 0, 0]])
         )
+
+
+# -- k nearest neighbours ------------------------------------------------------------------------
+
+
+def _check_knn(S, Q, k, d, i):
+    """Against brute force: the k smallest distances, in (distance, index) order."""
+    D = np.sqrt(((Q[:, None, :] - S[None, :, :]) ** 2).sum(-1))
+    kk = min(k, len(S))
+    ref = np.sort(D, axis=1)[:, :kk]
+    np.testing.assert_allclose(d[:, :kk], ref, rtol=1e-14, atol=1e-300)
+    np.testing.assert_allclose(D[np.arange(len(Q))[:, None], i[:, :kk]], d[:, :kk], rtol=1e-14, atol=1e-300)
+    # ordered by (distance, index), no index repeated
+    same = d[:, 1:kk] == d[:, : kk - 1]
+    assert np.all((d[:, 1:kk] > d[:, : kk - 1]) | (same & (i[:, 1:kk] > i[:, : kk - 1])))
+    assert np.all(np.isinf(d[:, kk:])) and np.all(i[:, kk:] == -1)
+
+
+def test_nearest_neighbors_vs_brute_force_and_ckdtree():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(7)
+    cases = {
+        "uniform": rng.uniform(-1, 1, (2000, 3)),
+        "clustered": np.concatenate([rng.normal(size=(500, 3)) * 0.01, rng.uniform(-1, 1, (100, 3))]),
+        "flat": rng.normal(size=(800, 3)) * [1, 1, 1e-9],
+        "lattice ties": np.round(rng.uniform(-1, 1, (600, 3)) * 2) / 2,
+        "few": rng.uniform(-1, 1, (5, 3)),
+        "one point": np.zeros((1, 3)),
+    }
+    for name, S in cases.items():
+        Q = np.concatenate([rng.uniform(-1.5, 1.5, (300, 3)), S[:20], [[0, 0, 5.0], [-9, 3, 0]]])
+        for k in (1, 4, 8):
+            d, i = voxax.nearest_neighbors(S, Q, k)
+            assert d.shape == i.shape == (len(Q), k), name
+            _check_knn(S, Q, k, d, i)
+            kk = min(k, len(S))
+            dr, ir = cKDTree(S).query(Q, kk)
+            np.testing.assert_allclose(d[:, :kk], np.asarray(dr).reshape(len(Q), kk), rtol=1e-14, atol=1e-300)
+    d, i = voxax.nearest_neighbors(np.zeros((0, 3)), np.ones((2, 3)), 3)
+    assert np.all(i == -1) and np.all(np.isinf(d))
+
+
+def test_nearest_neighbors_jit_threads_and_errors():
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(8)
+    S, Q = rng.uniform(size=(3000, 3)), rng.uniform(size=(4000, 3))
+    a = voxax.nearest_neighbors(S, Q, 8, threads=1)
+    b = voxax.nearest_neighbors(S, Q, 8, threads=2)
+    c = jax.jit(lambda s, q: voxax.nearest_neighbors(s, q, 8))(jnp.asarray(S), jnp.asarray(Q))
+    for x, y, z in zip(a, b, c):
+        assert np.array_equal(x, y) and np.array_equal(x, np.asarray(z))
+    d, i = voxax.nearest_neighbors(S, Q[:12].reshape(3, 4, 3), 2)
+    assert d.shape == (3, 4, 2)
+    with pytest.raises(ValueError, match="k must"):
+        voxax.nearest_neighbors(S, Q, 33)
+    with pytest.raises(ValueError, match="NaN"):
+        voxax.nearest_neighbors(S, [[np.nan, 0, 0]], 1)
+    with pytest.raises(Exception, match="NaN"):
+        jax.jit(lambda q: voxax.nearest_neighbors(S, q, 2))(jnp.full((2, 3), jnp.nan))

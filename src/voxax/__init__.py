@@ -14,7 +14,8 @@ The public API:
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.BVH`, `voxax.closest_points`, `voxax.first_hits`, `voxax.any_hits`,
-  `voxax.all_hits`: exact closest points and watertight ray hits on triangle meshes.
+  `voxax.all_hits`: exact closest points and watertight ray hits on triangle meshes;
+  `voxax.nearest_neighbors`: exact k nearest neighbours of points.
 - `voxax.metrics`: surface sampling, Chamfer, Hausdorff, F-score, triangle quality,
   topology reports and IoU.
 - `voxax.fields`: analytic signed distances, implicit surfaces, CSG, SIREN and DeepSDF.
@@ -30,7 +31,17 @@ from . import apps, fabricate
 from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
-from ._spatial import BVH, AllHits, ClosestPoints, RayHits, all_hits, any_hits, closest_points, first_hits
+from ._spatial import (
+    BVH,
+    AllHits,
+    ClosestPoints,
+    RayHits,
+    all_hits,
+    any_hits,
+    closest_points,
+    first_hits,
+    nearest_neighbors,
+)
 from . import fields, metrics
 
 __version__ = "0.1.0"
@@ -58,6 +69,7 @@ __all__ = [
     "first_hits",
     "any_hits",
     "all_hits",
+    "nearest_neighbors",
     "fields",
     "metrics",
     "apps",

@@ -9,12 +9,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "CLOSEST_POINTS", "FIRST_HITS", "library", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "library", "library_path", "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
 CLOSEST_POINTS = "voxax_closest_points"
 FIRST_HITS = "voxax_first_hits"
+KNN = "voxax_knn"
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -47,7 +48,7 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD, CLOSEST_POINTS, FIRST_HITS):
+    for name in (FORWARD, BACKWARD, CLOSEST_POINTS, FIRST_HITS, KNN):
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 

@@ -106,6 +106,7 @@ def _lib():
             "voxax_hits_size": (i64, [_VP]),
             "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
             "voxax_hits_free": (None, [_VP]),
+            "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
         }
         for name, (res, args) in sig.items():
             fn = getattr(lib, name)
@@ -645,3 +646,61 @@ def all_hits(
     return _as_bvh(mesh).all_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
     )
+
+
+def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None):
+    """The `k` nearest of `points` to every query point, exactly (a uniform-grid search).
+
+    Neighbours are ordered by distance, ties by index (so the result is unique and the
+    same for any thread count). Where `k` exceeds the number of points, the missing
+    neighbours have index -1 and distance `inf`. Under `jax.jit` (traced arguments) this
+    runs as an FFI kernel with a static `(M, k)` output and returns JAX arrays.
+
+    **Arguments:**
+
+    - `points`: `(N, 3)` float, the data points.
+    - `queries`: `(..., 3)` float.
+    - `k`: number of neighbours, 1 <= k <= 32.
+    - `threads`: number of threads for the eager path (default: all cores).
+
+    **Returns:** `(distances (..., k) float64, indices (..., k) int32)`, like
+    `scipy.spatial.cKDTree.query` (which returns int64 indices and drops the last axis
+    for `k=1`; here the `k` axis is always kept).
+
+    >>> d, i = nearest_neighbors([[0, 0, 0], [1, 0, 0], [3, 0, 0]], [[0.9, 0, 0]], k=2)
+    >>> i.tolist(), d.round(12).tolist()
+    ([[1, 0]], [[0.1, 0.9]])
+    """
+    k = int(k)
+    if not 1 <= k <= 32:
+        raise ValueError(f"k must lie in [1, 32], got {k}")
+    if _traced(points, queries):
+        import jax.numpy as jnp
+
+        if not jax.config.jax_enable_x64:
+            raise ValueError("the jit path of nearest_neighbors computes in float64: enable jax_enable_x64")
+        s = _rows(points, "points")
+        if s.ndim != 2:
+            raise ValueError(f"points must have shape (N, 3), got {s.shape}")
+        q = _rows(queries, "queries")
+        lead = q.shape[:-1]
+        flat = q.reshape(-1, 3)
+        m = flat.shape[0]
+        out = (jax.ShapeDtypeStruct((m, k), np.int32), jax.ShapeDtypeStruct((m, k), np.float64))
+        idx, dist = jax.ffi.ffi_call(_ffi.KNN, out, vmap_method="sequential")(s, flat)
+        return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
+    s = _coords(points, "points")
+    if s.ndim != 2:
+        raise ValueError(f"points must have shape (N, 3), got {s.shape}")
+    q = _coords(queries, "queries")
+    lead = q.shape[:-1]
+    q = q.reshape(-1, 3)
+    m = len(q)
+    idx = np.empty((m, k), np.int32)
+    dist = np.empty((m, k), np.float64)
+    err = ctypes.create_string_buffer(_ERRLEN)
+    status = _lib().voxax_knn_host(
+        _ptr(s, _D), len(s), _ptr(q, _D), m, k, _threads(threads), _ptr(idx, _I32), _ptr(dist, _D), err, _ERRLEN
+    )
+    _check(status, err)
+    return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
