@@ -6,7 +6,9 @@ trefoil knot, max |v| = 0.75). Queries:
 - rays: origins uniform in [-1, 1]^3, directions uniform on the sphere (incoherent rays,
   most of them hit the tube), `first_hits` and `any_hits`;
 - closest points: points uniform in [-1, 1]^3 ("volume") and points within 0.01 of the
-  surface ("near"), `closest_points`.
+  surface ("near"), `closest_points`;
+- nearest neighbours: the "near" points against 20,000 seeds sampled on the surface
+  (`nearest_neighbors`, k = 1 and 3), the nearest-seed pass of CVT meshing.
 
 Each query set is timed `--repeats` times after one warm-up; the best time is reported,
 both as wall-clock throughput and as a CPU-time estimate: `threads * queries / CPU seconds`
@@ -80,6 +82,15 @@ def run(n_faces: int, n_queries: int, threads: int, repeats: int, rng) -> dict:
         wall, cpu = best_time(fn, repeats)
         res[f"{name}_wall"] = n_queries / wall
         res[f"{name}_cpu"] = threads * n_queries / cpu
+    # nearest neighbours: 20k seeds on the surface, the near-surface points as queries
+    seeds = voxax.metrics.sample_surface(mesh, 20_000, seed=2).points
+    for k in (1, 3):
+        wall, cpu = best_time(
+            lambda k=k: voxax.nearest_neighbors(seeds, near, k, threads=threads),
+            repeats,
+        )
+        res[f"knn{k}_wall"] = n_queries / wall
+        res[f"knn{k}_cpu"] = threads * n_queries / cpu
     for name, fn in (
         ("first_hits", lambda: bvh.first_hits(o, d, threads=1)),
         ("closest_near", lambda: bvh.closest_points(near, threads=1)),
@@ -98,6 +109,8 @@ def table(results: list[dict], threads: int) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     names = {
+        "knn1": "nearest of 20k seeds (k=1)",
+        "knn3": "3 nearest of 20k seeds (k=3)",
         "first_hits": "first hits",
         "any_hits": "any hits",
         "closest_near": "closest points, near surface",

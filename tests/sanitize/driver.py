@@ -753,6 +753,16 @@ def run_spatial(rng, n_inputs):
                 if not np.array_equal(np.asarray(jr.t), first.t):
                     fail(f"{label}: FFI first hits differ from the host path")
                 CALLS["spatial_ffi"] += 2
+            # k nearest neighbours of the vertices, host and FFI, against brute force
+            kn = 1 + i % 8
+            dk, ik = voxax.nearest_neighbors(v, p, kn, threads=1 + i % 2)
+            jd, ji = jax.jit(lambda s_, q_, kn=kn: voxax.nearest_neighbors(s_, q_, kn))(v, p)
+            if not (np.array_equal(np.asarray(jd), dk) and np.array_equal(np.asarray(ji), ik)):
+                fail(f"{label}: kNN FFI differs from the host path")
+            ref = np.sort(np.sqrt(((p[:, None] - v[None]) ** 2).sum(-1)), axis=1)[:, :kn]
+            if not np.allclose(dk[:, : ref.shape[1]], ref, rtol=1e-12, atol=0):
+                fail(f"{label}: kNN distances differ from brute force")
+            CALLS["spatial_knn"] += 2
         except Exception:  # noqa: BLE001
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
@@ -771,6 +781,13 @@ def run_spatial(rng, n_inputs):
                       "out of range"),
         "jit zero direction": (lambda: jax.jit(lambda dd: voxax.first_hits((v, f), jnp.zeros((1, 3)), dd))(
             jnp.zeros((1, 3))), "zero"),
+        "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "k must"),
+        "raw FFI kNN k = 0": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+            jax.ShapeDtypeStruct((3, 0), jnp.int32), jax.ShapeDtypeStruct((3, 0), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "k must"),
+        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+            jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "shape"),
         "raw FFI wrong rank": (lambda: jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, (
             jax.ShapeDtypeStruct((3,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
