@@ -9,11 +9,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "MARCHING_CUBES", "library", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "library", "library_path",
+           "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
 MARCHING_CUBES = "voxax_marching_cubes"
+CLOSEST_POINTS = "voxax_closest_points"
+FIRST_HITS = "voxax_first_hits"
+KNN = "voxax_knn"
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -46,7 +50,7 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD, MARCHING_CUBES):
+    for name in (FORWARD, BACKWARD, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN):
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 
@@ -55,7 +59,7 @@ _LIB = _register()
 
 
 def library() -> ctypes.CDLL:
-    """The loaded kernel library (for its plain C entry points)."""
+    """The loaded kernel library (for the eager host entry points called through ctypes)."""
     return _LIB
 
 
