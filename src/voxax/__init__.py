@@ -15,6 +15,14 @@ The public API:
   stopping rules (`voxax.StopRules`, `voxax.StopReason`) and box bounds.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
+- `voxax.isosurface(values, grid, level)`: marching cubes (squares in 2D), differentiable in
+  the samples; `voxax.isosurface_fn(fn, params, grid)`: MeshSDF for fields given as functions.
+- `voxax.BVH`, `voxax.closest_points`, `voxax.first_hits`, `voxax.any_hits`,
+  `voxax.all_hits`: exact closest points and watertight ray hits on triangle meshes;
+  `voxax.nearest_neighbors`: exact k nearest neighbours of points.
+- `voxax.metrics`: surface sampling, Chamfer, Hausdorff, F-score, triangle quality,
+  topology reports and IoU.
+- `voxax.fields`: analytic signed distances, implicit surfaces, CSG, SIREN and DeepSDF.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 """
 
@@ -27,6 +35,19 @@ from . import apps, fabricate
 from ._filters import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopReason, StopRules, minimize
+from ._isosurface import IsoMesh, isosurface, isosurface_fn, isosurface_topology, isosurface_vertices
+from ._spatial import (
+    BVH,
+    AllHits,
+    ClosestPoints,
+    RayHits,
+    all_hits,
+    any_hits,
+    closest_points,
+    first_hits,
+    nearest_neighbors,
+)
+from . import fields, metrics
 
 __version__ = "0.1.0"
 
@@ -44,9 +65,25 @@ __all__ = [
     "Box",
     "Gaussian",
     "minimize",
+    "isosurface",
+    "isosurface_fn",
+    "isosurface_topology",
+    "isosurface_vertices",
+    "IsoMesh",
     "MinimizeResult",
     "StopRules",
     "StopReason",
+    "BVH",
+    "ClosestPoints",
+    "RayHits",
+    "AllHits",
+    "closest_points",
+    "first_hits",
+    "any_hits",
+    "all_hits",
+    "nearest_neighbors",
+    "fields",
+    "metrics",
     "apps",
     "fabricate",
     "baselines",

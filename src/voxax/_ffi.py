@@ -9,10 +9,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "library", "library_path",
+           "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
+MARCHING_CUBES = "voxax_marching_cubes"
+CLOSEST_POINTS = "voxax_closest_points"
+FIRST_HITS = "voxax_first_hits"
+KNN = "voxax_knn"
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -45,12 +50,17 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD):
+    for name in (FORWARD, BACKWARD, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN):
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 
 
 _LIB = _register()
+
+
+def library() -> ctypes.CDLL:
+    """The loaded kernel library (for the eager host entry points called through ctypes)."""
+    return _LIB
 
 
 def grid_attributes(grid) -> dict:

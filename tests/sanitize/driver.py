@@ -682,6 +682,134 @@ def run_raw_ffi(rng):
     check_result("raw FFI after errors", W, [], len(f), g)
 
 
+# -- spatial queries (BVH) -----------------------------------------------------------------
+
+
+def _spatial_soup(rng, kind):
+    nf = int(rng.integers(0, 60))
+    v = rng.uniform(-1, 1, (3 * nf + 1, 3))
+    f = rng.integers(0, len(v), (nf, 3)).astype(np.int32)
+    if kind == "degenerate" and nf:
+        f = np.arange(3 * nf, dtype=np.int32).reshape(nf, 3)
+        k = 3 * nf
+        v[2:k:3] = v[0:k:3] + 0.37 * (v[1:k:3] - v[0:k:3])  # collinear corners
+        f[: nf // 3, 2] = f[: nf // 3, 1]  # repeated index
+    elif kind == "huge":
+        v = v * 10.0 ** rng.integers(20, 75)
+    elif kind == "tiny":
+        v = v * 10.0 ** -rng.integers(20, 300)
+    elif kind == "flat":
+        v[:, 2] = 0.0  # every face in one plane, rays in it
+    elif kind == "grid":
+        v = np.round(v * 2) / 2  # coincident vertices and faces on shared edges
+    return v, f
+
+
+def run_spatial(rng, n_inputs):
+    """BVH closest points and ray hits (host and FFI paths) on adversarial soups, with
+    brute-force checks of the distances on small inputs and hostile inputs that must raise."""
+    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid")
+    for i in range(n_inputs):
+        kind = kinds[i % len(kinds)]
+        v, f = _spatial_soup(rng, kind)
+        scale = float(np.abs(v).max()) if v.size else 1.0
+        p = rng.uniform(-1.5, 1.5, (40, 3)) * scale
+        k = min(5, len(v))
+        p[:k] = v[:k]  # queries exactly on vertices
+        o = rng.uniform(-1.5, 1.5, (40, 3)) * scale
+        d = rng.normal(size=(40, 3))
+        d[:10] = np.round(d[:10])  # axis-aligned and diagonal directions
+        d[np.all(d == 0, axis=1)] = (0.0, 0.0, 1.0)
+        o[:k] = v[:k] - d[:k]  # rays through vertices
+        label = f"spatial/{kind}/{i}"
+        try:
+            bvh = voxax.BVH(v, f)
+            cp = bvh.closest_points(p, threads=1 + i % 3)
+            hits = bvh.all_hits(o, d, threads=1 + i % 2)
+            first = bvh.first_hits(o, d)
+            CALLS["spatial_host"] += 3
+            if len(f):
+                if not np.all(np.isfinite(cp.distance)) or np.any(cp.face < 0) or np.any(cp.face >= len(f)):
+                    fail(f"{label}: non-finite distance or bad face")
+                # the reported point is at the reported distance
+                err = np.abs(np.linalg.norm(p - cp.point, axis=1) - cp.distance)
+                if np.any(err > 1e-9 * (1 + scale)):
+                    fail(f"{label}: closest point not at its distance (max error {err.max():.3g})")
+                # no vertex is closer than the reported distance
+                dv = np.min(np.linalg.norm(p[:, None] - v[np.unique(f)][None], axis=2), axis=1)
+                if np.any(cp.distance > dv * (1 + 1e-12) + 1e-300):
+                    fail(f"{label}: a vertex is closer than the reported closest point")
+            if np.any(hits.face >= len(f)) or not np.all(np.isfinite(hits.t)):
+                fail(f"{label}: bad hits")
+            firsts = np.where(hits.counts() > 0, hits.t[np.minimum(hits.offsets[:-1], max(len(hits.t) - 1, 0))]
+                              if len(hits.t) else np.inf, np.inf)
+            if not np.array_equal(np.where(first.hit, first.t, np.inf), firsts):
+                fail(f"{label}: first hit differs from the first of all hits")
+            if len(f):
+                jf = jax.jit(lambda vv, ff, pp: voxax.closest_points((vv, ff), pp))(v, f, p)
+                if not np.array_equal(np.asarray(jf.distance), cp.distance):
+                    fail(f"{label}: FFI closest points differ from the host path")
+                jr = jax.jit(lambda vv, ff, a, b: voxax.first_hits((vv, ff), a, b))(v, f, o, d)
+                if not np.array_equal(np.asarray(jr.t), first.t):
+                    fail(f"{label}: FFI first hits differ from the host path")
+                CALLS["spatial_ffi"] += 2
+            # k nearest neighbours of the vertices, host and FFI, against brute force
+            kn = 1 + i % 8
+            dk, ik = voxax.nearest_neighbors(v, p, kn, threads=1 + i % 2)
+            jd, ji = jax.jit(lambda s_, q_, kn=kn: voxax.nearest_neighbors(s_, q_, kn))(v, p)
+            if not (np.array_equal(np.asarray(jd), dk) and np.array_equal(np.asarray(ji), ik)):
+                fail(f"{label}: kNN FFI differs from the host path")
+            ref = np.sort(np.sqrt(((p[:, None] - v[None]) ** 2).sum(-1)), axis=1)[:, :kn]
+            if not np.allclose(dk[:, : ref.shape[1]], ref, rtol=1e-12, atol=0):
+                fail(f"{label}: kNN distances differ from brute force")
+            CALLS["spatial_knn"] += 2
+        except Exception:  # noqa: BLE001
+            fail(f"{label}: raised\n" + traceback.format_exc())
+        COUNTS["spatial"] += 1
+    # hostile inputs: every path must raise a clear error
+    v, f = _spatial_soup(rng, "random")
+    v, f = v[:30], np.arange(30, dtype=np.int32).reshape(10, 3)
+    bad = {
+        "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
+        "Inf origin": (lambda: voxax.first_hits((v, f), [[np.inf, 0, 0]], [[1, 0, 0]]), "NaN or Inf"),
+        "zero direction": (lambda: voxax.all_hits((v, f), [[0, 0, 0]], [[0, 0, 0]]), "zero"),
+        "index high": (lambda: voxax.BVH(v, f.clip(max=29) + 1), "range"),
+        "huge vertex": (lambda: voxax.BVH(v * 1e80, f), "1e75"),
+        "jit NaN point": (lambda: jax.jit(lambda pp: voxax.closest_points((v, f), pp))(jnp.full((3, 3), jnp.nan)),
+                          "NaN"),
+        "jit index": (lambda: jax.jit(lambda ff: voxax.closest_points((v, ff), jnp.zeros((1, 3))))(f + 100),
+                      "out of range"),
+        "jit zero direction": (lambda: jax.jit(lambda dd: voxax.first_hits((v, f), jnp.zeros((1, 3)), dd))(
+            jnp.zeros((1, 3))), "zero"),
+        "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "k must"),
+        "raw FFI kNN k = 0": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+            jax.ShapeDtypeStruct((3, 0), jnp.int32), jax.ShapeDtypeStruct((3, 0), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "k must"),
+        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+            jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "shape"),
+        "raw FFI wrong rank": (lambda: jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, (
+            jax.ShapeDtypeStruct((3,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
+            jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
+            jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 2))), "shape"),
+        "raw FFI wrong outputs": (lambda: jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, (
+            jax.ShapeDtypeStruct((5,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
+            jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
+            jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 3))), "outputs"),
+    }
+    for name, (call, match) in bad.items():
+        try:
+            jax.block_until_ready(call())
+        except (ValueError, TypeError, jax.errors.JaxRuntimeError) as err:
+            if not re.search(match, str(err)):
+                fail(f"spatial '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"spatial '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"spatial '{name}': no error raised")
+        COUNTS["spatial_invalid"] += 1
+
+
 def pool_threads():
     """Threads of XLA's CPU pool (the one the kernels run on), by name."""
     try:
@@ -708,6 +836,7 @@ def main(argv=None):
     parser.add_argument("--inputs", type=int, default=4000, help="single-mesh inputs to try (batched ones add more)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--reference-fraction", type=float, default=0.1)
+    parser.add_argument("--spatial-inputs", type=int, default=300, help="inputs for the BVH queries")
     parser.add_argument("--json", help="write the counts to this file")
     parser.add_argument("--artifacts", help="save the inputs of failed checks in this directory")
     args = parser.parse_args(argv)
@@ -734,6 +863,7 @@ def main(argv=None):
             for dtype in dtypes:
                 run_zero_size(dim, dtype)
         run_raw_ffi(rng)
+        run_spatial(rng, args.spatial_inputs)
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -760,6 +890,7 @@ def main(argv=None):
         print(f"  {k}: {val}")
     print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size"]))
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
+    print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
     print("kernel invocations: " + ", ".join(f"{k} {v}" for k, v in sorted(CALLS.items())) + f" (total {sum(CALLS.values())})")
     print(f"jitted functions compiled: {len(_JIT)}; XLA pool threads: {pool_threads()}")

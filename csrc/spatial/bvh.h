@@ -1,0 +1,646 @@
+// A bounding volume hierarchy over triangles, in float64: closest points on the
+// mesh and ray hits (first, any, all).
+//
+// Build: binned surface-area heuristic over triangle centroids (kBins bins per
+// axis, leaves of at most kMaxLeaf triangles unless the centroids coincide),
+// single-threaded and deterministic. The triangles are stored in tree order as
+// nine doubles each, next to their original face indices.
+//
+// Closest point: the exact point-triangle distance by region classification
+// (vertex, edge and face regions of the triangle, tested on the dot products of
+// the point with the edges), with a fallback to the three edges as segments for
+// triangles whose area is negligible (|n|^2 <= 1e-24 * e_max^4), so degenerate
+// triangles are handled and never divide by zero. Equal distances resolve to
+// the lowest face index.
+//
+// Rays: the watertight ray-triangle test of Woop, Benthin and Wald (2013). The
+// ray is translated to the origin, its largest direction component becomes z,
+// and a shear maps the ray onto the z axis; the three 2D edge functions of the
+// sheared triangle then decide the hit. A shared edge yields bit-for-bit negated
+// edge functions in its two triangles, so no ray slips between them. Where an
+// edge function is exactly zero (the ray meets an edge or a vertex), a
+// tie-breaking rule on the edge's sheared 2D direction counts the hit for
+// exactly one of two consistently oriented triangles sharing that edge. Rays in
+// a triangle's plane never hit it. Box tests use the robust slab test with the
+// far distance scaled by 1 + 2 gamma_3 (Ize 2013).
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace voxax {
+namespace spatial {
+
+struct Box3 {
+  double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                  std::numeric_limits<double>::infinity()};
+  double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                  -std::numeric_limits<double>::infinity()};
+  void grow(const double* p) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  void grow(const Box3& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  bool empty() const { return !(lo[0] <= hi[0]); }
+  double half_area() const {
+    if (empty()) return 0.0;
+    const double x = hi[0] - lo[0], y = hi[1] - lo[1], z = hi[2] - lo[2];
+    return x * y + y * z + z * x;
+  }
+  // Squared distance from p to the box (0 inside).
+  double dist2(const double* p) const {
+    double s = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      double d = 0.0;
+      if (p[a] < lo[a]) d = lo[a] - p[a];
+      else if (p[a] > hi[a]) d = p[a] - hi[a];
+      s += d * d;
+    }
+    return s;
+  }
+};
+
+struct Node {
+  Box3 box;
+  int32_t first = 0;  // leaf: first triangle; inner: index of the left child
+  int32_t count = 0;  // leaf: number of triangles (> 0); inner: 0 (right child = left + 1)
+};
+
+struct ClosestResult {
+  double dist2 = std::numeric_limits<double>::infinity();
+  int32_t face = -1;
+  int32_t slot = -1;  // position of the face in tree order (a warm start for a nearby query)
+  double bary[3] = {0, 0, 0};
+  double point[3] = {0, 0, 0};
+};
+
+struct RayHit {
+  double t = std::numeric_limits<double>::infinity();
+  int32_t face = -1;
+  double bary[3] = {0, 0, 0};
+  int8_t sign = 0;  // -1: the ray crosses against the face normal (enters), +1: along it
+};
+
+// Closest point of triangle (a, b, c) to p. Writes barycentrics (of a, b, c)
+// and the point; returns the squared distance.
+inline double closest_on_segment(const double* p, const double* a, const double* b, double* t_out,
+                                 double* q) {
+  double ab[3], ap[3];
+  for (int i = 0; i < 3; ++i) {
+    ab[i] = b[i] - a[i];
+    ap[i] = p[i] - a[i];
+  }
+  const double len2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+  double t = 0.0;
+  if (len2 > 0.0) {
+    t = (ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / len2;
+    t = std::min(1.0, std::max(0.0, t));
+  }
+  double d2 = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    q[i] = a[i] + t * ab[i];
+    const double d = p[i] - q[i];
+    d2 += d * d;
+  }
+  *t_out = t;
+  return d2;
+}
+
+// Whether a triangle's area is negligible: |n|^2 <= 1e-24 e_max^4 (then it is
+// treated as the union of its edges).
+inline bool triangle_degenerate(const double* a, const double* b, const double* c) {
+  double ab[3], ac[3], bc[3];
+  for (int i = 0; i < 3; ++i) {
+    ab[i] = b[i] - a[i];
+    ac[i] = c[i] - a[i];
+    bc[i] = c[i] - b[i];
+  }
+  const double n[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+                       ab[0] * ac[1] - ab[1] * ac[0]};
+  const double n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+  const double lab = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+  const double lac = ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2];
+  const double lbc = bc[0] * bc[0] + bc[1] * bc[1] + bc[2] * bc[2];
+  const double emax = std::max(lab, std::max(lac, lbc));
+  return !(n2 > 1e-24 * emax * emax);
+}
+
+inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
+                                  double* bary, double* q, bool degenerate);
+inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
+                                  double* bary, double* q) {
+  return closest_on_triangle(p, a, b, c, bary, q, triangle_degenerate(a, b, c));
+}
+inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
+                                  double* bary, double* q, bool degenerate) {
+  double ab[3], ac[3], ap[3];
+  for (int i = 0; i < 3; ++i) {
+    ab[i] = b[i] - a[i];
+    ac[i] = c[i] - a[i];
+    ap[i] = p[i] - a[i];
+  }
+  if (degenerate) {
+    // Degenerate (or nearly): the triangle is (within rounding) the union of its edges.
+    double best = std::numeric_limits<double>::infinity(), t, tmp[3];
+    const double* ends[3][2] = {{a, b}, {b, c}, {c, a}};
+    for (int e = 0; e < 3; ++e) {
+      const double d2 = closest_on_segment(p, ends[e][0], ends[e][1], &t, tmp);
+      if (d2 < best) {
+        best = d2;
+        double w[3] = {0, 0, 0};
+        w[e] = 1.0 - t;
+        w[(e + 1) % 3] = t;
+        for (int i = 0; i < 3; ++i) {
+          bary[i] = w[i];
+          q[i] = tmp[i];
+        }
+      }
+    }
+    return best;
+  }
+  auto dot = [](const double* u, const double* v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; };
+  auto finish = [&](double wa, double wb, double wc) {
+    bary[0] = wa;
+    bary[1] = wb;
+    bary[2] = wc;
+    double d2 = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      q[i] = wa * a[i] + wb * b[i] + wc * c[i];
+      const double d = p[i] - q[i];
+      d2 += d * d;
+    }
+    return d2;
+  };
+  // Vertex region of a.
+  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0.0 && d2 <= 0.0) return finish(1, 0, 0);
+  // Vertex region of b.
+  double bp[3];
+  for (int i = 0; i < 3; ++i) bp[i] = p[i] - b[i];
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0.0 && d4 <= d3) return finish(0, 1, 0);
+  // Edge region of ab.
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
+    const double v = d1 / (d1 - d3);  // d1 - d3 = |ab|^2 > 0 here
+    return finish(1 - v, v, 0);
+  }
+  // Vertex region of c.
+  double cp[3];
+  for (int i = 0; i < 3; ++i) cp[i] = p[i] - c[i];
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0.0 && d5 <= d6) return finish(0, 0, 1);
+  // Edge region of ac.
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
+    const double w = d2 / (d2 - d6);
+    return finish(1 - w, 0, w);
+  }
+  // Edge region of bc.
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
+    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return finish(0, 1 - w, w);
+  }
+  // Face region: va + vb + vc = |n|^2 > 0.
+  const double denom = 1.0 / (va + vb + vc);
+  const double v = vb * denom, w = vc * denom;
+  return finish(1 - v - w, v, w);
+}
+
+// A ray prepared for the watertight test and the slab test.
+struct Ray {
+  double org[3], dir[3];
+  double tmin, tmax;
+  int kx, ky, kz;
+  double sx, sy, sz;
+  double inv[3];
+  bool flat[3];  // dir[a] == 0
+};
+
+inline Ray make_ray(const double* o, const double* d, double tmin, double tmax) {
+  Ray r;
+  for (int a = 0; a < 3; ++a) {
+    r.org[a] = o[a];
+    r.dir[a] = d[a];
+    r.flat[a] = d[a] == 0.0;
+    r.inv[a] = r.flat[a] ? 0.0 : 1.0 / d[a];
+  }
+  r.tmin = tmin;
+  r.tmax = tmax;
+  const double ax = std::fabs(d[0]), ay = std::fabs(d[1]), az = std::fabs(d[2]);
+  r.kz = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);
+  r.kx = (r.kz + 1) % 3;
+  r.ky = (r.kx + 1) % 3;
+  if (d[r.kz] < 0.0) std::swap(r.kx, r.ky);  // keep the winding
+  r.sx = d[r.kx] / d[r.kz];
+  r.sy = d[r.ky] / d[r.kz];
+  r.sz = 1.0 / d[r.kz];
+  return r;
+}
+
+// Robust slab test: the entry distance, or +inf when the box is missed within
+// [tmin, tfar].
+inline double ray_box(const Ray& r, const Box3& b, double tfar) {
+  constexpr double kGrow = 1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
+  double t0 = r.tmin, t1 = tfar;
+  for (int a = 0; a < 3; ++a) {
+    if (r.flat[a]) {
+      if (r.org[a] < b.lo[a] || r.org[a] > b.hi[a]) return std::numeric_limits<double>::infinity();
+      continue;
+    }
+    double tn = (b.lo[a] - r.org[a]) * r.inv[a];
+    double tf = (b.hi[a] - r.org[a]) * r.inv[a];
+    if (tn > tf) std::swap(tn, tf);
+    tf *= kGrow;
+    t0 = tn > t0 ? tn : t0;
+    t1 = tf < t1 ? tf : t1;
+    if (t0 > t1) return std::numeric_limits<double>::infinity();
+  }
+  return t0;
+}
+
+// Whether a zero edge function counts as inside: exactly one of an edge
+// direction (dx, dy) != 0 and its reverse passes.
+inline bool edge_owns(double dx, double dy) { return dy > 0.0 || (dy == 0.0 && dx > 0.0); }
+
+// The watertight test. On a hit within [r.tmin, tmax] fills *hit and returns true.
+inline bool ray_triangle(const Ray& r, const double* tri, double tmax, RayHit* hit) {
+  const double* A = tri;
+  const double* B = tri + 3;
+  const double* C = tri + 6;
+  double a[3], b[3], c[3];
+  for (int i = 0; i < 3; ++i) {
+    a[i] = A[i] - r.org[i];
+    b[i] = B[i] - r.org[i];
+    c[i] = C[i] - r.org[i];
+  }
+  const double ax = a[r.kx] - r.sx * a[r.kz], ay = a[r.ky] - r.sy * a[r.kz];
+  const double bx = b[r.kx] - r.sx * b[r.kz], by = b[r.ky] - r.sy * b[r.kz];
+  const double cx = c[r.kx] - r.sx * c[r.kz], cy = c[r.ky] - r.sy * c[r.kz];
+  const double U = cx * by - cy * bx;  // edge c -> b (weight of a)
+  const double V = ax * cy - ay * cx;  // edge a -> c (weight of b)
+  const double W = bx * ay - by * ax;  // edge b -> a (weight of c)
+  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+  const double det = U + V + W;
+  if (det == 0.0) return false;
+  const double s = det > 0.0 ? 1.0 : -1.0;
+  // Zero edge functions: the ray meets that edge; one owner per edge direction.
+  if (U == 0.0 && !edge_owns(s * (bx - cx), s * (by - cy))) return false;
+  if (V == 0.0 && !edge_owns(s * (cx - ax), s * (cy - ay))) return false;
+  if (W == 0.0 && !edge_owns(s * (ax - bx), s * (ay - by))) return false;
+  const double az = r.sz * a[r.kz], bz = r.sz * b[r.kz], cz = r.sz * c[r.kz];
+  const double T = U * az + V * bz + W * cz;
+  const double t = T / det;
+  if (!(t >= r.tmin && t <= tmax)) return false;
+  hit->t = t;
+  hit->bary[0] = U / det;
+  hit->bary[1] = V / det;
+  hit->bary[2] = W / det;
+  // The sign of the crossing from the geometric normal (exactly where it is not tiny).
+  double ab[3], ac[3];
+  for (int i = 0; i < 3; ++i) {
+    ab[i] = B[i] - A[i];
+    ac[i] = C[i] - A[i];
+  }
+  const double nd = (ab[1] * ac[2] - ab[2] * ac[1]) * r.dir[0] + (ab[2] * ac[0] - ab[0] * ac[2]) * r.dir[1] +
+                    (ab[0] * ac[1] - ab[1] * ac[0]) * r.dir[2];
+  hit->sign = nd < 0.0 ? -1 : (nd > 0.0 ? 1 : 0);
+  return true;
+}
+
+class Bvh {
+ public:
+  static constexpr int kBins = 16;
+  static constexpr int kMaxLeaf = 4;
+
+  // V: (nv, 3), F: (nf, 3), both validated by the caller.
+  void build(const double* V, const int32_t* F, int64_t nf) {
+    const int32_t n = static_cast<int32_t>(nf);
+    tris_.assign(static_cast<size_t>(n) * 9, 0.0);
+    ids_.resize(n);
+    degenerate_.assign(n, 0);
+    tri_boxes_.assign(n, Box3());
+    nodes_.clear();
+    std::vector<Box3> boxes(n);
+    std::vector<std::array<double, 3>> cent(n);
+    std::vector<int32_t> order(n);
+    for (int32_t f = 0; f < n; ++f) {
+      order[f] = f;
+      for (int k = 0; k < 3; ++k) boxes[f].grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
+      for (int a = 0; a < 3; ++a) cent[f][a] = 0.5 * (boxes[f].lo[a] + boxes[f].hi[a]);
+    }
+    if (n == 0) return;
+    nodes_.reserve(2 * static_cast<size_t>(n / kMaxLeaf + 1));
+    nodes_.emplace_back();
+    struct Task {
+      int32_t node, begin, end;
+    };
+    std::vector<Task> stack{{0, 0, n}};
+    while (!stack.empty()) {
+      const Task task = stack.back();
+      stack.pop_back();
+      Node& node = nodes_[task.node];
+      Box3 cb;
+      for (int32_t i = task.begin; i < task.end; ++i) {
+        node.box.grow(boxes[order[i]]);
+        cb.grow(cent[order[i]].data());
+      }
+      const int32_t count = task.end - task.begin;
+      int32_t mid = -1;
+      if (count > kMaxLeaf) mid = split(boxes, cent, order, task.begin, task.end, node.box, cb);
+      if (mid < 0) {
+        nodes_[task.node].first = task.begin;
+        nodes_[task.node].count = count;
+        continue;
+      }
+      const int32_t left = static_cast<int32_t>(nodes_.size());
+      nodes_[task.node].first = left;
+      nodes_[task.node].count = 0;
+      nodes_.emplace_back();
+      nodes_.emplace_back();
+      stack.push_back({left + 1, mid, task.end});
+      stack.push_back({left, task.begin, mid});
+    }
+    for (int32_t i = 0; i < n; ++i) {
+      const int32_t f = order[i];
+      ids_[i] = f;
+      for (int k = 0; k < 3; ++k)
+        for (int a = 0; a < 3; ++a)
+          tris_[9 * static_cast<size_t>(i) + 3 * k + a] = V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
+      tri_boxes_[i] = boxes[f];
+    }
+  }
+
+  int64_t node_count() const { return static_cast<int64_t>(nodes_.size()); }
+  int64_t face_count() const { return static_cast<int64_t>(ids_.size()); }
+
+  // The closest point to p. `hint` (a slot from an earlier result, or -1) seeds the
+  // search with that triangle's distance; the answer does not depend on it: it is
+  // always the smallest (distance, face index).
+  ClosestResult closest(const double* p, int32_t hint = -1) const {
+    ClosestResult best;
+    if (nodes_.empty()) return best;
+    int32_t stack[128];
+    int sp = 0;
+    stack[sp++] = 0;
+    double bary[3], q[3];
+    if (hint >= 0 && hint < static_cast<int32_t>(ids_.size())) {
+      const double* t = &tris_[9 * static_cast<size_t>(hint)];
+      best.dist2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[hint] != 0);
+      best.face = ids_[hint];
+      best.slot = hint;
+      for (int a = 0; a < 3; ++a) {
+        best.bary[a] = bary[a];
+        best.point[a] = q[a];
+      }
+    }
+    while (sp > 0) {
+      const Node& node = nodes_[stack[--sp]];
+      if (node.box.dist2(p) > best.dist2) continue;
+      if (node.count > 0) {
+        for (int32_t i = node.first; i < node.first + node.count; ++i) {
+          if (tri_boxes_[i].dist2(p) > best.dist2) continue;
+          const double* t = &tris_[9 * static_cast<size_t>(i)];
+          const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[i] != 0);
+          if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
+            best.dist2 = d2;
+            best.face = ids_[i];
+            best.slot = i;
+            for (int a = 0; a < 3; ++a) {
+              best.bary[a] = bary[a];
+              best.point[a] = q[a];
+            }
+          }
+        }
+        continue;
+      }
+      const int32_t l = node.first, r = l + 1;
+      const double dl = nodes_[l].box.dist2(p), dr = nodes_[r].box.dist2(p);
+      // Push the farther child first so that the nearer one is visited first.
+      if (sp + 2 > 128) {  // cannot happen for trees of depth < 128; stay safe
+        return brute_closest(p);
+      }
+      if (dl <= dr) {
+        if (dr <= best.dist2) stack[sp++] = r;
+        if (dl <= best.dist2) stack[sp++] = l;
+      } else {
+        if (dl <= best.dist2) stack[sp++] = l;
+        if (dr <= best.dist2) stack[sp++] = r;
+      }
+    }
+    return best;
+  }
+
+  // mode 0: first hit (smallest t, ties to the lowest face index); mode 1: any hit.
+  bool first_hit(const Ray& ray, bool any, RayHit* out) const {
+    RayHit best;
+    best.t = ray.tmax;
+    bool found = false;
+    if (nodes_.empty()) return false;
+    int32_t stack[128];
+    int sp = 0;
+    if (ray_box(ray, nodes_[0].box, ray.tmax) == std::numeric_limits<double>::infinity()) return false;
+    stack[sp++] = 0;
+    RayHit h;
+    while (sp > 0) {
+      const Node& node = nodes_[stack[--sp]];
+      // Boxes are culled against the best t with a relative margin: a triangle's computed
+      // t and its box's slab distance round differently, and a hit a few ulps before the
+      // best one must not be culled (the result is the smallest computed t).
+      const double cull = best.t + 1e-9 * std::fabs(best.t);
+      if (ray_box(ray, node.box, cull) == std::numeric_limits<double>::infinity()) continue;
+      if (node.count > 0) {
+        for (int32_t i = node.first; i < node.first + node.count; ++i) {
+          if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], best.t, &h)) {
+            if (!found || h.t < best.t || (h.t == best.t && ids_[i] < best.face)) {
+              best = h;
+              best.face = ids_[i];
+              found = true;
+              if (any) {
+                *out = best;
+                return true;
+              }
+            }
+          }
+        }
+        continue;
+      }
+      if (sp + 2 > 128) return brute_first(ray, any, out);
+      const int32_t l = node.first, r = l + 1;
+      const double tl = ray_box(ray, nodes_[l].box, cull), tr = ray_box(ray, nodes_[r].box, cull);
+      const double inf = std::numeric_limits<double>::infinity();
+      if (tl <= tr) {
+        if (tr != inf) stack[sp++] = r;
+        if (tl != inf) stack[sp++] = l;
+      } else {
+        if (tl != inf) stack[sp++] = l;
+        if (tr != inf) stack[sp++] = r;
+      }
+    }
+    if (found) *out = best;
+    return found;
+  }
+
+  // Every hit within [tmin, tmax], appended to *out sorted by (t, face).
+  void all_hits(const Ray& ray, std::vector<RayHit>* out) const {
+    const size_t start = out->size();
+    if (nodes_.empty()) return;
+    int32_t stack[128];
+    int sp = 0;
+    stack[sp++] = 0;
+    RayHit h;
+    while (sp > 0) {
+      const Node& node = nodes_[stack[--sp]];
+      if (ray_box(ray, node.box, ray.tmax) == std::numeric_limits<double>::infinity()) continue;
+      if (node.count > 0) {
+        for (int32_t i = node.first; i < node.first + node.count; ++i) {
+          if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
+            h.face = ids_[i];
+            out->push_back(h);
+          }
+        }
+        continue;
+      }
+      if (sp + 2 > 128) {
+        out->resize(start);
+        for (int32_t i = 0; i < static_cast<int32_t>(ids_.size()); ++i)
+          if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
+            h.face = ids_[i];
+            out->push_back(h);
+          }
+        break;
+      }
+      stack[sp++] = node.first + 1;
+      stack[sp++] = node.first;
+    }
+    std::sort(out->begin() + start, out->end(), [](const RayHit& x, const RayHit& y) {
+      return x.t < y.t || (x.t == y.t && x.face < y.face);
+    });
+  }
+
+ private:
+  std::vector<Node> nodes_;
+  std::vector<double> tris_;
+  std::vector<int32_t> ids_;
+  std::vector<uint8_t> degenerate_;
+  std::vector<Box3> tri_boxes_;
+
+  ClosestResult brute_closest(const double* p) const {
+    ClosestResult best;
+    double bary[3], q[3];
+    for (size_t i = 0; i < ids_.size(); ++i) {
+      const double* t = &tris_[9 * i];
+      const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q);
+      if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
+        best.dist2 = d2;
+        best.face = ids_[i];
+        best.slot = static_cast<int32_t>(i);
+        for (int a = 0; a < 3; ++a) {
+          best.bary[a] = bary[a];
+          best.point[a] = q[a];
+        }
+      }
+    }
+    return best;
+  }
+
+  bool brute_first(const Ray& ray, bool any, RayHit* out) const {
+    RayHit best, h;
+    bool found = false;
+    best.t = ray.tmax;
+    for (size_t i = 0; i < ids_.size(); ++i) {
+      if (ray_triangle(ray, &tris_[9 * i], best.t, &h) &&
+          (!found || h.t < best.t || (h.t == best.t && ids_[i] < best.face))) {
+        best = h;
+        best.face = ids_[i];
+        found = true;
+        if (any) break;
+      }
+    }
+    if (found) *out = best;
+    return found;
+  }
+
+  // Binned SAH split of order[begin, end). Returns the split position, or -1 for a leaf.
+  int32_t split(const std::vector<Box3>& boxes, const std::vector<std::array<double, 3>>& cent,
+                std::vector<int32_t>& order, int32_t begin, int32_t end, const Box3& nb, const Box3& cb) {
+    const int32_t count = end - begin;
+    double best_cost = std::numeric_limits<double>::infinity();
+    int best_axis = -1, best_bin = -1;
+    for (int a = 0; a < 3; ++a) {
+      const double extent = cb.hi[a] - cb.lo[a];
+      if (!(extent > 0.0)) continue;
+      const double scale = kBins / extent;
+      Box3 bb[kBins];
+      int32_t bn[kBins] = {0};
+      for (int32_t i = begin; i < end; ++i) {
+        const int32_t f = order[i];
+        int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
+        k = std::min(kBins - 1, std::max(0, k));
+        bn[k]++;
+        bb[k].grow(boxes[f]);
+      }
+      double right_area[kBins];
+      int32_t right_n[kBins];
+      Box3 acc;
+      int32_t accn = 0;
+      for (int k = kBins - 1; k > 0; --k) {
+        acc.grow(bb[k]);
+        accn += bn[k];
+        right_area[k] = acc.half_area();
+        right_n[k] = accn;
+      }
+      Box3 left;
+      int32_t ln = 0;
+      for (int k = 1; k < kBins; ++k) {
+        left.grow(bb[k - 1]);
+        ln += bn[k - 1];
+        if (ln == 0 || right_n[k] == 0) continue;
+        const double cost = left.half_area() * ln + right_area[k] * right_n[k];
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_bin = k;
+        }
+      }
+    }
+    const double parent = nb.half_area();
+    if (best_axis < 0) {
+      // All centroids coincide: split by position so leaves stay small.
+      if (count <= 4 * kMaxLeaf) return -1;
+      return begin + count / 2;
+    }
+    // SAH: traversal cost 1, intersection cost 1 per triangle.
+    const double split_cost = 1.0 + (parent > 0.0 ? best_cost / parent : 0.5 * count);
+    if (split_cost >= count && count <= 4 * kMaxLeaf) return -1;
+    const int a = best_axis;
+    const double extent = cb.hi[a] - cb.lo[a];
+    const double scale = kBins / extent;
+    auto mid_it = std::partition(order.begin() + begin, order.begin() + end, [&](int32_t f) {
+      int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
+      k = std::min(kBins - 1, std::max(0, k));
+      return k < best_bin;
+    });
+    const int32_t mid = static_cast<int32_t>(mid_it - order.begin());
+    if (mid == begin || mid == end) return begin + count / 2;
+    return mid;
+  }
+};
+
+}  // namespace spatial
+}  // namespace voxax

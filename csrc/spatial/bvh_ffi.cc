@@ -1,0 +1,189 @@
+// XLA FFI handlers of the BVH queries with static output shapes, for jit:
+//
+// voxax_closest_points(vertices (V, 3) f64, faces (F, 3) s32, points (P, 3) f64)
+//     -> distance (P,) f64, face (P,) s32, barycentric (P, 3) f64, point (P, 3) f64
+// voxax_first_hits(vertices, faces, origins (R, 3) f64, directions (R, 3) f64; attrs t_min, t_max)
+//     -> t (R,) f64 (+inf on a miss), face (R,) s32 (-1), barycentric (R, 3) f64, sign (R,) s32
+//
+// Each call builds its BVH, then answers the queries in fixed chunks on XLA's
+// intra-op pool (results do not depend on the thread count). Every input is
+// validated; failures return InvalidArgument with a message.
+
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "common.h"
+#include "spatial/bvh.h"
+
+namespace voxax {
+namespace {
+
+constexpr int64_t kQueryChunk = 256;
+
+ffi::Error check_rows3(const ffi::Buffer<ffi::F64>& x, const char* what, int64_t* rows) {
+  auto d = x.dimensions();
+  if (d.size() != 2 || d[1] != 3)
+    return ffi::Error::InvalidArgument(std::string("voxax: ") + what + " must have shape (N, 3), got " +
+                                       dims_str(d));
+  *rows = d[0];
+  const double* p = x.typed_data();
+  for (int64_t i = 0; i < 3 * d[0]; ++i) {
+    if (!std::isfinite(p[i]))
+      return ffi::Error::InvalidArgument(std::string("voxax: ") + what + " contain NaN or Inf (row " +
+                                         std::to_string(i / 3) + ")");
+    if (std::fabs(p[i]) > kMaxAbsCoordinate)
+      return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
+                                         " coordinate magnitude exceeds 1e75 (row " + std::to_string(i / 3) + ")");
+  }
+  return ffi::Error::Success();
+}
+
+ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S32>& faces, spatial::Bvh* bvh) {
+  int64_t nv = 0;
+  ffi::Error err = check_rows3(vertices, "vertices", &nv);
+  if (err.failure()) return err;
+  auto fd = faces.dimensions();
+  if (fd.size() != 2 || fd[1] != 3)
+    return ffi::Error::InvalidArgument("voxax: faces must have shape (F, 3), got " + dims_str(fd));
+  if (fd[0] > (int64_t{1} << 30)) return ffi::Error::InvalidArgument("voxax: the BVH takes at most 2^30 faces");
+  const int32_t* F = faces.typed_data();
+  for (int64_t i = 0; i < 3 * fd[0]; ++i)
+    if (F[i] < 0 || F[i] >= nv)
+      return ffi::Error::InvalidArgument("voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
+                                         std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")");
+  bvh->build(vertices.typed_data(), F, fd[0]);
+  return ffi::Error::Success();
+}
+
+template <typename Body>
+ffi::Error guarded(Body&& body) {
+  try {
+    return body();
+  } catch (const std::bad_alloc&) {
+    return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the BVH");
+  } catch (...) {
+    return ffi::Error(ffi::ErrorCode::kInternal, "voxax: unexpected error in the BVH");
+  }
+}
+
+ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::Buffer<ffi::S32> faces,
+                         ffi::Buffer<ffi::F64> points, ffi::ResultBuffer<ffi::F64> dist,
+                         ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
+                         ffi::ResultBuffer<ffi::F64> point) {
+  return guarded([&]() -> ffi::Error {
+    int64_t n = 0;
+    ffi::Error err = check_rows3(points, "points", &n);
+    if (err.failure()) return err;
+    if (dist->element_count() != static_cast<size_t>(n) || face->element_count() != static_cast<size_t>(n) ||
+        bary->element_count() != static_cast<size_t>(3 * n) || point->element_count() != static_cast<size_t>(3 * n))
+      return ffi::Error::InvalidArgument("voxax: closest-point outputs do not match the points");
+    spatial::Bvh bvh;
+    err = build(vertices, faces, &bvh);
+    if (err.failure()) return err;
+    const double* P = points.typed_data();
+    double* D = dist->typed_data();
+    int32_t* Fo = face->typed_data();
+    double* B = bary->typed_data();
+    double* Q = point->typed_data();
+    const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
+    const bool ok = ParallelFor::run(&pool, chunks, [&](int64_t c) {
+      int32_t hint = -1;
+      for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
+        const auto r = bvh.closest(P + 3 * i, hint);
+        hint = r.slot;
+        D[i] = std::sqrt(r.dist2);
+        Fo[i] = r.face;
+        for (int a = 0; a < 3; ++a) {
+          B[3 * i + a] = r.bary[a];
+          Q[3 * i + a] = r.point[a];
+        }
+      }
+    });
+    if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: closest-point queries failed");
+    return ffi::Error::Success();
+  });
+}
+
+ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::Buffer<ffi::S32> faces,
+                     ffi::Buffer<ffi::F64> origins, ffi::Buffer<ffi::F64> directions, ffi::ResultBuffer<ffi::F64> t,
+                     ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
+                     ffi::ResultBuffer<ffi::S32> sign, double t_min, double t_max) {
+  return guarded([&]() -> ffi::Error {
+    int64_t n = 0, nd = 0;
+    ffi::Error err = check_rows3(origins, "ray origins", &n);
+    if (err.failure()) return err;
+    err = check_rows3(directions, "ray directions", &nd);
+    if (err.failure()) return err;
+    if (nd != n) return ffi::Error::InvalidArgument("voxax: ray origins and directions differ in length");
+    if (std::isnan(t_min) || std::isnan(t_max) || !(t_min <= t_max))
+      return ffi::Error::InvalidArgument("voxax: the ray interval needs t_min <= t_max (no NaN)");
+    const double* O = origins.typed_data();
+    const double* Dd = directions.typed_data();
+    for (int64_t i = 0; i < n; ++i)
+      if (Dd[3 * i] == 0.0 && Dd[3 * i + 1] == 0.0 && Dd[3 * i + 2] == 0.0)
+        return ffi::Error::InvalidArgument("voxax: ray direction " + std::to_string(i) + " is zero");
+    if (t->element_count() != static_cast<size_t>(n) || face->element_count() != static_cast<size_t>(n) ||
+        bary->element_count() != static_cast<size_t>(3 * n) || sign->element_count() != static_cast<size_t>(n))
+      return ffi::Error::InvalidArgument("voxax: ray-hit outputs do not match the rays");
+    spatial::Bvh bvh;
+    err = build(vertices, faces, &bvh);
+    if (err.failure()) return err;
+    double* T = t->typed_data();
+    int32_t* Fo = face->typed_data();
+    double* B = bary->typed_data();
+    int32_t* S = sign->typed_data();
+    const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
+    const bool ok = ParallelFor::run(&pool, chunks, [&](int64_t c) {
+      for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
+        const auto ray = spatial::make_ray(O + 3 * i, Dd + 3 * i, t_min, t_max);
+        spatial::RayHit h;
+        if (bvh.first_hit(ray, false, &h)) {
+          T[i] = h.t;
+          Fo[i] = h.face;
+          S[i] = h.sign;
+          for (int a = 0; a < 3; ++a) B[3 * i + a] = h.bary[a];
+        } else {
+          T[i] = std::numeric_limits<double>::infinity();
+          Fo[i] = -1;
+          S[i] = 0;
+          for (int a = 0; a < 3; ++a) B[3 * i + a] = 0.0;
+        }
+      }
+    });
+    if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: ray queries failed");
+    return ffi::Error::Success();
+  });
+}
+
+}  // namespace
+}  // namespace voxax
+
+#pragma GCC visibility push(default)
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_closest_points, voxax::ClosestPoints,
+                              xla::ffi::Ffi::Bind()
+                                  .Ctx<xla::ffi::ThreadPool>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>());
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_first_hits, voxax::FirstHits,
+                              xla::ffi::Ffi::Bind()
+                                  .Ctx<xla::ffi::ThreadPool>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
+                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
+                                  .Attr<double>("t_min")
+                                  .Attr<double>("t_max"));
+
+#pragma GCC visibility pop

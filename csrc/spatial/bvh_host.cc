@@ -1,0 +1,289 @@
+// Eager host entry points of the BVH, a plain C ABI for ctypes (which releases
+// the GIL while they run). Every function validates its input, catches every
+// exception and reports failures as a non-zero status with a message in `err`.
+//
+//   voxax_bvh_build(V (nv, 3) f64, nv, F (nf, 3) i32, nf, &handle, err, errlen)
+//   voxax_bvh_free(handle)
+//   voxax_bvh_stats(handle, out[2]): node count, face count
+//   voxax_bvh_closest(handle, P (n, 3), n, threads, dist, face, bary (n, 3), point (n, 3), err, errlen)
+//   voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
+//                       t, face, bary (n, 3), sign, err, errlen)
+//   voxax_bvh_all_hits(handle, O, D, n, tmin, tmax, threads, counts (n,), &hits, err, errlen)
+//   voxax_hits_copy(hits, t, face, bary, sign); voxax_hits_free(hits)
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <cstdint>
+#include <cstring>
+#include <exception>
+#include <new>
+#include <string>
+#include <vector>
+
+#include "spatial/bvh.h"
+#include "spatial/host_pool.h"
+
+#define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
+
+namespace {
+
+using voxax::spatial::Bvh;
+using voxax::spatial::RayHit;
+
+constexpr double kMaxAbs = 1e75;  // the package's coordinate bound
+constexpr int64_t kChunk = 256;   // queries per task: fixed, so results do not depend on threads
+
+int fail(char* err, int64_t errlen, const std::string& msg) {
+  if (err && errlen > 0) {
+    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
+    std::memcpy(err, msg.data(), n);
+    err[n] = '\0';
+  }
+  return 1;
+}
+
+bool check_coords(const double* x, int64_t count, const char* what, std::string* msg) {
+  for (int64_t i = 0; i < count; ++i) {
+    if (!std::isfinite(x[i])) {
+      *msg = std::string("voxax: ") + what + " contain NaN or Inf (row " + std::to_string(i / 3) + ")";
+      return false;
+    }
+    if (std::fabs(x[i]) > kMaxAbs) {
+      *msg = std::string("voxax: ") + what + " coordinate magnitude exceeds 1e75 (row " +
+             std::to_string(i / 3) + ")";
+      return false;
+    }
+  }
+  return true;
+}
+
+// The query order: queries sorted along a Morton curve over their bounding box
+// (ties by index), so that consecutive queries are close in space. Results are
+// written back by index, and each query's answer does not depend on the order.
+std::vector<int64_t> spatial_order(const double* X, int64_t n) {
+  std::vector<int64_t> order(n);
+  for (int64_t i = 0; i < n; ++i) order[i] = i;
+  if (n < 2) return order;
+  double lo[3] = {X[0], X[1], X[2]}, hi[3] = {X[0], X[1], X[2]};
+  for (int64_t i = 1; i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], X[3 * i + a]);
+      hi[a] = std::max(hi[a], X[3 * i + a]);
+    }
+  auto spread = [](uint64_t x) {  // 21 bits -> every third bit
+    x &= 0x1fffff;
+    x = (x | x << 32) & 0x1f00000000ffffULL;
+    x = (x | x << 16) & 0x1f0000ff0000ffULL;
+    x = (x | x << 8) & 0x100f00f00f00f00fULL;
+    x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+    x = (x | x << 2) & 0x1249249249249249ULL;
+    return x;
+  };
+  std::vector<uint64_t> key(n);
+  for (int64_t i = 0; i < n; ++i) {
+    uint64_t k = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double ext = hi[a] - lo[a];
+      double u = ext > 0.0 ? (X[3 * i + a] - lo[a]) / ext : 0.0;
+      u = std::min(1.0, std::max(0.0, u));
+      k |= spread(static_cast<uint64_t>(u * 2097151.0)) << a;
+    }
+    key[i] = k;
+  }
+  std::sort(order.begin(), order.end(), [&](int64_t x, int64_t y) {
+    return key[x] < key[y] || (key[x] == key[y] && x < y);
+  });
+  return order;
+}
+
+struct Hits {
+  std::vector<RayHit> hits;
+};
+
+template <typename Body>
+int guarded(char* err, int64_t errlen, Body&& body) {
+  try {
+    std::string msg;
+    if (!body(&msg)) return fail(err, errlen, msg);
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return fail(err, errlen, "voxax: out of memory in the BVH");
+  } catch (const std::exception& e) {
+    return fail(err, errlen, std::string("voxax: BVH error: ") + e.what());
+  } catch (...) {
+    return fail(err, errlen, "voxax: unknown error in the BVH");
+  }
+}
+
+bool check_rays(const double* O, const double* D, int64_t n, double tmin, double tmax, std::string* msg) {
+  if (!check_coords(O, 3 * n, "ray origins", msg)) return false;
+  if (!check_coords(D, 3 * n, "ray directions", msg)) return false;
+  for (int64_t i = 0; i < n; ++i) {
+    const double* d = D + 3 * i;
+    if (d[0] == 0.0 && d[1] == 0.0 && d[2] == 0.0) {
+      *msg = "voxax: ray direction " + std::to_string(i) + " is zero";
+      return false;
+    }
+  }
+  if (std::isnan(tmin) || std::isnan(tmax) || !(tmin <= tmax)) {
+    *msg = "voxax: the ray interval needs tmin <= tmax (no NaN)";
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, int64_t nf, void** handle,
+                                 char* err, int64_t errlen) {
+  *handle = nullptr;
+  return guarded(err, errlen, [&](std::string* msg) {
+    if (nv < 0 || nf < 0 || nf > INT32_MAX / 2) {
+      *msg = "voxax: the BVH takes at most 2^30 faces";
+      return false;
+    }
+    if (!check_coords(V, 3 * nv, "vertices", msg)) return false;
+    for (int64_t i = 0; i < 3 * nf; ++i) {
+      if (F[i] < 0 || F[i] >= nv) {
+        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " + std::to_string(nv) +
+               ") (face " + std::to_string(i / 3) + ")";
+        return false;
+      }
+    }
+    Bvh* bvh = new Bvh();
+    try {
+      bvh->build(V, F, nf);
+    } catch (...) {
+      delete bvh;
+      throw;
+    }
+    *handle = bvh;
+    return true;
+  });
+}
+
+VOXAX_EXPORT void voxax_bvh_free(void* handle) { delete static_cast<Bvh*>(handle); }
+
+VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
+  const Bvh* bvh = static_cast<const Bvh*>(handle);
+  out[0] = bvh ? bvh->node_count() : 0;
+  out[1] = bvh ? bvh->face_count() : 0;
+}
+
+VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int32_t threads, double* dist,
+                                   int32_t* face, double* bary, double* point, char* err, int64_t errlen) {
+  return guarded(err, errlen, [&](std::string* msg) {
+    const Bvh* bvh = static_cast<const Bvh*>(handle);
+    if (!bvh) {
+      *msg = "voxax: the BVH has been freed";
+      return false;
+    }
+    if (!check_coords(P, 3 * n, "points", msg)) return false;
+    const std::vector<int64_t> order = spatial_order(P, n);
+    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      int32_t hint = -1;
+      for (int64_t j = b; j < e; ++j) {
+        const int64_t i = order[j];
+        const auto r = bvh->closest(P + 3 * i, hint);
+        hint = r.slot;
+        dist[i] = std::sqrt(r.dist2);
+        face[i] = r.face;
+        for (int a = 0; a < 3; ++a) {
+          bary[3 * i + a] = r.bary[a];
+          point[3 * i + a] = r.point[a];
+        }
+      }
+    });
+    return true;
+  });
+}
+
+VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double* D, int64_t n, double tmin,
+                                     double tmax, int32_t any, int32_t threads, double* t, int32_t* face,
+                                     double* bary, int8_t* sign, char* err, int64_t errlen) {
+  return guarded(err, errlen, [&](std::string* msg) {
+    const Bvh* bvh = static_cast<const Bvh*>(handle);
+    if (!bvh) {
+      *msg = "voxax: the BVH has been freed";
+      return false;
+    }
+    if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
+    const std::vector<int64_t> order = spatial_order(O, n);
+    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      for (int64_t j = b; j < e; ++j) {
+        const int64_t i = order[j];
+        const auto ray = voxax::spatial::make_ray(O + 3 * i, D + 3 * i, tmin, tmax);
+        RayHit h;
+        if (bvh->first_hit(ray, any != 0, &h)) {
+          t[i] = h.t;
+          face[i] = h.face;
+          sign[i] = h.sign;
+          for (int a = 0; a < 3; ++a) bary[3 * i + a] = h.bary[a];
+        } else {
+          t[i] = std::numeric_limits<double>::infinity();
+          face[i] = -1;
+          sign[i] = 0;
+          for (int a = 0; a < 3; ++a) bary[3 * i + a] = 0.0;
+        }
+      }
+    });
+    return true;
+  });
+}
+
+VOXAX_EXPORT int voxax_bvh_all_hits(void* handle, const double* O, const double* D, int64_t n, double tmin,
+                                    double tmax, int32_t threads, int64_t* counts, void** out, char* err,
+                                    int64_t errlen) {
+  *out = nullptr;
+  return guarded(err, errlen, [&](std::string* msg) {
+    const Bvh* bvh = static_cast<const Bvh*>(handle);
+    if (!bvh) {
+      *msg = "voxax: the BVH has been freed";
+      return false;
+    }
+    if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
+    const int64_t chunks = (n + kChunk - 1) / kChunk;
+    std::vector<std::vector<RayHit>> parts(chunks);
+    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
+      for (int64_t i = b; i < e; ++i) {
+        const size_t before = parts[c].size();
+        const auto ray = voxax::spatial::make_ray(O + 3 * i, D + 3 * i, tmin, tmax);
+        bvh->all_hits(ray, &parts[c]);
+        counts[i] = static_cast<int64_t>(parts[c].size() - before);
+      }
+    });
+    Hits* hits = new Hits();
+    try {
+      size_t total = 0;
+      for (const auto& p : parts) total += p.size();
+      hits->hits.reserve(total);
+      for (auto& p : parts) {
+        hits->hits.insert(hits->hits.end(), p.begin(), p.end());
+        std::vector<RayHit>().swap(p);
+      }
+    } catch (...) {
+      delete hits;
+      throw;
+    }
+    *out = hits;
+    return true;
+  });
+}
+
+VOXAX_EXPORT int64_t voxax_hits_size(void* hits) {
+  return hits ? static_cast<int64_t>(static_cast<Hits*>(hits)->hits.size()) : 0;
+}
+
+VOXAX_EXPORT void voxax_hits_copy(void* hits, double* t, int32_t* face, double* bary, int8_t* sign) {
+  if (!hits) return;
+  const auto& h = static_cast<Hits*>(hits)->hits;
+  for (size_t i = 0; i < h.size(); ++i) {
+    t[i] = h[i].t;
+    face[i] = h[i].face;
+    sign[i] = h[i].sign;
+    for (int a = 0; a < 3; ++a) bary[3 * i + a] = h[i].bary[a];
+  }
+}
+
+VOXAX_EXPORT void voxax_hits_free(void* hits) { delete static_cast<Hits*>(hits); }

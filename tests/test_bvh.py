@@ -1,0 +1,357 @@
+"""The BVH's closest points and ray hits against brute-force NumPy oracles written here."""
+
+import numpy as np
+import pytest
+
+import voxax
+from voxax import data, fields
+
+# -- independent oracles ---------------------------------------------------------------------
+
+
+def _seg_dist(p, a, b):
+    ab = b - a
+    L = np.sum(ab * ab, -1)
+    t = np.where(L > 0, np.sum((p - a) * ab, -1) / np.where(L > 0, L, 1), 0.0)
+    t = np.clip(t, 0, 1)
+    return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
+
+
+def brute_distance(p, V, F):
+    """Distance from points (P, 3) to a triangle soup: the plane projection when it falls
+    inside the triangle, else the nearest of the three edges (zero-area faces: edges only)."""
+    a, b, c = (V[F[:, k]][None] for k in range(3))
+    q = p[:, None, :]
+    n = np.cross(b - a, c - a)
+    nn = np.sum(n * n, -1)
+    ok = nn > 1e-30
+    nhat = n / np.sqrt(np.where(ok, nn, 1))[..., None]
+    h = np.sum((q - a) * nhat, -1)
+    proj = q - h[..., None] * nhat
+    inside = ok.copy() & True
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside = inside & (np.sum(np.cross(v - u, proj - u) * n, -1) >= 0)
+    edges = np.minimum(
+        np.minimum(_seg_dist(q, a, b), _seg_dist(q, b, c)), _seg_dist(q, c, a)
+    )
+    d = np.where(inside, np.abs(h), edges)
+    return d.min(axis=1)
+
+
+def brute_hits(o, d, V, F):
+    """All (t, face) hits per ray by Moller-Trumbore on every triangle (generic rays)."""
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    out = []
+    for oi, di in zip(o, d):
+        e1, e2 = b - a, c - a
+        pv = np.cross(di, e2)
+        det = np.sum(e1 * pv, -1)
+        good = np.abs(det) > 1e-14
+        inv = 1 / np.where(good, det, 1)
+        tv = oi - a
+        u = np.sum(tv * pv, -1) * inv
+        qv = np.cross(tv, e1)
+        v = np.sum(di * qv, -1) * inv
+        t = np.sum(e2 * qv, -1) * inv
+        hit = good & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0)
+        idx = np.flatnonzero(hit)
+        order = np.lexsort((idx, t[idx]))
+        out.append((t[idx][order], idx[order]))
+    return out
+
+
+def random_soup(rng, nf=150, degenerate=20):
+    V = rng.uniform(-1, 1, (3 * nf, 3))
+    F = np.arange(3 * nf).reshape(nf, 3)
+    # degenerate faces: a repeated vertex, collinear corners, a point triangle
+    k = rng.choice(nf, degenerate, replace=False)
+    for j, f in enumerate(k):
+        i0, i1, i2 = F[f]
+        if j % 3 == 0:
+            V[i2] = V[i1]
+        elif j % 3 == 1:
+            V[i2] = V[i0] + 0.37 * (V[i1] - V[i0])
+        else:
+            V[i1] = V[i2] = V[i0]
+    return V, F
+
+
+# -- closest points ------------------------------------------------------------------------------
+
+
+def test_closest_points_random_soup():
+    rng = np.random.default_rng(0)
+    V, F = random_soup(rng)
+    P = np.concatenate(
+        [rng.uniform(-1.5, 1.5, (400, 3)), V[:50] + 1e-3 * rng.normal(size=(50, 3))]
+    )
+    res = voxax.closest_points((V, F), P)
+    np.testing.assert_allclose(
+        res.distance, brute_distance(P, V, F), rtol=1e-12, atol=1e-14
+    )
+    # the returned point lies on the returned face at the returned distance
+    corners = V[F[res.face]]
+    np.testing.assert_allclose(
+        np.einsum("pk,pkd->pd", res.barycentric, corners), res.point, atol=1e-13
+    )
+    np.testing.assert_allclose(
+        np.linalg.norm(P - res.point, axis=1), res.distance, rtol=1e-12, atol=1e-15
+    )
+    assert np.all(res.barycentric >= -1e-12) and np.allclose(
+        res.barycentric.sum(1), 1, atol=1e-12
+    )
+    # leading shapes
+    res2 = voxax.closest_points((V, F), P[:12].reshape(3, 4, 3))
+    assert res2.distance.shape == (3, 4) and res2.point.shape == (3, 4, 3)
+    np.testing.assert_array_equal(res2.distance.ravel(), res.distance[:12])
+
+
+def test_closest_points_on_a_box_is_the_exact_box_distance():
+    cube = data.box((-0.3, -0.5, -0.2), (0.3, 0.5, 1.2))
+    lo, hi = cube.bounds
+    rng = np.random.default_rng(1)
+    P = rng.uniform(-2, 2, (3000, 3))
+    d = voxax.closest_points(cube, P).distance
+    exact = np.abs(np.asarray(fields.box(P, (hi - lo) / 2, center=(hi + lo) / 2)))
+    np.testing.assert_allclose(d, exact, rtol=1e-12, atol=1e-14)
+
+
+def test_closest_points_sphere_distances():
+    # points on rays through the vertices of an icosphere, beyond the surface: the closest
+    # point is the vertex itself (the vertex region), distance |p| - r exactly
+    s = data.icosphere(2, radius=0.8)
+    r = np.linalg.norm(s.vertices, axis=1)
+    P = s.vertices * (1 + 0.5 / r)[:, None]
+    res = voxax.closest_points(s, P)
+    np.testing.assert_allclose(res.distance, 0.5, rtol=1e-12)
+    np.testing.assert_allclose(res.point, s.vertices, atol=1e-13)
+
+
+def test_empty_mesh_and_degenerate_only():
+    res = voxax.closest_points(
+        (np.zeros((0, 3)), np.zeros((0, 3), int)), np.zeros((2, 3))
+    )
+    assert np.all(np.isinf(res.distance)) and np.all(res.face == -1)
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
+    res = voxax.closest_points((V, [[0, 1, 2]]), [[1.5, 1.0, 0.0], [3.0, 0.0, 0.0]])
+    np.testing.assert_allclose(res.distance, [1.0, 1.0], rtol=1e-15)
+    hits = voxax.first_hits((V, [[0, 1, 2]]), [[1.0, -1.0, 0.0]], [[0.0, 1.0, 0.0]])
+    assert not hits.hit[0]
+
+
+# -- rays -------------------------------------------------------------------------------------------
+
+
+def test_rays_random_soup_vs_brute_force():
+    rng = np.random.default_rng(2)
+    V, F = random_soup(rng, nf=120)
+    o = rng.uniform(-1.5, 1.5, (300, 3))
+    d = rng.normal(size=(300, 3))
+    bvh = voxax.BVH(V, F)
+    ref = brute_hits(o, d, V, F)
+    first = bvh.first_hits(o, d)
+    allh = bvh.all_hits(o, d)
+    anyh = bvh.any_hits(o, d)
+    for i, (t, f) in enumerate(ref):
+        assert anyh[i] == (len(t) > 0)
+        if len(t):
+            assert first.face[i] == f[0]
+            np.testing.assert_allclose(first.t[i], t[0], rtol=1e-10)
+            hit_point = np.einsum("k,kd->d", first.barycentric[i], V[F[first.face[i]]])
+            np.testing.assert_allclose(hit_point, o[i] + first.t[i] * d[i], atol=1e-10)
+        else:
+            assert first.face[i] == -1 and np.isinf(first.t[i])
+        s = slice(allh.offsets[i], allh.offsets[i + 1])
+        np.testing.assert_array_equal(allh.face[s], f)
+        np.testing.assert_allclose(allh.t[s], t, rtol=1e-10)
+    assert np.all(allh.ray == np.repeat(np.arange(300), allh.counts()))
+    # the interval [t_min, t_max] restricts hits
+    limited = bvh.all_hits(o, d, t_min=0.5, t_max=1.0)
+    assert np.all((limited.t >= 0.5) & (limited.t <= 1.0))
+    assert limited.t.size == np.sum((allh.t >= 0.5) & (allh.t <= 1.0))
+    # sign: -1 against the normal
+    n = np.cross(
+        V[F[allh.face, 1]] - V[F[allh.face, 0]], V[F[allh.face, 2]] - V[F[allh.face, 0]]
+    )
+    np.testing.assert_array_equal(allh.sign, np.sign(np.sum(n * d[allh.ray], 1)))
+
+
+def test_watertight_rays_through_edges_and_vertices():
+    # axis-aligned rays through a cube's edges, its face diagonals and its centre: every ray
+    # strictly inside the footprint crosses exactly twice, entering then exiting
+    cube = data.cube(2.0)
+    g = np.linspace(-0.75, 0.75, 7)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    for axis in range(3):
+        o = np.zeros((X.size, 3))
+        others = [a for a in range(3) if a != axis]
+        o[:, others[0]], o[:, others[1]] = X.ravel(), Y.ravel()
+        o[:, axis] = -3.0
+        d = np.zeros(3)
+        d[axis] = 1.0
+        h = voxax.all_hits(cube, o, d)
+        assert np.all(h.counts() == 2)
+        assert np.all(h.sign.reshape(-1, 2) == [-1, 1])
+    # rays from the centre of an icosphere through every vertex and edge midpoint: one hit each
+    s = data.icosphere(2)
+    F = s.faces
+    mids = (s.vertices[F[:, 0]] + s.vertices[F[:, 1]]) / 2
+    dirs = np.concatenate([s.vertices, mids])
+    h = voxax.all_hits(s, np.zeros(3), dirs)
+    assert np.all(h.counts() == 1) and np.all(h.sign == 1)
+    # and from outside, through the centre: two hits, in then out
+    h = voxax.all_hits(s, -3 * dirs, dirs)
+    assert np.all(h.counts() == 2) and np.all(h.sign.reshape(-1, 2) == [-1, 1])
+
+
+def test_rays_on_a_closed_mesh_have_matching_crossings():
+    rng = np.random.default_rng(3)
+    m = data.large(2_000)
+    o = rng.uniform(-1, 1, (2000, 3))
+    d = rng.normal(size=(2000, 3))
+    h = voxax.all_hits(m, o, d)
+    # the winding number at the origin (from inside/outside along the ray) is 0 or 1:
+    # the sum of exit minus entry crossings past the origin
+    w = np.zeros(len(o))
+    np.add.at(w, h.ray, h.sign)
+    assert set(np.unique(w)) <= {0.0, 1.0}
+    ref = np.asarray(voxax.winding_number(m.vertices, m.faces, o[:300]))
+    np.testing.assert_array_equal(w[:300], np.round(ref))
+
+
+def test_determinism_across_threads():
+    rng = np.random.default_rng(4)
+    V, F = random_soup(rng, nf=400)
+    bvh = voxax.BVH(V, F)
+    P = rng.uniform(-1, 1, (3000, 3))
+    o, d = rng.uniform(-1, 1, (3000, 3)), rng.normal(size=(3000, 3))
+    a, b = bvh.closest_points(P, threads=1), bvh.closest_points(P, threads=2)
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)
+    a, b = bvh.all_hits(o, d, threads=1), bvh.all_hits(o, d, threads=3)
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)
+
+
+def test_bad_input():
+    cube = data.cube()
+    bvh = voxax.BVH(cube)
+    with pytest.raises(ValueError, match="NaN"):
+        bvh.closest_points([[np.nan, 0, 0]])
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        bvh.closest_points(np.zeros((4, 2)))
+    with pytest.raises(TypeError):
+        bvh.closest_points(np.array(["a", "b", "c"]))
+    with pytest.raises(ValueError, match="zero"):
+        bvh.first_hits(np.zeros(3), [[1, 0, 0], [0, 0, 0]])
+    with pytest.raises(ValueError, match="t_min <= t_max"):
+        bvh.first_hits(np.zeros(3), [1, 0, 0], t_min=2, t_max=1)
+    with pytest.raises(ValueError, match="broadcast"):
+        bvh.first_hits(np.zeros((2, 3)), np.ones((3, 3)))
+    with pytest.raises(ValueError, match="range"):
+        voxax.BVH(np.zeros((3, 3)), [[0, 1, 3]])
+    with pytest.raises(ValueError, match="NaN"):
+        voxax.BVH(np.full((3, 3), np.nan), [[0, 1, 2]])
+    with pytest.raises(ValueError, match="3D"):
+        voxax.BVH(data.polygon_square())
+    with pytest.raises(ValueError, match="threads"):
+        bvh.closest_points(np.zeros((1, 3)), threads=0)
+
+
+def test_jit_path_matches_the_host_path():
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(6)
+    V, F = random_soup(rng, nf=200)
+    P = rng.uniform(-1, 1, (500, 3))
+    o, d = rng.uniform(-1, 1, (500, 3)), rng.normal(size=(500, 3))
+    host = voxax.closest_points((V, F), P)
+    jit = jax.jit(lambda v, p: voxax.closest_points((v, jnp.asarray(F)), p))(
+        jnp.asarray(V), jnp.asarray(P)
+    )
+    for x, y in zip(host, jit):
+        np.testing.assert_array_equal(np.asarray(y), x)
+    host = voxax.first_hits((V, F), o, d, t_max=2.0)
+    jit = jax.jit(lambda v, a, b: voxax.first_hits((v, F), a, b, t_max=2.0))(V, o, d)
+    for x, y in zip(host, jit):
+        np.testing.assert_array_equal(np.asarray(y), x)
+    # vmap over meshes (a batch of scaled copies)
+    vs = jnp.stack([jnp.asarray(V), 2 * jnp.asarray(V)])
+    dist = jax.vmap(lambda v: voxax.closest_points((v, F), P[:20]).distance)(vs)
+    np.testing.assert_array_equal(
+        dist[1], voxax.closest_points((2 * V, F), P[:20]).distance
+    )
+    # errors under jit carry the same messages
+    with pytest.raises(Exception, match="NaN or Inf"):
+        jax.jit(lambda p: voxax.closest_points((V, F), p))(jnp.full((2, 3), jnp.nan))
+    with pytest.raises(Exception, match="out of range"):
+        jax.jit(lambda f: voxax.closest_points((V, f), jnp.zeros((1, 3))))(
+            jnp.asarray(F).at[0, 0].set(10**6)
+        )
+    with pytest.raises(Exception, match="direction 1 is zero"):
+        jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(
+            jnp.array([[1.0, 0, 0], [0, 0, 0]])
+        )
+
+
+# -- k nearest neighbours ------------------------------------------------------------------------
+
+
+def _check_knn(S, Q, k, d, i):
+    """Against brute force: the k smallest distances, in (distance, index) order."""
+    D = np.sqrt(((Q[:, None, :] - S[None, :, :]) ** 2).sum(-1))
+    kk = min(k, len(S))
+    ref = np.sort(D, axis=1)[:, :kk]
+    np.testing.assert_allclose(d[:, :kk], ref, rtol=1e-14, atol=1e-300)
+    np.testing.assert_allclose(D[np.arange(len(Q))[:, None], i[:, :kk]], d[:, :kk], rtol=1e-14, atol=1e-300)
+    # ordered by (distance, index), no index repeated
+    same = d[:, 1:kk] == d[:, : kk - 1]
+    assert np.all((d[:, 1:kk] > d[:, : kk - 1]) | (same & (i[:, 1:kk] > i[:, : kk - 1])))
+    assert np.all(np.isinf(d[:, kk:])) and np.all(i[:, kk:] == -1)
+
+
+def test_nearest_neighbors_vs_brute_force_and_ckdtree():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(7)
+    cases = {
+        "uniform": rng.uniform(-1, 1, (2000, 3)),
+        "clustered": np.concatenate([rng.normal(size=(500, 3)) * 0.01, rng.uniform(-1, 1, (100, 3))]),
+        "flat": rng.normal(size=(800, 3)) * [1, 1, 1e-9],
+        "lattice ties": np.round(rng.uniform(-1, 1, (600, 3)) * 2) / 2,
+        "few": rng.uniform(-1, 1, (5, 3)),
+        "one point": np.zeros((1, 3)),
+    }
+    for name, S in cases.items():
+        Q = np.concatenate([rng.uniform(-1.5, 1.5, (300, 3)), S[:20], [[0, 0, 5.0], [-9, 3, 0]]])
+        for k in (1, 4, 8):
+            d, i = voxax.nearest_neighbors(S, Q, k)
+            assert d.shape == i.shape == (len(Q), k), name
+            _check_knn(S, Q, k, d, i)
+            kk = min(k, len(S))
+            dr, ir = cKDTree(S).query(Q, kk)
+            np.testing.assert_allclose(d[:, :kk], np.asarray(dr).reshape(len(Q), kk), rtol=1e-14, atol=1e-300)
+    d, i = voxax.nearest_neighbors(np.zeros((0, 3)), np.ones((2, 3)), 3)
+    assert np.all(i == -1) and np.all(np.isinf(d))
+
+
+def test_nearest_neighbors_jit_threads_and_errors():
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(8)
+    S, Q = rng.uniform(size=(3000, 3)), rng.uniform(size=(4000, 3))
+    a = voxax.nearest_neighbors(S, Q, 8, threads=1)
+    b = voxax.nearest_neighbors(S, Q, 8, threads=2)
+    c = jax.jit(lambda s, q: voxax.nearest_neighbors(s, q, 8))(jnp.asarray(S), jnp.asarray(Q))
+    for x, y, z in zip(a, b, c):
+        assert np.array_equal(x, y) and np.array_equal(x, np.asarray(z))
+    d, i = voxax.nearest_neighbors(S, Q[:12].reshape(3, 4, 3), 2)
+    assert d.shape == (3, 4, 2)
+    with pytest.raises(ValueError, match="k must"):
+        voxax.nearest_neighbors(S, Q, 33)
+    with pytest.raises(ValueError, match="NaN"):
+        voxax.nearest_neighbors(S, [[np.nan, 0, 0]], 1)
+    with pytest.raises(Exception, match="NaN"):
+        jax.jit(lambda q: voxax.nearest_neighbors(S, q, 2))(jnp.full((2, 3), jnp.nan))
