@@ -265,6 +265,9 @@ int voxax_mc_fill(void* ctx, int32_t* edges, int32_t* faces) {
 
 void voxax_mc_release(void* ctx) { delete static_cast<voxax::Context*>(ctx); }
 
+// Loops of the derived cube cases that found no valid triangulation (expected: 0).
+int voxax_mc_table_failures() { return voxax::contour::cube_table().failures; }
+
 }  // extern "C"
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_marching_cubes, voxax::MarchingCubes,

@@ -30,6 +30,8 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstring>
+#include <memory>
+#include <utility>
 #include <vector>
 
 namespace voxax {
@@ -100,6 +102,7 @@ struct CubeTable {
   uint8_t tri[kEntries][kMaxTriangles][3];
   uint8_t ambiguous[256];  // bit f: face f is ambiguous for this config
   int face_q[6][4];        // corners of each face, counter-clockwise from outside
+  int failures = 0;        // loops without a valid triangulation (none expected)
 
   CubeTable() {
     for (int f = 0; f < 6; ++f) face_corners(f, face_q[f]);
@@ -136,11 +139,28 @@ struct CubeTable {
         loop[len++] = e;
       }
       int out[kMaxTriangles][3], m = 0;
-      if (!triangulate(loop, len, out, &m)) m = 0;  // cannot happen: checked by the tests
+      if (!triangulate(loop, len, next, forbidden_faces(cfg), out, &m)) ++failures;
       for (int t = 0; t < m; ++t, ++n)
         for (int v = 0; v < 3; ++v) tri[idx][n][v] = uint8_t(out[t][v]);
     }
     count[idx] = uint8_t(n);
+  }
+
+  // Diagonals this cube may not place within its ambiguous faces. On a face
+  // with four crossings, the two loop segments leave four possible in-face
+  // diagonals: two join crossings on neighbouring face edges, two join
+  // crossings on opposite face edges. The cube below the face (the face is its
+  // upper side) may use only the opposite-edge ones, the cube above only the
+  // neighbouring-edge ones, so the two cubes never share a diagonal.
+  // Bits 0-5: faces forbidding neighbouring-edge diagonals; bits 6-11: faces
+  // forbidding opposite-edge diagonals.
+  int forbidden_faces(int cfg) const {
+    int mask = 0;
+    for (int f = 0; f < 6; ++f) {
+      if (!((ambiguous[cfg] >> f) & 1)) continue;
+      mask |= (f % 2) ? 1 << f : 1 << (6 + f);
+    }
+    return mask;
   }
 
   // The cube faces edge e lies on, as a bit mask.
@@ -152,16 +172,31 @@ struct CubeTable {
     return mask;
   }
 
-  // Triangulates a loop so that no triangle has all three vertices on one cube
-  // face (such a triangle would lie in the face and could repeat the
-  // neighbouring cube's). Tries each fan apex first, then any triangulation.
-  static bool triangulate(const int* loop, int len, int out[][3], int* m) {
+  // Whether the segment x-y may be a triangle side: a side of the loop, a
+  // diagonal between crossings that share no cube face, or an in-face diagonal
+  // this cube is allowed (see forbidden_faces). An in-face diagonal (only
+  // possible on an ambiguous face) used by both cubes sharing the face would
+  // be a triangle side shared by four triangles.
+  static bool side_ok(int x, int y, const int* next, int forbid) {
+    if (next[x] == y || next[y] == x) return true;
+    const int shared = faces_of_edge(x) & faces_of_edge(y);
+    // Crossings on edges of different axes are neighbours on the face; on edges
+    // of the same axis they sit on opposite sides of it.
+    const int mask = edge_axis(x) != edge_axis(y) ? (forbid & 63) : (forbid >> 6);
+    return !(shared & mask);
+  }
+  static bool tri_ok(int a, int b, int c, const int* next, int forbid) {
+    return side_ok(a, b, next, forbid) && side_ok(b, c, next, forbid) && side_ok(c, a, next, forbid);
+  }
+
+  // Triangulates a loop with only allowed sides; tries each fan apex first, then
+  // any triangulation. Returns false when none exists.
+  static bool triangulate(const int* loop, int len, const int* next, int forbid, int out[][3], int* m) {
     for (int apex = 0; apex < len; ++apex) {
       int rot[12];
       for (int i = 0; i < len; ++i) rot[i] = loop[(apex + i) % len];
       bool ok = true;
-      for (int i = 1; i + 1 < len && ok; ++i)
-        ok = !(faces_of_edge(rot[0]) & faces_of_edge(rot[i]) & faces_of_edge(rot[i + 1]));
+      for (int i = 1; i + 1 < len && ok; ++i) ok = tri_ok(rot[0], rot[i], rot[i + 1], next, forbid);
       if (!ok) continue;
       for (int i = 1; i + 1 < len; ++i) {
         out[*m][0] = rot[0];
@@ -171,14 +206,14 @@ struct CubeTable {
       }
       return true;
     }
-    return split(loop, len, out, m);
+    return split(loop, len, next, forbid, out, m);
   }
 
-  static bool split(const int* poly, int len, int out[][3], int* m) {
+  static bool split(const int* poly, int len, const int* next, int forbid, int out[][3], int* m) {
     if (len < 3) return true;
     const int start = *m;
     for (int k = 2; k < len; ++k) {
-      if (faces_of_edge(poly[0]) & faces_of_edge(poly[1]) & faces_of_edge(poly[k])) continue;
+      if (!tri_ok(poly[0], poly[1], poly[k], next, forbid)) continue;
       *m = start;
       out[*m][0] = poly[0];
       out[*m][1] = poly[1];
@@ -188,7 +223,7 @@ struct CubeTable {
       for (int i = 1; i <= k; ++i) left[nl++] = poly[i];
       for (int i = k; i < len; ++i) right[nr++] = poly[i];
       right[nr++] = poly[0];
-      if (split(left, nl, out, m) && split(right, nr, out, m)) return true;
+      if (split(left, nl, next, forbid, out, m) && split(right, nr, next, forbid, out, m)) return true;
     }
     *m = start;
     return false;
@@ -260,7 +295,7 @@ inline bool has_cells(const Shape& s) {
 
 // Fixed chunking of the x slices: independent of the number of threads.
 inline int64_t chunk_slices(const Shape& s) {
-  const int64_t target = int64_t{1} << 16;  // cells per chunk, roughly
+  const int64_t target = int64_t{1} << 20;  // cells per chunk, roughly
   return std::max<int64_t>(1, target / std::max<int64_t>(1, s.slice()));
 }
 
@@ -295,8 +330,15 @@ template <typename T>
 inline void slice_signs(const Sampler<T>& s, const Shape& sh, int64_t i, uint8_t* out) {
   const int64_t m = sh.slice(), base = i * m;
   const T* v = s.v + base;
-  const double level = s.level;
-  for (int64_t c = 0; c < m; ++c) out[c] = static_cast<double>(v[c]) - level >= 0.0;
+  // (double)v - level >= 0 exactly when (double)v >= level; when the level is a
+  // value of T the comparison can stay in T.
+  const T lt = static_cast<T>(s.level);
+  if (static_cast<double>(lt) == s.level) {
+    for (int64_t c = 0; c < m; ++c) out[c] = v[c] >= lt;
+  } else {
+    const double level = s.level;
+    for (int64_t c = 0; c < m; ++c) out[c] = static_cast<double>(v[c]) >= level;
+  }
 }
 
 // The table index of cube (i, j, k) given the signs of slices i and i + 1.
@@ -340,43 +382,75 @@ inline int square_index(const Sampler<T>& s, const Shape& sh, int64_t i, int64_t
   return cfg | (conn ? 16 : 0);
 }
 
+// Whether any edge of a row of cells differs in sign: along the row (r0[k] vs
+// r0[k + 1]) and to the rows given (null: none). Written for vectorization.
+inline bool row_varies(const uint8_t* r0, int64_t len, const uint8_t* a, const uint8_t* b,
+                       const uint8_t* c) {
+  unsigned acc = 0;
+  for (int64_t k = 0; k + 1 < len; ++k) acc |= unsigned(r0[k] ^ r0[k + 1]);
+  if (a)
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ a[k]);
+  if (b)
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ b[k]);
+  if (c)
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ c[k]);
+  return acc != 0;
+}
+
 // Crossed edges owned by slice i (its cells are their lower ends), counted or
-// numbered. `map` (size dim * slice) receives vertex ids or -1 when not null.
+// numbered. When `map` (size dim * slice) is given, map[dim * cell + axis]
+// receives the vertex id of every crossed edge; other entries are not written.
+// When `edges` is given, the crossed edges' cell pairs are written there too
+// (ids below `vcap` only).
 inline int64_t slice_edges(const Shape& sh, int64_t i, const uint8_t* s0, const uint8_t* s1,
-                           int64_t first, int32_t* map) {
-  const int64_t m = sh.slice();
+                           int64_t first, int32_t* map, int32_t* edges = nullptr,
+                           int64_t vcap = 0) {
   const bool has_next = i + 1 < sh.n[0];
   int64_t id = first;
+  const int64_t m = sh.slice(), base = i * m;
+  auto put = [&](int64_t vid, int64_t cell, int64_t stride) {
+    if (edges && vid < vcap) {
+      edges[2 * vid] = int32_t(cell);
+      edges[2 * vid + 1] = int32_t(cell + stride);
+    }
+  };
   if (sh.dim == 3) {
     const int64_t ny = sh.n[1], nz = sh.n[2];
-    for (int64_t j = 0; j < ny; ++j)
+    for (int64_t j = 0; j < ny; ++j) {
+      const int64_t c0 = j * nz;
+      const uint8_t* r = s0 + c0;
+      const uint8_t* rx = has_next ? s1 + c0 : nullptr;
+      const uint8_t* ry = j + 1 < ny ? r + nz : nullptr;
+      if (!row_varies(r, nz, rx, ry, nullptr)) continue;
       for (int64_t k = 0; k < nz; ++k) {
-        const int64_t c = j * nz + k;
-        const uint8_t a = s0[c];
-        const bool cx = has_next && s1[c] != a;
-        const bool cy = j + 1 < ny && s0[c + nz] != a;
-        const bool cz = k + 1 < nz && s0[c + 1] != a;
-        if (map) {
-          map[3 * c] = cx ? int32_t(id) : -1;
-          map[3 * c + 1] = cy ? int32_t(id + cx) : -1;
-          map[3 * c + 2] = cz ? int32_t(id + cx + cy) : -1;
+        const uint8_t a = r[k];
+        const bool cx = rx && rx[k] != a;
+        const bool cy = ry && ry[k] != a;
+        const bool cz = k + 1 < nz && r[k + 1] != a;
+        if (map && (cx | cy | cz)) {
+          int32_t* mp = map + 3 * (c0 + k);
+          const int64_t cell = base + c0 + k;
+          if (cx) mp[0] = int32_t(id), put(id, cell, m);
+          if (cy) mp[1] = int32_t(id + cx), put(id + cx, cell, nz);
+          if (cz) mp[2] = int32_t(id + cx + cy), put(id + cx + cy, cell, 1);
         }
         id += cx + cy + cz;
       }
+    }
   } else {
     const int64_t ny = sh.n[1];
+    if (!row_varies(s0, ny, has_next ? s1 : nullptr, nullptr, nullptr)) return 0;
     for (int64_t j = 0; j < ny; ++j) {
       const uint8_t a = s0[j];
       const bool cx = has_next && s1[j] != a;
       const bool cy = j + 1 < ny && s0[j + 1] != a;
       if (map) {
-        map[2 * j] = cx ? int32_t(id) : -1;
-        map[2 * j + 1] = cy ? int32_t(id + cx) : -1;
+        if (cx) map[2 * j] = int32_t(id), put(id, base + j, m);
+        if (cy) map[2 * j + 1] = int32_t(id + cx), put(id + cx, base + j, 1);
       }
       id += cx + cy;
     }
   }
-  (void)m;
   return id - first;
 }
 
@@ -391,6 +465,7 @@ inline int64_t slab_face_count(const Sampler<T>& s, const Shape& sh, int64_t i, 
     for (int64_t j = 0; j + 1 < ny; ++j) {
       const uint8_t* a0 = s0 + j * nz;
       const uint8_t* a1 = s1 + j * nz;
+      if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
       for (int64_t k = 0; k + 1 < nz; ++k) {
         // Skip uniform cubes cheaply.
         const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
@@ -445,27 +520,22 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
   return run(chunks, [&](int64_t c) {
     const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
     std::vector<uint8_t> sa(m), sb(m), sc(m);
-    std::vector<int32_t> ma(d * m), mb(d * m);
+    // Map entries are written before they are read (crossed edges only).
+    std::unique_ptr<int32_t[]> map_a(new int32_t[d * m]), map_b(new int32_t[d * m]);
+    int32_t* ma = map_a.get();
+    int32_t* mb = map_b.get();
     // Slice i's map needs the signs of slices i and i + 1.
     slice_signs(s, sh, i0, sa.data());
     if (i0 + 1 < nx) slice_signs(s, sh, i0 + 1, sb.data());
-    slice_edges(sh, i0, sa.data(), sb.data(), cnt.voff[i0], ma.data());
+    slice_edges(sh, i0, sa.data(), sb.data(), cnt.voff[i0], ma, edges, vcap);
     for (int64_t i = i0; i < i1; ++i) {
       const bool has_next = i + 1 < nx;
-      // Vertices of slice i.
-      const int64_t mm = d * m;
-      for (int64_t e = 0; e < mm; ++e) {
-        const int32_t id = ma[e];
-        if (id < 0 || id >= vcap) continue;
-        const int64_t cell = i * m + e / d, axis = e % d;
-        const int64_t stride = axis == 0 ? m : (d == 3 && axis == 1) ? sh.n[2] : 1;
-        edges[2 * int64_t(id)] = int32_t(cell);
-        edges[2 * int64_t(id) + 1] = int32_t(cell + stride);
-      }
       if (!has_next) break;
       // Map of slice i + 1 (needs the signs of slice i + 2).
       if (i + 2 < nx) slice_signs(s, sh, i + 2, sc.data());
-      slice_edges(sh, i + 1, sb.data(), sc.data(), cnt.voff[i + 1], mb.data());
+      // Slice i + 1's vertices are written by the chunk that owns the slice.
+      slice_edges(sh, i + 1, sb.data(), sc.data(), cnt.voff[i + 1], mb,
+                  i + 1 < i1 ? edges : nullptr, vcap);
       // Faces of slab i.
       int64_t fid = cnt.foff[i];
       {
@@ -475,6 +545,7 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
           for (int64_t j = 0; j + 1 < ny; ++j) {
             const uint8_t* a0 = sa.data() + j * nz;
             const uint8_t* a1 = sb.data() + j * nz;
+            if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
             for (int64_t k = 0; k + 1 < nz; ++k) {
               const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
                               a0[k + nz + 1] + a1[k + nz + 1];
@@ -487,7 +558,7 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
                   const int e = tb.tri[idx][t][v];
                   const int base = edge_base(e), axis = edge_axis(e);
                   const int64_t cell = (j + ((base >> 1) & 1)) * nz + k + ((base >> 2) & 1);
-                  const int32_t* mp = (base & 1) ? mb.data() : ma.data();
+                  const int32_t* mp = (base & 1) ? mb : ma;
                   faces[3 * fid + v] = mp[3 * cell + axis];
                 }
               }
@@ -505,7 +576,7 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
                 // Edges 0, 1: along x at y = e; edges 2, 3: along y at x = e - 2.
                 const int axis = e < 2 ? 0 : 1;
                 const int dx = e < 2 ? 0 : e - 2, dy = e < 2 ? e : 0;
-                const int32_t* mp = dx ? mb.data() : ma.data();
+                const int32_t* mp = dx ? mb : ma;
                 faces[2 * fid + v] = mp[2 * (j + dy) + axis];
               }
             }
@@ -514,7 +585,7 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
       }
       sa.swap(sb);
       sb.swap(sc);
-      ma.swap(mb);
+      std::swap(ma, mb);
     }
   });
 }

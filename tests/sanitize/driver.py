@@ -808,6 +808,95 @@ def run_spatial(rng, n_inputs):
         else:
             fail(f"spatial '{name}': no error raised")
         COUNTS["spatial_invalid"] += 1
+# -- marching cubes ------------------------------------------------------------------------
+
+
+def run_marching_cubes(rng, count):
+    """Fuzzes the marching-cubes kernel: eager (exact size) and FFI (capacity) paths."""
+    from voxax._isosurface import host_topology
+
+    def field(shape, dtype):
+        kind = rng.integers(6)
+        if kind == 0:
+            f = rng.standard_normal(shape)
+        elif kind == 1:
+            f = rng.integers(-1, 2, size=shape).astype(float)  # exact ties at level 0
+        elif kind == 2:
+            f = np.zeros(shape)  # everything on the level
+        elif kind == 3:
+            f = rng.standard_normal(shape) * 1e30
+        elif kind == 4:
+            f = rng.standard_normal(shape) * 1e-30
+        else:
+            f = np.where(rng.random(shape) < 0.5, 1.0, -1.0) * rng.random(shape)
+        return f.astype(dtype)
+
+    for it in range(count):
+        dim = 3 if it % 3 else 2
+        shape = tuple(int(x) for x in rng.integers(1, 10, size=dim))
+        dtype = (np.float64, np.float32)[it % 2]
+        f = field(shape, dtype)
+        level = 0.0 if it % 4 else float(rng.standard_normal())
+        label = f"marching cubes {dim}D {shape} {np.dtype(dtype).name} level={level}"
+        COUNTS["marching_cubes"] += 1
+        edges, faces = host_topology(f, level)
+        CALLS["mc_host"] += 1
+        nv, cells = len(edges), f.size
+        strides = {int(np.prod(shape[a + 1 :])) for a in range(dim)}
+        if nv and (edges.min() < 0 or edges.max() >= cells or not set(np.unique(edges[:, 1] - edges[:, 0])) <= strides):
+            fail(f"{label}: bad edges")
+        if len(faces) and (faces.min() < 0 or faces.max() >= nv):
+            fail(f"{label}: face index out of range")
+        pos = f.reshape(-1) >= level
+        if nv and np.any(pos[edges[:, 0]] == pos[edges[:, 1]]):
+            fail(f"{label}: a vertex on an edge that does not cross the level")
+        # closed, oriented output once padded with the outside value
+        padded = np.pad(f, 1, constant_values=np.asarray(level + 1.0, dtype))
+        pe, pf = host_topology(padded, level)
+        CALLS["mc_host"] += 1
+        if dim == 3 and len(pf):
+            d = np.concatenate([pf[:, [0, 1]], pf[:, [1, 2]], pf[:, [2, 0]]]).astype(np.int64)
+            code, rev = d[:, 0] * len(pe) + d[:, 1], d[:, 1] * len(pe) + d[:, 0]
+            if len(np.unique(code)) != len(code) or not np.all(np.isin(rev, code)):
+                fail(f"{label}: padded output is not closed and oriented")
+        if dim == 2 and len(pf):
+            if not (np.array_equal(np.sort(pf[:, 0]), np.arange(len(pe))) and np.array_equal(np.sort(pf[:, 1]), np.arange(len(pe)))):
+                fail(f"{label}: padded 2D output is not made of closed loops")
+        # the capacity path: exact fit, too small (overflow reported, nothing out of bounds)
+        for cap in (max(1, nv), max(1, len(faces)), 1):
+            call = jax.ffi.ffi_call(
+                _ffi.MARCHING_CUBES,
+                (jax.ShapeDtypeStruct((cap, 2), jnp.int32), jax.ShapeDtypeStruct((cap, dim), jnp.int32),
+                 jax.ShapeDtypeStruct((2,), jnp.int32)),
+                vmap_method="expand_dims",
+            )
+            e2, f2, c2 = call(jnp.asarray(f), level=np.float64(level), dim=np.int64(dim))
+            CALLS["mc_ffi"] += 1
+            if int(c2[0]) != nv or int(c2[1]) != len(faces):
+                fail(f"{label}: FFI counts {np.asarray(c2)} differ from the eager ({nv}, {len(faces)})")
+            k, kf = min(cap, nv), min(cap, len(faces))
+            if not np.array_equal(np.asarray(e2)[:k], edges[:k]) or not np.array_equal(np.asarray(f2)[:kf], faces[:kf]):
+                fail(f"{label}: FFI output differs from the eager output")
+    # invalid input: NaN, Inf, bad attributes and output shapes
+    for bad in (np.nan, np.inf):
+        f = np.zeros((4, 4, 4))
+        f[1, 2, 3] = bad
+        COUNTS["marching_cubes_invalid"] += 1
+        try:
+            voxax.isosurface(f, Grid.cube(4))
+            fail("marching cubes: non-finite values accepted")
+        except ValueError:
+            pass
+    for dim_attr, shapes in ((5, ((3, 2), (3, 3), (2,))), (3, ((3, 3), (3, 3), (2,))), (3, ((3, 2), (3, 2), (2,)))):
+        COUNTS["marching_cubes_invalid"] += 1
+        call = jax.ffi.ffi_call(_ffi.MARCHING_CUBES, tuple(jax.ShapeDtypeStruct(s, jnp.int32) for s in shapes),
+                                vmap_method="expand_dims")
+        try:
+            jax.block_until_ready(call(jnp.zeros((4, 4, 4)), level=np.float64(0.0), dim=np.int64(dim_attr)))
+            fail(f"marching cubes: raw FFI call with dim={dim_attr}, outputs {shapes} accepted")
+        except Exception as err:  # noqa: BLE001
+            if "voxax.isosurface" not in str(err):
+                fail(f"marching cubes: unexpected error {err!r}")
 
 
 def pool_threads():
@@ -864,6 +953,7 @@ def main(argv=None):
                 run_zero_size(dim, dtype)
         run_raw_ffi(rng)
         run_spatial(rng, args.spatial_inputs)
+        run_marching_cubes(rng, max(20, args.inputs // 20))
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -888,7 +978,7 @@ def main(argv=None):
     print("\nzero-size batches:")
     for k, val in OBSERVED.items():
         print(f"  {k}: {val}")
-    print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size"]))
+    print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size", "marching_cubes", "marching_cubes_invalid"]))
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
