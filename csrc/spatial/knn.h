@@ -92,6 +92,9 @@ class PointGrid {
       int64_t c[3];
       for (int a = 0; a < 3; ++a) c[a] = coord(q, a);
       const int64_t rmax = std::max(dim_[0], std::max(dim_[1], dim_[2]));
+      // Rounding allowance of the cell boxes (binning rounds differently).
+      const double tol =
+          1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) + std::fabs(q[1]) + std::fabs(q[2]));
       for (int64_t r = 0; r <= rmax; ++r) {
         for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
           if (i < 0 || i >= dim_[0]) continue;
@@ -103,6 +106,19 @@ class PointGrid {
             for (int64_t kk = c[2] - r; kk <= c[2] + r; kk += (ej || r == 0) ? 1 : 2 * r) {
               if (kk < 0 || kk >= dim_[2]) continue;
               const int64_t cell = (i * dim_[1] + j) * dim_[2] + kk;
+              if (start_[cell] == start_[cell + 1]) continue;
+              if (have == k) {
+                // Skip cells whose (slightly grown) box is beyond the k-th candidate.
+                const int64_t cc[3] = {i, j, kk};
+                double d2 = 0.0;
+                for (int a = 0; a < 3; ++a) {
+                  const double lo = lo_[a] + static_cast<double>(cc[a]) * h_[a] - tol;
+                  const double hi = lo_[a] + static_cast<double>(cc[a] + 1) * h_[a] + tol;
+                  const double e = q[a] < lo ? lo - q[a] : (q[a] > hi ? q[a] - hi : 0.0);
+                  d2 += e * e;
+                }
+                if (d2 > bd[k - 1]) continue;
+              }
               for (int64_t s = start_[cell]; s < start_[cell + 1]; ++s) {
                 const int32_t p = order_[s];
                 const double* x = &pts_[3 * static_cast<size_t>(s)];
@@ -138,8 +154,7 @@ class PointGrid {
           }
           if (covers) break;
           // Conservative: binning and this bound round differently.
-          gap -= 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) + std::fabs(q[1]) +
-                         std::fabs(q[2]));
+          gap -= tol;
           if (gap > 0.0 && bd[k - 1] < gap * gap) break;
         }
       }

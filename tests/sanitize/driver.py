@@ -782,8 +782,8 @@ def run_spatial(rng, n_inputs):
         "jit zero direction": (lambda: jax.jit(lambda dd: voxax.first_hits((v, f), jnp.zeros((1, 3)), dd))(
             jnp.zeros((1, 3))), "zero"),
         "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "k must"),
-        "raw FFI kNN k = 0": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
-            jax.ShapeDtypeStruct((3, 0), jnp.int32), jax.ShapeDtypeStruct((3, 0), jnp.float64)))(
+        "raw FFI kNN k = 40": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+            jax.ShapeDtypeStruct((3, 40), jnp.int32), jax.ShapeDtypeStruct((3, 40), jnp.float64)))(
             jnp.asarray(v), jnp.zeros((3, 3))), "k must"),
         "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
             jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
