@@ -9,10 +9,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library_path", "grid_attributes"]
+__all__ = ["BACKWARD", "FORWARD", "TANGENT", "TARGETS", "grid_attributes", "library_path"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
+TANGENT = "voxax_tangent"
+
+# Every FFI target the library exports, by name (each is also the exported symbol). The one
+# registry of voxax's custom calls: registration and the export safety checks read it.
+TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT)
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -45,7 +50,7 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD):
+    for name in TARGETS:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 
