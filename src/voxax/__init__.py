@@ -14,6 +14,8 @@ The public API:
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
+- `voxax.export_safety_checks()`: what `jax.export` needs to export functions that call the
+  kernels.
 """
 
 from . import _ffi  # noqa: F401  (registers the kernels with XLA)
@@ -25,6 +27,7 @@ from . import apps, fabricate
 from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
+from ._export import export_safety_checks, ffi_targets
 
 __version__ = "0.1.0"
 
@@ -43,6 +46,8 @@ __all__ = [
     "minimize",
     "MinimizeResult",
     "StopRules",
+    "export_safety_checks",
+    "ffi_targets",
     "apps",
     "fabricate",
     "baselines",
