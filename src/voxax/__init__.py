@@ -10,7 +10,8 @@ The public API:
   `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
   `voxax.box_filter`: integer-scaled box filters of a voxelization.
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
-  tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver.
+  tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver;
+  `voxax.least_squares`: Levenberg-Marquardt, Gauss-Newton and dogleg on residuals.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
@@ -28,6 +29,7 @@ from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangen
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
 from ._export import export_safety_checks, ffi_targets
+from ._least_squares import LeastSquaresResult, least_squares
 
 __version__ = "0.1.0"
 
@@ -47,6 +49,8 @@ __all__ = [
     "MinimizeResult",
     "StopRules",
     "export_safety_checks",
+    "least_squares",
+    "LeastSquaresResult",
     "ffi_targets",
     "apps",
     "fabricate",
