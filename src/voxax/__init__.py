@@ -30,6 +30,7 @@ from ._winding import winding_number
 from ._minimize import MinimizeResult, StopRules, minimize
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
+from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
 
 __version__ = "0.1.0"
 
@@ -50,6 +51,9 @@ __all__ = [
     "StopRules",
     "export_safety_checks",
     "least_squares",
+    "voxelize_sharded",
+    "voxelize_slab",
+    "slab_grids",
     "LeastSquaresResult",
     "ffi_targets",
     "apps",
