@@ -26,6 +26,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
+import lineax as lx  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
@@ -101,15 +102,18 @@ def main(argv=None) -> int:
     parser.add_argument("--lm-steps", type=int, default=30)
     parser.add_argument("--adam-steps", type=int, default=2000)
     parser.add_argument("--lr", type=float, default=1e-2, help="Adam's learning rate")
+    parser.add_argument("--linear-solver", default="cholesky", choices=["cholesky", "cg"],
+                        help="LM's linear solves: normal equations by Cholesky (dense J^T J) or by CG")
     args = parser.parse_args(argv)
 
     residuals, d0, grid = problem(args.resolution, args.subdivisions, args.target, args.lam)
     initial = loss_of(residuals, d0)
     print(f"template: {d0.shape[0]} vertices ({d0.size} parameters); grid {grid.shape}; initial loss {initial:.6g}")
 
+    linear_solver = lx.Normal(lx.Cholesky()) if args.linear_solver == "cholesky" else None
     lm = voxax.least_squares(residuals, d0, solver="levenberg_marquardt", rtol=1e-4, atol=1e-6,
-                             max_steps=args.lm_steps)
-    print(f"Levenberg-Marquardt: loss {lm.loss:.6g} after {lm.steps} steps in {lm.seconds:.2f} s "
+                             max_steps=args.lm_steps, linear_solver=linear_solver)
+    print(f"Levenberg-Marquardt ({args.linear_solver}): loss {lm.loss:.6g} after {lm.steps} steps in {lm.seconds:.2f} s "
           f"(with compilation; {lm.message})")
     target_loss = lm.loss * 1.01
     _, steps, seconds, loss = run_adam(residuals, d0, target_loss, args.lr, args.adam_steps)
