@@ -50,3 +50,36 @@ def test_four_simulated_devices():
     assert proc.returncode == 0, report
     for line in ("sharded on 2 devices: ok", "sharded on 4 devices: ok", "errors: ok"):
         assert line in proc.stdout, report
+
+
+def test_two_processes(tmp_path):
+    """The same call on a mesh of two processes (jax.distributed on localhost, one CPU
+    device each): each process holds its slab, and the gradient sums across processes."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = str(s.getsockname()[1])
+    script = Path(__file__).resolve().parent / "_multiprocess_check.py"
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(voxax.__file__).resolve().parent.parent), env.get("PYTHONPATH", "")])
+    procs = [subprocess.Popen([sys.executable, str(script), port, str(i), str(tmp_path / f"p{i}.npz")], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    for p, (so, se) in zip(procs, outs):
+        assert p.returncode == 0, f"{so}\n{se[-4000:]}"
+    grid = voxax.Grid(lower=(-0.9, -1.0, -0.8), upper=(1.0, 0.9, 1.1), shape=(8, 7, 6))
+    m = voxax.data.icosphere(2, radius=0.7)
+    v = jnp.asarray(m.vertices + np.array([0.3, 0.0, 0.1]))
+    c = np.random.default_rng(0).normal(size=grid.shape)
+    W = np.asarray(voxax.voxelize(v, m.faces, grid))
+    g = np.asarray(jax.grad(lambda x: jnp.sum(c * jnp.sin(voxax.voxelize(x, m.faces, grid))))(v))
+    starts = []
+    for i in range(2):
+        with np.load(tmp_path / f"p{i}.npz") as z:
+            start = int(z["start"])
+            starts.append(start)
+            np.testing.assert_allclose(z["slab"], W[start : start + 4], rtol=0, atol=1e-13 * np.abs(W).max())
+            np.testing.assert_allclose(z["grad"], g, rtol=0, atol=1e-13 * np.abs(g).max())
+    assert sorted(starts) == [0, 4]
