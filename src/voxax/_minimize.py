@@ -33,6 +33,8 @@ import numpy as np
 import optax
 import optimistix as optx
 
+from ._progress import ProgressBar
+
 __all__ = ["StopRules", "MinimizeResult", "minimize"]
 
 
@@ -335,9 +337,7 @@ def minimize(
 
     bar = None
     if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=stop.max_steps, desc="minimize", unit="step", dynamic_ncols=True)
+        bar = ProgressBar(stop.max_steps, "minimize")
     try:
         while steps < stop.max_steps:
             y_new, state, info, result = _step(y, state, args)
@@ -357,8 +357,7 @@ def minimize(
                 if "max_w" in aux_vals:
                     post["max_w"] = f"{aux_vals['max_w']:.4f}"
                 post["step"] = f"{step_size:.2e}"
-                bar.set_postfix(post, refresh=False)
-                bar.update(1)
+                bar.update(post)
             if callback is not None:
                 cb_info = {"energy": energy, "step_size": step_size, **aux_vals}
                 stop_by_callback = bool(callback(steps, y_new, cb_info))
@@ -408,7 +407,7 @@ def minimize(
         stop_reason = "interrupted"
     finally:
         if bar is not None:
-            bar.close()
+            bar.close(stop_reason)
 
     # The energy and aux at the returned iterate (one extra evaluation when unknown).
     final_eval = eqx.filter_jit(fn_aux) if jit else fn_aux
