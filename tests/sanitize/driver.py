@@ -709,8 +709,14 @@ def run_tangent(rng, family, dim, grid_name, grid, dtype):
         # faces, slivers with large barycentric weights): the per-corner gradients.
         C = np.asarray(voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), jnp.asarray(u), grid))
         CALLS["eager_backward"] += 1
+        # Slivers: the pieces' areas (clipped in different orders by the two kernels) are
+        # known only to rounding times the square of their long edges.
+        p = np.asarray(v, np.float64)[np.asarray(f)[:nf]]
+        edges = np.stack([p[:, (c + 1) % dim] - p[:, c] for c in range(dim)], axis=1)
+        long2 = float(np.sum(np.max(np.sum(edges**2, axis=-1), axis=-1)))
         scale = (np.linalg.norm(u) * np.linalg.norm(Jt) + np.linalg.norm(JTu) * np.linalg.norm(t)
-                 + np.abs(C.astype(np.float64)).sum() * np.abs(t).max())
+                 + np.abs(C.astype(np.float64)).sum() * np.abs(t).max()
+                 + long2 / grid.voxel_volume * np.abs(t).max() * np.abs(u).max())
         tol = (1e-9 if dtype == np.float64 else 1e-3) * scale + 1e-300
         if family != "huge" and not abs(lhs - rhs) <= tol:
             fail(f"{label}: <u, J t> = {lhs!r} but <J^T u, t> = {rhs!r}")
