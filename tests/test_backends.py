@@ -65,11 +65,14 @@ def test_host_callback_reports_bad_values(host_callback):
     assert float(fn(jnp.asarray(mesh.vertices)).sum()) * grid.voxel_volume == pytest.approx(1.0)
 
 
-def test_forward_mode_raises_clear_message():
+def test_forward_mode_through_host_callback(host_callback):
     mesh = voxax.data.box()
     grid = voxax.Grid.cube(4)
-    v = jnp.asarray(mesh.vertices)
-    with pytest.raises(TypeError, match="reverse-mode differentiation only"):
-        jax.jvp(lambda x: voxax.voxelize(x, mesh.faces, grid), (v,), (jnp.ones_like(v),))
-    with pytest.raises(TypeError, match="reverse-mode differentiation only"):
-        jax.jacfwd(lambda x: voxax.voxelize(x, mesh.faces, grid).sum())(v)
+    v = jnp.asarray(mesh.vertices) * 0.9
+    t = jnp.asarray(np.random.default_rng(0).normal(size=v.shape))
+    fn = lambda x: voxax.voxelize(x, mesh.faces, grid)  # noqa: E731
+    dW_cb = jax.jit(lambda x, tt: jax.jvp(fn, (x,), (tt,))[1])(v, t)
+    g_cb = jax.jit(jax.grad(lambda x: jnp.sum(fn(x) ** 2)))(v)
+    _op.use_host_callback(False)
+    np.testing.assert_array_equal(dW_cb, jax.jvp(fn, (v,), (t,))[1])
+    np.testing.assert_array_equal(g_cb, jax.grad(lambda x: jnp.sum(fn(x) ** 2))(v))

@@ -438,8 +438,8 @@ def test_corner_gradients_sum_to_vertex_gradients(dim):
 
 
 def _determinism_inputs():
-    """Inputs big enough that both kernels split their work into many parallel tasks
-    (backward: 64 faces per task; forward: several column tiles, and a batch)."""
+    """Inputs big enough that the kernels split their work into many parallel tasks
+    (backward: 64 faces per task; forward and tangent: several column tiles, and a batch)."""
     rng = np.random.default_rng(99)
     m = voxax.data.icosphere(3, radius=0.7)
     v3 = np.stack([jitter(rng, m.vertices, 2e-2) for _ in range(3)])
@@ -460,7 +460,10 @@ def _run_all(inputs):
             W, vjp = jax.vjp(lambda y: voxax.voxelize(y, f, g), x)
             (dv,) = vjp(jnp.asarray(c.astype(dt)))
             corners = voxax.voxelize_corner_gradients(x, jnp.asarray(f), g, jnp.asarray(c.astype(dt)))
+            tangent = jnp.asarray(np.cos(np.arange(v.size)).reshape(v.shape).astype(dt))
+            _, dW = jax.jvp(lambda y: voxax.voxelize(y, f, g), (x,), (tangent,))
             key = f"{i}_{np.dtype(dt).name}"
+            out["jvp_" + key] = np.asarray(dW)
             out["W_" + key] = np.asarray(W)
             out["dv_" + key] = np.asarray(dv)
             out["corners_" + key] = np.asarray(corners)
@@ -500,8 +503,8 @@ np.savez({path!r}, **out)
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads the thread count from /proc")
 def test_deterministic_across_thread_counts(tmp_path):
-    """Forward and backward are bit-for-bit identical whatever the size of XLA's CPU
-    thread pool.
+    """Forward, backward and tangent are bit-for-bit identical whatever the size of XLA's
+    CPU thread pool.
 
     How the pool size is controlled (checked with jax/jaxlib 0.10.2): XLA_FLAGS such as
     `--xla_cpu_multi_thread_eigen=false` and `intra_op_parallelism_threads=1`, and

@@ -13,6 +13,8 @@ The public API:
 - `voxax.energies`: pure-JAX energies on grids and meshes (self-intersection, bandsaw,
   tiling, ARAP, ...); `voxax.minimize`: an optax/optimistix minimization driver with
   stopping rules (`voxax.StopRules`, `voxax.StopReason`) and box bounds.
+  tiling, ARAP, ...); `voxax.minimize`: an optimistix/optax minimization driver;
+  `voxax.least_squares`: Levenberg-Marquardt, Gauss-Newton and dogleg on residuals.
 - `voxax.apps`: the paper's applications (self-intersections, bandsaw, tiling);
   `voxax.fabricate`: bandsaw templates (SVG) and exact cut solids.
 - `voxax.isosurface(values, grid, level)`: marching cubes (squares in 2D), differentiable in
@@ -24,6 +26,8 @@ The public API:
   topology reports and IoU.
 - `voxax.fields`: analytic signed distances, implicit surfaces, CSG, SIREN and DeepSDF.
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
+- `voxax.export_safety_checks()`: what `jax.export` needs to export functions that call the
+  kernels.
 """
 
 from . import _ffi  # noqa: F401  (registers the kernels with XLA)
@@ -48,6 +52,9 @@ from ._spatial import (
     nearest_neighbors,
 )
 from . import fields, metrics
+from ._export import export_safety_checks, ffi_targets
+from ._least_squares import LeastSquaresResult, least_squares
+from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
 
 __version__ = "0.1.0"
 
@@ -84,6 +91,13 @@ __all__ = [
     "nearest_neighbors",
     "fields",
     "metrics",
+    "export_safety_checks",
+    "least_squares",
+    "voxelize_sharded",
+    "voxelize_slab",
+    "slab_grids",
+    "LeastSquaresResult",
+    "ffi_targets",
     "apps",
     "fabricate",
     "baselines",

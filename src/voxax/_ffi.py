@@ -9,15 +9,20 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "library", "library_path",
-           "grid_attributes"]
+__all__ = ["BACKWARD", "FORWARD", "TANGENT", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "TARGETS",
+           "grid_attributes", "library", "library_path"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
+TANGENT = "voxax_tangent"
 MARCHING_CUBES = "voxax_marching_cubes"
 CLOSEST_POINTS = "voxax_closest_points"
 FIRST_HITS = "voxax_first_hits"
 KNN = "voxax_knn"
+
+# Every FFI target the library exports, by name (each is also the exported symbol). The one
+# registry of voxax's custom calls: registration and the export safety checks read it.
+TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN)
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 
@@ -50,7 +55,7 @@ def library_path() -> Path:
 
 def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
-    for name in (FORWARD, BACKWARD, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN):
+    for name in TARGETS:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
     return lib
 

@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-import functools
 import os
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _ffi, _validate
+from . import _validate
+from . import _voxelize_ops as _ops
 from ._grid import Grid
 
-__all__ = ["voxelize", "voxelize_corner_gradients", "use_host_callback"]
+__all__ = ["use_host_callback", "voxelize", "voxelize_corner_gradients"]
 
 _INT32_MAX = _validate.INT32_MAX
 
@@ -28,9 +28,14 @@ def voxelize(vertices, faces=None, grid: Grid | None = None) -> jax.Array:
     space: parts outside the grid contribute exactly what they should to the cells inside.
 
     The result is differentiable in `vertices`: the gradient is the closed-form
-    sub-triangle splat (see the docs, "How gradients are computed"). `voxelize` works
-    under `jax.jit`, `jax.grad`/`jax.vjp` and `jax.vmap`; leading axes of `vertices` and
-    `faces` are batch axes and broadcast against each other.
+    sub-triangle splat (see the docs, "How gradients are computed"), and the
+    directional derivative (forward mode) is the same splat scattered into the voxels.
+    `voxelize` works under `jax.jit`, `jax.grad`/`jax.vjp`/`jax.jacrev`,
+    `jax.jvp`/`jax.jacfwd`/`jax.linearize`/`jax.linear_transpose` and `jax.vmap`; leading
+    axes of `vertices` and `faces` are batch axes and broadcast against each other.
+    Second derivatives with respect to the vertices (`jax.hessian`) raise
+    `NotImplementedError`; Gauss-Newton products `J^T H J` (one `jax.jvp` and one
+    `jax.vjp`) are available.
 
     A mesh object (a `voxax.Mesh` or a `trimesh.Trimesh`) may take the place of
     `vertices, faces`: `voxelize(mesh, grid)`.
@@ -73,16 +78,7 @@ def voxelize(vertices, faces=None, grid: Grid | None = None) -> jax.Array:
     """
     vertices, faces, (grid,) = _validate.unpack_mesh("voxelize", vertices, faces, grid)
     vertices, faces = _check(vertices, faces, grid)
-    try:
-        return _voxelize(vertices, faces, grid)
-    except TypeError as err:
-        if "forward-mode" in str(err):
-            raise TypeError(
-                "voxax.voxelize supports reverse-mode differentiation only (jax.grad, jax.vjp, "
-                "jax.jacrev, jax.value_and_grad); forward mode (jax.jvp, jax.jacfwd, jax.linearize) "
-                "is not implemented. Use reverse mode instead."
-            ) from err
-        raise
+    return _forward_call(vertices, faces, grid)
 
 
 # -- validation ----------------------------------------------------------------------------
@@ -147,13 +143,8 @@ def _lead(vertices, faces):
 
 
 def _forward_call(vertices, faces, grid: Grid):
-    v, f, batch = _lead(vertices, faces)
-    return _kernel(_ffi.FORWARD, jax.ShapeDtypeStruct(batch + grid.shape, v.dtype), grid, v, f)
-
-
-# -- running the kernels: XLA FFI on CPU, a host callback elsewhere ------------------------
-
-_FORCE_HOST_CALLBACK = os.environ.get("VOXAX_HOST_CALLBACK", "") == "1"
+    v, f, _ = _lead(vertices, faces)
+    return _ops.forward(v, f, grid)
 
 
 def use_host_callback(enabled: bool) -> None:
@@ -162,58 +153,13 @@ def use_host_callback(enabled: bool) -> None:
     The kernels are CPU code. On a GPU or TPU default backend, `voxelize` runs them on
     the host through `jax.pure_callback` (data goes to the host and back). This switch
     forces that path on a CPU backend too, which is how it is tested; it takes effect
-    for functions traced after the call. The environment variable
+    for functions lowered after the call. The environment variable
     `VOXAX_HOST_CALLBACK=1` sets it at import.
     """
-    global _FORCE_HOST_CALLBACK
-    _FORCE_HOST_CALLBACK = bool(enabled)
+    _ops.set_host_callback(enabled)
 
 
-def _kernel(target: str, result: jax.ShapeDtypeStruct, grid: Grid, *args):
-    if not _FORCE_HOST_CALLBACK and jax.default_backend() == "cpu":
-        call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
-        out = call(*args, **_ffi.grid_attributes(grid))
-    else:
-        host = functools.partial(_host_kernel, target, tuple(result.shape[args[0].ndim - 2 :]), grid)
-        out = jax.pure_callback(host, result, *args, vmap_method="expand_dims")
-    return _vary_like(out, *args)
-
-
-def _varying_axes(x) -> frozenset:
-    aval = jax.typeof(x)
-    mat = getattr(aval, "mat", None)
-    if mat is not None:
-        return frozenset(getattr(mat, "varying", ()))
-    return frozenset(getattr(aval, "vma", ()))
-
-
-def _vary_like(out, *args):
-    """Types `out` as varying over the mesh axes (inside `shard_map`) its inputs vary over.
-
-    Kernel outputs are typed as invariant across mesh axes, which would make JAX treat a
-    per-device result as replicated (and sum its cotangents across devices).
-    """
-    axes = frozenset().union(*(_varying_axes(a) for a in args)) - _varying_axes(out)
-    if not axes:
-        return out
-    return jax.lax.pcast(out, tuple(sorted(axes)), to="varying")
-
-
-def _host_kernel(target, trailing, grid, *args):
-    # Runs the FFI kernel on the host CPU device with the arguments as given (a vmap
-    # of the callback adds leading axes, which the kernel treats as batch axes).
-    v, _, batch = _lead(args[0], args[1])
-    result = jax.ShapeDtypeStruct(batch + tuple(trailing), v.dtype)
-    cpu = jax.devices("cpu")[0]
-    with jax.default_device(cpu):
-        out = _host_jit(target, result, grid)(*[jax.device_put(a, cpu) for a in args])
-    return np.asarray(out)
-
-
-@functools.lru_cache(maxsize=64)
-def _host_jit(target, result, grid):
-    call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
-    return jax.jit(lambda *a: call(*a, **_ffi.grid_attributes(grid)))
+_ops.set_host_callback(os.environ.get("VOXAX_HOST_CALLBACK", "") == "1")
 
 
 def voxelize_corner_gradients(vertices, faces=None, grid: Grid | None = None, cotangent=None):
@@ -245,43 +191,7 @@ def voxelize_corner_gradients(vertices, faces=None, grid: Grid | None = None, co
 
 def _corner_gradients(vertices, faces, grid, cotangent):
     v, f, batch = _lead(vertices, faces)
-    nf, d = f.shape[-2], f.shape[-1]
     g = jnp.asarray(cotangent, v.dtype)
     if g.shape[: g.ndim - grid.dim] != batch:
         g = jnp.broadcast_to(g, batch + grid.shape)
-    return _kernel(_ffi.BACKWARD, jax.ShapeDtypeStruct(batch + (nf, d, d), v.dtype), grid, v, f, g)
-
-
-def _sum_corners(corners, vertices, faces):
-    """Sums corner gradients (*B, F, k, d) into vertex gradients of `vertices`' shape."""
-    v, f, batch = _lead(vertices, faces)
-    nv, d = v.shape[-2], v.shape[-1]
-    nf, k = f.shape[-2], f.shape[-1]
-    nb = int(np.prod(batch, dtype=np.int64))
-    c = corners.reshape(nb, nf * k, d)
-    idx = jnp.broadcast_to(f, batch + (nf, k)).reshape(nb, nf * k)
-    dv = jax.vmap(lambda ci, fi: jnp.zeros((nv, d), corners.dtype).at[fi].add(ci))(c, idx)
-    dv = dv.reshape(batch + (nv, d))
-    # Sum over the batch axes along which the vertices were broadcast.
-    axes = tuple(a for a in range(len(batch)) if v.shape[a] == 1 and batch[a] != 1)
-    if axes:
-        dv = dv.sum(axis=axes, keepdims=True)
-    return dv.reshape(vertices.shape)
-
-
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def _voxelize(vertices, faces, grid):
-    return _forward_call(vertices, faces, grid)
-
-
-def _voxelize_fwd(vertices, faces, grid):
-    return _forward_call(vertices, faces, grid), (vertices, faces)
-
-
-def _voxelize_bwd(grid, residuals, cotangent):
-    vertices, faces = residuals
-    corners = _corner_gradients(vertices, faces, grid, cotangent)
-    return _sum_corners(corners, vertices, faces), None
-
-
-_voxelize.defvjp(_voxelize_fwd, _voxelize_bwd)
+    return _ops.backward(v, f, g, grid)

@@ -4,7 +4,7 @@
 the sanitizer runtimes preloaded and `VOXAX_KERNELS` pointing at the sanitized library.
 It can also run on its own (unsanitized) while developing: `python tests/sanitize/driver.py`.
 
-It drives the forward and backward kernels -- eagerly and under `jax.jit`, float32 and
+It drives the forward, backward and tangent kernels -- eagerly and under `jax.jit`, float32 and
 float64, 2D and 3D, single meshes, `vmap`-ed and leading-axis batches, zero-size batches
 -- on random and adversarial inputs:
 
@@ -897,6 +897,88 @@ def run_marching_cubes(rng, count):
         except Exception as err:  # noqa: BLE001
             if "voxax.isosurface" not in str(err):
                 fail(f"marching cubes: unexpected error {err!r}")
+def run_tangent(rng, family, dim, grid_name, grid, dtype):
+    """The tangent kernel (forward mode): jvp eagerly or under jit, finite and of the right
+    shape, and adjoint to the backward: <u, J t> = <J^T u, t> up to rounding."""
+    v, f, nf = make_input(rng, family, dim, grid, dtype)
+    mode = "jit" if rng.random() < 0.5 else "eager"
+    label = f"tangent/{family}/{dim}D/{grid_name}/{np.dtype(dtype).name}/{mode}"
+    t = rng.normal(size=v.shape).astype(dtype)
+    u = rng.normal(size=grid.shape).astype(dtype)
+
+    def both(x, tt, uu):
+        fn = lambda y: voxax.voxelize(y, f, grid)  # noqa: E731
+        _, Jt = jax.jvp(fn, (x,), (tt,))
+        return Jt, jax.vjp(fn, x)[1](uu)[0]
+
+    Jt, JTu = (jax.jit(both) if mode == "jit" else both)(jnp.asarray(v), jnp.asarray(t), jnp.asarray(u))
+    CALLS[f"{mode}_tangent"] += 1
+    CALLS[f"{mode}_backward"] += 1
+    Jt, JTu = np.asarray(Jt, np.float64), np.asarray(JTu, np.float64)
+    if Jt.shape != grid.shape or not np.all(np.isfinite(Jt)) or not np.all(np.isfinite(JTu)):
+        fail(f"{label}: tangent of shape {Jt.shape} (expected {grid.shape}) or non-finite values")
+        save_failure(label, v, f, grid)
+    else:
+        lhs, rhs = float(np.vdot(u, Jt)), float(np.vdot(JTu, t))
+        # Rounding is relative to the terms before they cancel (duplicate and flipped
+        # faces, slivers with large barycentric weights): the per-corner gradients.
+        C = np.asarray(voxax.voxelize_corner_gradients(jnp.asarray(v), jnp.asarray(f), grid, jnp.asarray(u)))
+        CALLS["eager_backward"] += 1
+        # Slivers: the pieces' areas (clipped in different orders by the two kernels) are
+        # known only to rounding times the square of their long edges.
+        p = np.asarray(v, np.float64)[np.asarray(f)[:nf]]
+        edges = np.stack([p[:, (c + 1) % dim] - p[:, c] for c in range(dim)], axis=1)
+        long2 = float(np.sum(np.max(np.sum(edges**2, axis=-1), axis=-1)))
+        scale = (np.linalg.norm(u) * np.linalg.norm(Jt) + np.linalg.norm(JTu) * np.linalg.norm(t)
+                 + np.abs(C.astype(np.float64)).sum() * np.abs(t).max()
+                 + long2 / grid.voxel_volume * np.abs(t).max() * np.abs(u).max())
+        tol = (1e-9 if dtype == np.float64 else 1e-3) * scale + 1e-300
+        if family != "huge" and not abs(lhs - rhs) <= tol:
+            fail(f"{label}: <u, J t> = {lhs!r} but <J^T u, t> = {rhs!r}")
+            save_failure(label, v, f, grid)
+    COUNTS["tangent"] += 1
+
+
+def run_raw_tangent_ffi(rng):
+    """Hostile direct calls of the tangent kernel: it must reject them cleanly."""
+    g = GRIDS_3D["odd"]
+    v, f, _ = make_input(rng, "closed", 3, g, np.float64)
+    v, f = jnp.asarray(v), jnp.asarray(f)
+    attrs = _ffi.grid_attributes(g)
+    tc = jnp.ones((f.shape[0], 3, 3))
+
+    def tan(vv, ff, tt, shape=g.shape, dtype=jnp.float64, **over):
+        a = dict(attrs)
+        a.update(over)
+        return jax.ffi.ffi_call(_ffi.TANGENT, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, tt, **a)
+
+    cases = {
+        "tangent: shape": lambda: tan(v, f, jnp.ones((f.shape[0], 3, 2))),
+        "tangent: F": lambda: tan(v, f, jnp.ones((f.shape[0] + 1, 3, 3))),
+        "tangent: rank": lambda: tan(v, f, jnp.ones((f.shape[0], 9))),
+        "tangent: dtype": lambda: tan(v, f, tc.astype(jnp.float32)),
+        "tangent: output dtype": lambda: tan(v, f, tc, dtype=jnp.float32),
+        "tangent: output shape": lambda: tan(v, f, tc, shape=(5, 7, 4)),
+        "tangent: batch": lambda: tan(jnp.stack([v] * 2), jnp.stack([f] * 2), jnp.stack([tc] * 3),
+                                      shape=(2,) + g.shape),
+        "tangent: NaN": lambda: tan(v, f, tc.at[1, 2, 0].set(jnp.nan)),
+        "tangent: NaN vertex": lambda: tan(v.at[0, 0].set(jnp.nan), f, tc),
+        "tangent: index": lambda: tan(v, f.at[0, 0].set(-3), tc),
+        "tangent: nz = 0": lambda: tan(v, f, tc, nz=np.int64(0)),
+        "tangent: int faces of 2": lambda: tan(v, f[:, :2], tc),
+    }
+    for name, fn in cases.items():
+        try:
+            jax.block_until_ready(fn())
+        except Exception:  # noqa: BLE001 - any clean error will do; a crash would abort
+            pass
+        else:
+            fail(f"raw FFI call '{name}' was accepted")
+        CALLS["raw_ffi"] += 1
+    COUNTS["raw_ffi"] += len(cases)
+    dW = np.asarray(jax.block_until_ready(tan(v, f, tc)))
+    if not np.all(np.isfinite(dW)):
+        fail("raw tangent FFI after errors: non-finite output")
 
 
 def pool_threads():
@@ -954,6 +1036,7 @@ def main(argv=None):
         run_raw_ffi(rng)
         run_spatial(rng, args.spatial_inputs)
         run_marching_cubes(rng, max(20, args.inputs // 20))
+        run_raw_tangent_ffi(rng)
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -968,13 +1051,15 @@ def main(argv=None):
                 run_invalid(rng, dim, gname, grid, dtype, case, match)
             else:
                 run_batched(rng, family, dim, gname, grid, dtype, BATCH)
+            if r == 3:
+                run_tangent(rng, family, dim, gname, grid, dtype)
             TIMES[f"{dim}D/{gname}"] += time.perf_counter() - t_in
             i += 1
     except Exception:  # noqa: BLE001
         fail("driver raised:\n" + traceback.format_exc())
 
     elapsed = time.perf_counter() - t0
-    inputs = sum(COUNTS[k] for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size"])
+    inputs = sum(COUNTS[k] for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size", "tangent"])
     print("\nzero-size batches:")
     for k, val in OBSERVED.items():
         print(f"  {k}: {val}")
