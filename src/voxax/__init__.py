@@ -6,6 +6,7 @@ The public API:
 - `voxax.voxelize(vertices, faces, grid)`: box-filtered winding numbers, differentiable
   in the vertices (closed-form gradient), under jit, grad and vmap.
 - `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
+- `voxax.intersections(vertices, faces)`: the exact triangle-triangle intersection test.
 - `voxax.winding_number`: exact generalised winding numbers at points;
   `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
   `voxax.box_filter`: integer-scaled box filters of a voxelization.
@@ -24,6 +25,7 @@ from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
 from ._filters import Box, Gaussian, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
+from ._intersections import Intersections, intersections
 from ._minimize import MinimizeResult, StopRules, minimize
 
 __version__ = "0.1.0"
@@ -35,6 +37,8 @@ __all__ = [
     "voxelize",
     "voxelize_corner_gradients",
     "winding_number",
+    "intersections",
+    "Intersections",
     "voxelize_mc",
     "voxelize_mc_tangent",
     "box_filter",

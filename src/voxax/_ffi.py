@@ -9,7 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-__all__ = ["FORWARD", "BACKWARD", "library_path", "grid_attributes"]
+__all__ = ["FORWARD", "BACKWARD", "library_path", "library", "grid_attributes"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
@@ -51,6 +51,11 @@ def _register() -> ctypes.CDLL:
 
 
 _LIB = _register()
+
+
+def library() -> ctypes.CDLL:
+    """The loaded kernel library (for its plain C entry points, e.g. the exact intersection test)."""
+    return _LIB
 
 
 def grid_attributes(grid) -> dict:
