@@ -79,17 +79,16 @@ def _signed_volume(v, faces):
     return jnp.sum(a * jnp.cross(b, c)) / 6.0
 
 
-def _local_grid(vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, spacing: float,
-                pad: float, max_cells: int, shift: float) -> Grid:
-    """A grid of cubic cells of size `spacing` around the faces `bad` (grown by `pad`),
-    coarsened when more than `max_cells` cells per axis would be needed, and shifted by
-    `shift` cells."""
+def _local_box(vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, spacing: float,
+               pad: float, cells: int, shift: float) -> tuple[np.ndarray, float]:
+    """The lower corner and cell size of a `cells^3` grid of cubic cells around the faces
+    `bad` (grown by `pad`): cells of size `spacing` when that covers the faces, coarser
+    otherwise; centred on the faces, then shifted by `shift` cells."""
     pts = vertices[faces[bad]].reshape(-1, 3)
     lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
-    h = max(spacing, float(np.max(hi - lo)) / max_cells)
-    n = np.maximum(2, np.ceil((hi - lo) / h)).astype(int)
-    lo = lo - (shift - 0.5 * (n * h - (hi - lo)) / h) * h
-    return Grid(lower=tuple(lo), upper=tuple(lo + n * h), shape=tuple(int(k) for k in n))
+    h = max(spacing, float(np.max(hi - lo)) / cells)
+    lower = 0.5 * (lo + hi) - 0.5 * cells * h + shift * h
+    return lower, h
 
 
 def resolve_self_intersections(
@@ -127,13 +126,14 @@ def resolve_self_intersections(
     of its voxels, so the result is then checked with the exact triangle-triangle test
     [`voxax.intersections`][voxax.intersections]. While faces still intersect (or touch),
     a refinement round places a small grid of finer cubic cells (half, then a quarter,
-    then an eighth of a working voxel, at most `local_cells` per axis, shifted by half a
-    cell every other round) around the intersecting faces, and minimizes the overlap
+    then an eighth of a working voxel, `local_cells` per axis, shifted by half a cell every
+    other round) around the intersecting faces, and minimizes the overlap
     volume measured there (`sum max(W - 1, 0)` times the cell volume; voxax is exact on
     any grid) together with the working grid's energy, ARAP and the volume term, with Adam
     steps proportional to the fine cell size. The exact test runs every 10 steps; a round
-    ends when it finds nothing, or after `round_steps` steps. The stage stops when the
-    exact test finds no intersection, after `max_rounds` rounds, or when `time_budget`
+    ends when it finds nothing, or after `round_steps` steps (a local grid has
+    `local_cells^3` cells; it is coarser than planned when the faces do not fit). The
+    stage stops when the exact test finds no intersection, after `max_rounds` rounds, or when `time_budget`
     seconds have passed.
 
     **Volume** (`keep_volume=True`): `volume_weight * ((V - V_0) / V_0)^2` is added to
@@ -297,48 +297,53 @@ def resolve_self_intersections(
 
 def _refine(v, found, rest, faces, faces_np, grid, h_work, eps, alpha, volume_term,
             max_rounds, round_steps, local_cells, time_budget, progress):
-    """The exact stage: local fine grids around the intersecting faces (see the caller)."""
+    """The exact stage: local fine grids around the intersecting faces (see the caller).
+
+    The local grid moves and changes its cell size from round to round; to compile the
+    step once, the mesh is mapped into a fixed `[0, n]^3` grid of unit cells instead
+    (`(v - lower) / h`: box-filtered winding numbers are invariant under this map).
+    """
     import optax
 
     t0 = time.perf_counter()
     steps = 0
     rounds = 0
     check_every = 10
+    n = local_cells
+    unit_grid = Grid(lower=(0.0, 0.0, 0.0), upper=(float(n),) * 3, shape=(n, n, n))
+    unit = h_work**3  # overlap volumes in working voxels
+    adam = optax.scale_by_adam()
+
+    def energy(x, lower, h):
+        W_l = voxelize((x - lower) / h, faces, unit_grid)
+        W_w = voxelize(x, faces, grid)
+        e_local = jnp.sum(jnp.maximum(W_l - 1.0 - eps, 0.0)) * h**3 / unit
+        e_work = jnp.sum(jnp.maximum(W_w - 1.0 - eps, 0.0)) * grid.voxel_volume / unit
+        return e_local + e_work + alpha * energies.arap(x, rest, faces) + volume_term(x)
+
+    @jax.jit
+    def step(x, state, lower, h):
+        g = jax.grad(energy)(x, lower, h)
+        upd, state = adam.update(g, state, x)
+        return x - 0.5 * h * upd, state
+
     while found.count and rounds < max_rounds:
         if time_budget is not None and time.perf_counter() - t0 > time_budget:
             break
         rounds += 1
         level = min(rounds, 3)
-        h = h_work / 2**level
-        v_np = np.asarray(v, dtype=np.float64)
-        local = _local_grid(v_np, faces_np, found.faces, h, 2 * h_work, local_cells, 0.5 * (rounds % 2))
-        h_local = float(max(local.spacing))
-        unit = h_work**3  # overlap volumes in working voxels
-
-        def energy(x, local=local):
-            W_l = voxelize(x, faces, local)
-            W_w = voxelize(x, faces, grid)
-            e_local = jnp.sum(jnp.maximum(W_l - 1.0 - eps, 0.0)) * local.voxel_volume / unit
-            e_work = jnp.sum(jnp.maximum(W_w - 1.0 - eps, 0.0)) * grid.voxel_volume / unit
-            return e_local + e_work + alpha * energies.arap(x, rest, faces) + volume_term(x)
-
-        opt = optax.adam(0.5 * h_local)
-        state = opt.init(v)
-
-        @jax.jit
-        def step(x, state, opt=opt, energy=energy):
-            e, g = jax.value_and_grad(energy)(x)
-            upd, state = opt.update(g, state, x)
-            return optax.apply_updates(x, upd), state, e
-
+        lower, h = _local_box(np.asarray(v, dtype=np.float64), faces_np, found.faces, h_work / 2**level,
+                              2 * h_work, n, 0.5 * (rounds % 2))  # fmt: skip
+        lower_j, h_j = jnp.asarray(lower, dtype=v.dtype), jnp.asarray(h, dtype=v.dtype)
+        state = adam.init(v)
         for k in range(round_steps):
-            v, state, e = step(v, state)
+            v, state = step(v, state, lower_j, h_j)
             steps += 1
             if (k + 1) % check_every == 0 or k + 1 == round_steps:
                 found = intersections(np.asarray(v, dtype=np.float64), faces_np)
                 if progress:
                     print(f"refinement round {rounds} step {k + 1}: {found.count} intersecting pairs "
-                          f"(local grid {local.shape}, cell {h_local:.2e})", flush=True)
+                          f"(local cells {h:.2e})", flush=True)
                 if found.count == 0:
                     break
                 if time_budget is not None and time.perf_counter() - t0 > time_budget:
