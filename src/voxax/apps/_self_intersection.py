@@ -79,16 +79,20 @@ def _signed_volume(v, faces):
     return jnp.sum(a * jnp.cross(b, c)) / 6.0
 
 
-def _local_box(vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, spacing: float,
+def _local_box(vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray, spacing: float,
                pad: float, cells: int, shift: float) -> tuple[np.ndarray, float]:
-    """The lower corner and cell size of a `cells^3` grid of cubic cells around the faces
-    `bad` (grown by `pad`): cells of size `spacing` when that covers the faces, coarser
-    otherwise; centred on the faces, then shifted by `shift` cells."""
+    """The lower corner and cell size of a `cells^3` grid of cubic cells of size `spacing`
+    around the faces in `pairs` (grown by `pad`), shifted by `shift` cells. When they do
+    not fit, the grid is centred on the face that appears in the most pairs instead."""
+    bad, counts = np.unique(pairs.reshape(-1), return_counts=True)
     pts = vertices[faces[bad]].reshape(-1, 3)
     lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
-    h = max(spacing, float(np.max(hi - lo)) / cells)
-    lower = 0.5 * (lo + hi) - 0.5 * cells * h + shift * h
-    return lower, h
+    h = spacing
+    if np.max(hi - lo) <= cells * h:
+        centre = 0.5 * (lo + hi)
+    else:
+        centre = vertices[faces[bad[np.argmax(counts)]]].mean(axis=0)
+    return centre - 0.5 * cells * h + shift * h, h
 
 
 def resolve_self_intersections(
@@ -107,7 +111,7 @@ def resolve_self_intersections(
     refine: bool = True,
     max_rounds: int = 20,
     round_steps: int = 200,
-    local_cells: int = 64,
+    local_cells: int = 32,
     time_budget: float | None = None,
     dtype=None,
     progress: bool = True,
@@ -132,8 +136,8 @@ def resolve_self_intersections(
     any grid) together with the working grid's energy, ARAP and the volume term, with Adam
     steps proportional to the fine cell size. The exact test runs every 10 steps; a round
     ends when it finds nothing, or after `round_steps` steps (a local grid has
-    `local_cells^3` cells; it is coarser than planned when the faces do not fit). The
-    stage stops when the exact test finds no intersection, after `max_rounds` rounds, or when `time_budget`
+    `local_cells^3` cells; when the intersecting faces do not fit in it, it is centred on
+    the face in the most pairs, and later rounds take the rest). The stage stops when the exact test finds no intersection, after `max_rounds` rounds, or when `time_budget`
     seconds have passed.
 
     **Volume** (`keep_volume=True`): `volume_weight * ((V - V_0) / V_0)^2` is added to
@@ -332,7 +336,7 @@ def _refine(v, found, rest, faces, faces_np, grid, h_work, eps, alpha, volume_te
             break
         rounds += 1
         level = min(rounds, 3)
-        lower, h = _local_box(np.asarray(v, dtype=np.float64), faces_np, found.faces, h_work / 2**level,
+        lower, h = _local_box(np.asarray(v, dtype=np.float64), faces_np, found.pairs, h_work / 2**level,
                               2 * h_work, n, 0.5 * (rounds % 2))  # fmt: skip
         lower_j, h_j = jnp.asarray(lower, dtype=v.dtype), jnp.asarray(h, dtype=v.dtype)
         state = adam.init(v)
