@@ -138,6 +138,17 @@ inline bool segments_3d(const double* a, const double* b, const double* c, const
 inline bool triangles(const double* const a[3], const double* const b[3]) {
   const bool da = degenerate(a[0], a[1], a[2]);
   const bool db = degenerate(b[0], b[1], b[2]);
+  // Quick rejection: one triangle strictly on one side of the other's plane.
+  if (!db) {
+    const int s0 = orient3d(b[0], b[1], b[2], a[0]), s1 = orient3d(b[0], b[1], b[2], a[1]),
+              s2 = orient3d(b[0], b[1], b[2], a[2]);
+    if ((s0 > 0 && s1 > 0 && s2 > 0) || (s0 < 0 && s1 < 0 && s2 < 0)) return false;
+  }
+  if (!da) {
+    const int s0 = orient3d(a[0], a[1], a[2], b[0]), s1 = orient3d(a[0], a[1], a[2], b[1]),
+              s2 = orient3d(a[0], a[1], a[2], b[2]);
+    if ((s0 > 0 && s1 > 0 && s2 > 0) || (s0 < 0 && s1 < 0 && s2 < 0)) return false;
+  }
   if (da && db) {
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j)
@@ -181,6 +192,11 @@ inline bool ray_into_corner(const double* s, const double* p, const double* q,
 // they meet anywhere else?
 inline bool meet_beyond_vertex(const double* s, const double* a1, const double* a2,
                                const double* b1, const double* b2) {
+  // One triangle's other corners strictly on one side of the other's plane: they meet in s only.
+  const int o1 = orient3d(s, b1, b2, a1), o2 = orient3d(s, b1, b2, a2);
+  if (o1 * o2 > 0) return false;
+  const int o3 = orient3d(s, a1, a2, b1), o4 = orient3d(s, a1, a2, b2);
+  if (o3 * o4 > 0) return false;
   if (segment_triangle(a1, a2, s, b1, b2)) return true;
   if (segment_triangle(b1, b2, s, a1, a2)) return true;
   return ray_into_corner(s, b1, b2, a1) || ray_into_corner(s, b1, b2, a2) ||

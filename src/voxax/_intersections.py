@@ -91,10 +91,19 @@ def _arrays(mesh: Any, faces: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merges vertices with identical coordinates (so that adjacency is seen by position)."""
-    if vertices.shape[0] == 0:
+    if vertices.shape[0] < 2:
         return vertices, faces
-    unique, inverse = np.unique(vertices + 0.0, axis=0, return_inverse=True)  # + 0.0: -0 == 0
-    return np.ascontiguousarray(unique), np.ascontiguousarray(inverse.reshape(-1)[faces], dtype=np.int32)
+    v = vertices + 0.0  # -0.0 becomes 0.0
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    sv = v[order]
+    new = np.ones(len(v), dtype=bool)
+    new[1:] = np.any(sv[1:] != sv[:-1], axis=1)
+    if new.all():
+        return vertices, faces
+    label = np.cumsum(new) - 1
+    inverse = np.empty(len(v), dtype=np.int64)
+    inverse[order] = label
+    return np.ascontiguousarray(sv[new]), np.ascontiguousarray(inverse[faces], dtype=np.int32)
 
 
 def _setup(lib: ctypes.CDLL) -> None:
