@@ -135,6 +135,49 @@ inline bool boxes_overlap(const Box& a, const Box& b) {
   return true;
 }
 
+// Runs body(begin, end) over fixed slices of [0, n) on up to `threads` threads (each
+// index written by exactly one slice, so results do not depend on the thread count).
+template <class Body>
+void parallel_ranges(int64_t n, int threads, Body body) {
+  const int64_t slices = std::max<int64_t>(1, std::min<int64_t>(threads, n / 4096));
+  if (slices == 1) {
+    body(0, n);
+    return;
+  }
+  std::vector<std::thread> pool;
+  std::atomic<bool> failed{false};
+  for (int64_t t = 1; t < slices; ++t)
+    pool.emplace_back([&, t]() {
+      try {
+        body(n * t / slices, n * (t + 1) / slices);
+      } catch (...) {
+        failed.store(true);
+      }
+    });
+  try {
+    body(0, n / slices);
+  } catch (...) {
+    failed.store(true);
+  }
+  for (auto& th : pool) th.join();
+  if (failed.load()) throw std::bad_alloc();
+}
+
+// Stable LSD radix sort of (key, face) entries by key, keys in [0, limit): the same order
+// as sorting the pairs, since the entries arrive in increasing face order.
+void radix_sort(std::vector<std::pair<int64_t, int32_t>>* entries, int64_t limit) {
+  std::vector<std::pair<int64_t, int32_t>> tmp(entries->size());
+  int bits = 0;
+  while (bits < 63 && (int64_t{1} << bits) < limit) ++bits;
+  for (int shift = 0; shift < bits; shift += 16) {
+    std::vector<size_t> count(65537, 0);
+    for (const auto& e : *entries) ++count[((e.first >> shift) & 0xFFFF) + 1];
+    for (size_t d = 0; d < 65536; ++d) count[d + 1] += count[d];
+    for (const auto& e : *entries) tmp[count[(e.first >> shift) & 0xFFFF]++] = e;
+    entries->swap(tmp);
+  }
+}
+
 void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
   const bool self = B == nullptr;
   const int64_t na = A.nf, nb = self ? 0 : B->nf;
@@ -143,10 +186,12 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
   if (na == 0 || (!self && nb == 0)) return;
   std::vector<Face> faces(n);
   std::vector<Box> boxes(n);
-  for (int64_t i = 0; i < n; ++i) {
-    faces[i] = i < na ? face_of(A, i) : face_of(*B, i - na);
-    boxes[i] = box_of(faces[i]);
-  }
+  parallel_ranges(n, threads, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      faces[i] = i < na ? face_of(A, i) : face_of(*B, i - na);
+      boxes[i] = box_of(faces[i]);
+    }
+  });
   // A sparse grid over the union of the boxes, cell size twice the mean box size: the
   // (cell, face) entries sorted by cell; only occupied cells exist.
   double lo[3], hi[3];
@@ -199,7 +244,7 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
       for (int64_t y = cmin[3 * i + 1]; y <= cmax[3 * i + 1]; ++y)
         for (int64_t z = cmin[3 * i + 2]; z <= cmax[3 * i + 2]; ++z)
           entries.emplace_back((x * dims[1] + y) * dims[2] + z, static_cast<int32_t>(i));
-  std::sort(entries.begin(), entries.end());
+  radix_sort(&entries, dims[0] * dims[1] * dims[2]);
   std::vector<int64_t> start;  // first entry of every occupied cell, then the end
   for (size_t e = 0; e < entries.size(); ++e)
     if (e == 0 || entries[e].first != entries[e - 1].first) start.push_back(static_cast<int64_t>(e));
