@@ -89,3 +89,43 @@ def test_bad_budget_arguments():
         apps.resolve_self_intersections(voxax.data.cube(), max_rounds=-1, progress=False)
     with pytest.raises(ValueError, match="time_budget"):
         apps.resolve_self_intersections(voxax.data.cube(), time_budget=0.0, progress=False)
+
+
+# -- bandsaw and tiling, checked beyond the working grid -----------------------------------
+
+
+def test_bandsaw_report_on_finer_and_shifted_grids():
+    import voxax.energies as E
+
+    mesh = voxax.data.icosphere(1)
+    out, report = apps.optimize_for_bandsaw(mesh, resolution=16, max_steps=2, progress=False)
+    h = 2.0 / 16
+    grids = {
+        "fine": voxax.Grid.cube(32),
+        "shifted": voxax.Grid(lower=(-1 + h / 2,) * 3, upper=(1 + h / 2,) * 3, shape=(16,) * 3),
+    }
+    for name, g in grids.items():
+        for which, m in (("initial", mesh), ("final", out)):
+            W = voxax.voxelize((m.vertices - report.centre) * report.scale, m.faces, g)
+            cut = float(E.bandsaw_cut(W, report.w))
+            waste = float(np.sum(np.maximum(E.cut_shape(W, report.w) - W, 0))) * g.voxel_volume / report.scale**3
+            assert getattr(report, f"cut_{name}_{which}") == pytest.approx(cut, rel=1e-9)
+            assert getattr(report, f"waste_volume_{name}_{which}") == pytest.approx(waste, rel=1e-9, abs=1e-15)
+        assert getattr(report, f"relative_improvement_{name}") == pytest.approx(
+            1 - getattr(report, f"cut_{name}_final") / getattr(report, f"cut_{name}_initial")
+        )
+
+
+@pytest.mark.parametrize("x1, expected", [(0.3, False), (0.2, True)])
+def test_tiling_reports_exact_instance_intersections(x1, expected):
+    # Two small cubes (side 0.1) in a periodic cell of period 2/3: 0.8 apart they are 0.133
+    # apart modulo the period (clear); 0.7 apart, 0.033 modulo the period (overlapping only
+    # through the periodic copy).
+    cube = voxax.data.cube(0.1)
+    placed, report = apps.optimize_tiling(
+        cube, instances=2, resolution=12, max_steps=0, deform=False, fill_volume=False,
+        translations=[[-0.5, 0.0, 0.0], [x1, 0.0, 0.0]], angles=np.zeros((2, 3)), progress=False,
+    )  # fmt: skip
+    assert report.instances_intersect is expected
+    assert (report.intersecting_instance_pairs > 0) is expected
+    assert 0 <= report.coverage_fine_final <= 1 and 0 <= report.coverage_shifted_final <= 1
