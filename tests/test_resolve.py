@@ -122,7 +122,7 @@ def test_tiling_reports_exact_instance_intersections(x1, expected):
     # apart modulo the period (clear); 0.7 apart, 0.033 modulo the period (overlapping only
     # through the periodic copy).
     cube = voxax.data.cube(0.1)
-    placed, report = apps.optimize_tiling(
+    _, report = apps.optimize_tiling(
         cube, instances=2, resolution=12, max_steps=0, deform=False, fill_volume=False,
         translations=[[-0.5, 0.0, 0.0], [x1, 0.0, 0.0]], angles=np.zeros((2, 3)), progress=False,
     )  # fmt: skip
