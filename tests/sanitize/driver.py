@@ -719,6 +719,14 @@ def run_intersections(rng, rounds=60):
             fail(f"intersections: pairs not sorted and distinct ({kind})")
         if r2.count < 0 or (r2.count and r2.pairs[:, 1].max() >= len(f)):
             fail(f"intersections: two-mesh pairs out of range ({kind})")
+    # One large soup, so that the threaded set-up and several worker threads run.
+    big = voxax.data.large(20_000)
+    v = big.vertices + rng.normal(scale=0.02, size=big.vertices.shape)
+    r1 = voxax.intersections(v, big.faces, threads=1)
+    r4 = voxax.intersections(v, big.faces, threads=4)
+    COUNTS["intersections"] += 1
+    if not np.array_equal(r1.pairs, r4.pairs) or r1.count == 0:
+        fail("intersections: large soup differs across thread counts or found nothing")
     for case, match in (
         ((np.full((3, 3), np.nan), [[0, 1, 2]]), "NaN"),
         ((np.eye(3), [[0, 1, 7]]), "outside"),
