@@ -57,7 +57,7 @@ def kernels(n: int, subdivisions: int, repeats: int) -> dict:
     cot = jnp.asarray(rng.normal(size=grid.shape).astype(np.float32))
     tc = jnp.asarray(rng.normal(size=(mesh.n_faces, 3, 3)).astype(np.float32))
     fwd = jax.jit(lambda x: voxax.voxelize(x, f, grid))
-    bwd = jax.jit(lambda x, c: voxax.voxelize_corner_gradients(x, f, c, grid))
+    bwd = jax.jit(lambda x, c: voxax.voxelize_corner_gradients(x, f, grid, c))
     tan = jax.jit(lambda x, t: _voxelize_ops.tangent(x, f, t, grid))
     out = {
         "grid": n,
@@ -107,7 +107,7 @@ def loops(n: int, subdivisions: int, steps: int, repeats: int) -> dict:
 
     fwd = jax.jit(lambda x: voxax.voxelize(x, f, grid))
     cot = jnp.full(grid.shape, 1.0 / grid.size, jnp.float32)
-    bwd = jax.jit(lambda x, c: voxax.voxelize_corner_gradients(x, f, c, grid))
+    bwd = jax.jit(lambda x, c: voxax.voxelize_corner_gradients(x, f, grid, c))
     kernel_s = timed(fwd, v0, repeats=repeats) + timed(bwd, v0, cot, repeats=repeats)
 
     def python_loop(x, t):

@@ -66,7 +66,7 @@ def test_resolve_keeps_the_shape(resolved_bent_bar):
 
 def test_resolve_accepts_trimesh_and_arrays_and_maps_back():
     mesh = voxax.data.overlapping_cubes()
-    kwargs = dict(resolution=16, max_steps=3, progress=False)
+    kwargs = dict(resolution=16, max_steps=3, refine=False, progress=False)
     a, ra = apps.resolve_self_intersections(mesh, **kwargs)
     b, rb = apps.resolve_self_intersections(mesh.to_trimesh(), **kwargs)
     c, rc = apps.resolve_self_intersections((mesh.vertices, mesh.faces), **kwargs)
@@ -74,7 +74,7 @@ def test_resolve_accepts_trimesh_and_arrays_and_maps_back():
     np.testing.assert_allclose(a.vertices, c.vertices, atol=1e-12)
     assert ra.steps == rb.steps == rc.steps == 3 and ra.stop_reason == "max_steps"
     # The result is in the input's frame: a zero-step run returns the input.
-    d, rd = apps.resolve_self_intersections(mesh, resolution=16, max_steps=0, progress=False)
+    d, rd = apps.resolve_self_intersections(mesh, resolution=16, max_steps=0, refine=False, progress=False)
     np.testing.assert_allclose(d.vertices, mesh.vertices, atol=1e-12)
     assert rd.steps == 0 and not rd.resolved
 

@@ -6,6 +6,7 @@ The public API:
 - `voxax.voxelize(vertices, faces, grid)`: box-filtered winding numbers, differentiable
   in the vertices (closed-form gradient), under jit, grad and vmap.
 - `voxax.data`: procedurally generated demo meshes; `voxax.io`: mesh loading and saving.
+- `voxax.intersections(vertices, faces)`: the exact triangle-triangle intersection test.
 - `voxax.winding_number`: exact generalised winding numbers at points;
   `voxax.voxelize_mc`: Monte Carlo voxelization with wider boxes and Gaussians;
   `voxax.box_filter`: integer-scaled box filters of a voxelization; `voxax.Kernel`: the
@@ -55,6 +56,7 @@ from . import fields, metrics
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
 from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
+from ._intersections import Intersections, intersections
 
 __version__ = "0.1.0"
 
@@ -65,6 +67,8 @@ __all__ = [
     "voxelize",
     "voxelize_corner_gradients",
     "winding_number",
+    "intersections",
+    "Intersections",
     "voxelize_mc",
     "voxelize_mc_tangent",
     "box_filter",

@@ -979,6 +979,79 @@ def run_raw_tangent_ffi(rng):
     dW = np.asarray(jax.block_until_ready(tan(v, f, tc)))
     if not np.all(np.isfinite(dW)):
         fail("raw tangent FFI after errors: non-finite output")
+def run_intersections(rng, rounds=60):
+    """The exact intersection test: random, degenerate, duplicate, huge/tiny, coplanar and
+    touching soups; invalid inputs; hostile raw calls of the C entry point."""
+    import ctypes
+
+    from voxax import _intersections
+
+    for k in range(rounds):
+        nf = int(rng.integers(1, 120))
+        v = rng.normal(size=(3 * nf, 3))
+        kind = k % 6
+        if kind == 1:  # snapped to a coarse lattice: coplanar and touching faces
+            v = np.round(v * 2) / 2
+        elif kind == 2:  # degenerate faces
+            v[1::3] = v[0::3]
+        elif kind == 3:
+            v *= 10.0 ** rng.choice([-45, 70])
+        f = rng.integers(0, len(v), size=(nf, 3)) if kind == 4 else np.arange(3 * nf).reshape(nf, 3)
+        if kind == 5:  # duplicate faces, both orientations
+            f = np.concatenate([f, f[:, ::-1]])
+        try:
+            r1 = voxax.intersections(v, f, threads=1)
+            r4 = voxax.intersections(v, f, threads=4)
+            r2 = voxax.intersections(v, f[: len(f) // 2 + 1], other=(v, f))
+        except Exception as exc:  # noqa: BLE001
+            fail(f"intersections raised on a valid input ({kind}): {exc!r}")
+            continue
+        COUNTS["intersections"] += 1
+        p = r1.pairs
+        if not np.array_equal(p, r4.pairs):
+            fail(f"intersections: thread count changed the result ({kind})")
+        if p.size and (np.any(p[:, 0] >= p[:, 1]) or p.min() < 0 or p.max() >= len(f)):
+            fail(f"intersections: pairs out of order or range ({kind})")
+        if len(p) > 1 and np.any(np.diff(p[:, 0] * len(f) + p[:, 1]) <= 0):
+            fail(f"intersections: pairs not sorted and distinct ({kind})")
+        if r2.count < 0 or (r2.count and r2.pairs[:, 1].max() >= len(f)):
+            fail(f"intersections: two-mesh pairs out of range ({kind})")
+    # One large soup, so that the threaded set-up and several worker threads run.
+    big = voxax.data.large(20_000)
+    v = big.vertices + rng.normal(scale=0.02, size=big.vertices.shape)
+    r1 = voxax.intersections(v, big.faces, threads=1)
+    r4 = voxax.intersections(v, big.faces, threads=4)
+    COUNTS["intersections"] += 1
+    if not np.array_equal(r1.pairs, r4.pairs) or r1.count == 0:
+        fail("intersections: large soup differs across thread counts or found nothing")
+    for case, match in (
+        ((np.full((3, 3), np.nan), [[0, 1, 2]]), "NaN"),
+        ((np.eye(3), [[0, 1, 7]]), "outside"),
+        ((np.eye(3) * 1e76, [[0, 1, 2]]), "magnitude"),
+    ):
+        try:
+            voxax.intersections(case[0], np.asarray(case[1]))
+            fail(f"intersections accepted invalid input ({match})")
+        except ValueError as exc:
+            if match not in str(exc):
+                fail(f"intersections: wrong message {exc}")
+        COUNTS["intersections_invalid"] += 1
+    # Raw calls that skip the Python checks: the kernel validates on its own.
+    lib = _ffi.library()
+    _intersections._setup(lib)
+    err = ctypes.create_string_buffer(256)
+    handle = ctypes.c_void_p()
+    bad = np.array([[0, 1, 5]], dtype=np.int32)
+    nan = np.full((3, 3), np.nan)
+    for args in (
+        (None, 3, None, 1, None, 0, None, 0),
+        (nan.ctypes.data, 3, bad.ctypes.data, 1, None, 0, None, 0),
+        (np.eye(3).ctypes.data, 3, bad.ctypes.data, 1, None, 0, None, 0),
+        (np.eye(3).ctypes.data, -1, bad.ctypes.data, 1, None, 0, None, 0),
+    ):
+        if lib.voxax_intersections(*args, 2, ctypes.byref(handle), err, len(err)) != -1:
+            fail("raw intersections call accepted invalid input")
+        COUNTS["intersections_raw"] += 1
 
 
 def pool_threads():
@@ -1037,6 +1110,7 @@ def main(argv=None):
         run_spatial(rng, args.spatial_inputs)
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
+        run_intersections(rng)
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -1066,6 +1140,7 @@ def main(argv=None):
     print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size", "marching_cubes", "marching_cubes_invalid"]))
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
+    print("exact intersection test: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("intersections", "intersections_invalid", "intersections_raw")))
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
     print("kernel invocations: " + ", ".join(f"{k} {v}" for k, v in sorted(CALLS.items())) + f" (total {sum(CALLS.values())})")
     print(f"jitted functions compiled: {len(_JIT)}; XLA pool threads: {pool_threads()}")

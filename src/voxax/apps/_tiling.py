@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -15,6 +16,7 @@ from .. import energies
 from .._mesh import Mesh
 from .._grid import Grid
 from .._voxelize import voxelize
+from .._intersections import intersections
 from . import _common
 
 #: A cell voxel counts as "covered exactly once" when its folded value is within this of 1.
@@ -47,6 +49,16 @@ class TilingReport(_common.Report):
       instances and the 27 blocks), for the box `[cell_lower, cell_upper]^3`.
     - `cell_lower`, `cell_upper`: the periodic cell's box along each axis (`-1/3`, `1/3`
       for 3 blocks).
+    - `coverage_fine_initial`, `coverage_fine_final`: the coverage measured on a grid twice
+      as fine (`2 * resolution` cells per axis); `coverage_shifted_initial`,
+      `coverage_shifted_final`: on the working grid shifted by half a voxel along every
+      axis. Both check that the coverage is not an artefact of the working grid.
+    - `instances_intersect`: whether any two instances of the result (or an instance and a
+      periodic copy of another or of itself, translated by whole periods) intersect or
+      touch, by the exact triangle-triangle test
+      ([`voxax.intersections`][voxax.intersections], on the translated float64 copies).
+    - `intersecting_instance_pairs`: how many (instance, instance, period shift)
+      combinations intersect.
     """
 
     instances: int
@@ -67,6 +79,29 @@ class TilingReport(_common.Report):
     cell: np.ndarray
     cell_lower: float
     cell_upper: float
+    coverage_fine_initial: float
+    coverage_fine_final: float
+    coverage_shifted_initial: float
+    coverage_shifted_final: float
+    instances_intersect: bool
+    intersecting_instance_pairs: int
+
+
+def _instance_intersections(meshes: list, period: float) -> int:
+    """Intersecting (instance, instance, period shift) combinations, exactly."""
+    boxes = [(m.vertices.min(axis=0), m.vertices.max(axis=0)) for m in meshes]
+    found = 0
+    for a, b in itertools.combinations_with_replacement(range(len(meshes)), 2):
+        # Whole-period shifts k of b whose box can meet a's box, per axis.
+        lo_k = np.ceil((boxes[a][0] - boxes[b][1]) / period - 1e-9).astype(int)
+        hi_k = np.floor((boxes[a][1] - boxes[b][0]) / period + 1e-9).astype(int)
+        for k in itertools.product(*(range(lo_k[i], hi_k[i] + 1) for i in range(3))):
+            if a == b and k <= tuple(-x for x in k):
+                continue  # an instance is not compared with itself; +k and -k are the same pair
+            moved = (meshes[b].vertices + np.array(k, dtype=np.float64) * period, meshes[b].faces)
+            if intersections(meshes[a], other=moved).count:
+                found += 1
+    return found
 
 
 def rotation_matrices(angles):
@@ -336,6 +371,19 @@ def optimize_tiling(
     if deform:
         y0["offsets"] = jnp.zeros_like(rest_j)
     fill0, cell0, _ = measure(y0)
+    h = grid.spacing[0]
+    check_grids = {
+        "fine": Grid.cube(2 * resolution),
+        "shifted": Grid(lower=tuple(lo + h / 2 for lo in grid.lower), upper=tuple(hi + h / 2 for hi in grid.upper),
+                        shape=grid.shape),
+    }  # fmt: skip
+
+    def coverage_on(y, g):
+        world, _ = placed(y)
+        W = voxelize(world, faces_all, g)
+        return float(coverage(energies.fold_periodic(jnp.sum(W, axis=0), blocks=blocks)))
+
+    coverage_before = {k: coverage_on(y0, g) for k, g in check_grids.items()}
     result = _common.run_minimize(
         energy,
         y0,
@@ -357,6 +405,8 @@ def optimize_tiling(
     out = [Mesh(world1[b, : len(rests[c])], sources[c].faces) for b, c in enumerate(mesh_index)]
     fill0, fill1 = float(fill0), float(fill1)
     ang1 = np.asarray(y1["angles"], dtype=np.float64)
+    coverage_after = {k: coverage_on(y1, g) for k, g in check_grids.items()}
+    crossing = _instance_intersections(out, period)
     report = TilingReport(
         energy_history=_common.energy_series(result),
         history=_common.history_dict(result.history),
@@ -382,5 +432,11 @@ def optimize_tiling(
         cell=cell1,
         cell_lower=lower,
         cell_upper=upper,
+        coverage_fine_initial=coverage_before["fine"],
+        coverage_fine_final=coverage_after["fine"],
+        coverage_shifted_initial=coverage_before["shifted"],
+        coverage_shifted_final=coverage_after["shifted"],
+        instances_intersect=crossing > 0,
+        intersecting_instance_pairs=crossing,
     )
     return out, report
