@@ -10,9 +10,11 @@
 // read. Triangles are independent: each writes its own three corners.
 #pragma once
 
-#include "clip.h"
-#include "common.h"
-#include "forward.h"
+#include <cmath>
+#include <cstdint>
+
+#include "common/grid.h"
+#include "voxelize/clip.h"
 
 namespace voxax {
 

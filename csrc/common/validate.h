@@ -3,11 +3,15 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
 #include <string>
 
-#include "common.h"
+#include "common/constants.h"
+#include "xla/ffi/api/ffi.h"
 
 namespace voxax {
+
+namespace ffi = xla::ffi;
 
 template <typename T>
 ffi::Error check_vertices(const T* V, int64_t count, int64_t batch_item) {
