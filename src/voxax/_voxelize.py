@@ -203,23 +203,36 @@ _FORCE_HOST_CALLBACK = os.environ.get("VOXAX_HOST_CALLBACK", "") == "1"
 def use_host_callback(enabled: bool) -> None:
     """Forces (or stops forcing) the host-callback path used on non-CPU backends.
 
-    The kernels are CPU code. On a GPU or TPU default backend, `voxelize` runs them on
-    the host through `jax.pure_callback` (data goes to the host and back). This switch
-    forces that path on a CPU backend too, which is how it is tested; it takes effect
-    for functions traced after the call. The environment variable
-    `VOXAX_HOST_CALLBACK=1` sets it at import.
+    The kernels are CPU code. A traced `voxelize` holds both ways of running them and
+    the platform it is compiled for picks one (`jax.lax.platform_dependent`): the XLA
+    FFI call on CPU, and on a GPU or TPU a `jax.pure_callback` that runs them on the
+    host (data goes to the host and back). This switch makes functions traced after
+    the call use the host callback on every platform, CPU included, which is how that
+    path is tested. The environment variable `VOXAX_HOST_CALLBACK=1` sets it at import.
+
+    **Arguments:**
+
+    - `enabled`: `True` to force the host callback, `False` to choose by platform.
     """
     global _FORCE_HOST_CALLBACK
     _FORCE_HOST_CALLBACK = bool(enabled)
 
 
 def _kernel(target: str, result: jax.ShapeDtypeStruct, grid: Grid, *args):
-    if not _FORCE_HOST_CALLBACK and jax.default_backend() == "cpu":
+    """Runs FFI target `target` on `args`: directly on CPU, through the host elsewhere."""
+
+    def on_cpu(*a):
         call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
-        out = call(*args, **_ffi.grid_attributes(grid))
+        return call(*a, **_ffi.grid_attributes(grid))
+
+    def on_host(*a):
+        host = functools.partial(_host_kernel, target, tuple(result.shape[a[0].ndim - 2 :]), grid)
+        return jax.pure_callback(host, result, *a, vmap_method="expand_dims")
+
+    if _FORCE_HOST_CALLBACK:
+        out = on_host(*args)
     else:
-        host = functools.partial(_host_kernel, target, tuple(result.shape[args[0].ndim - 2 :]), grid)
-        out = jax.pure_callback(host, result, *args, vmap_method="expand_dims")
+        out = jax.lax.platform_dependent(*args, cpu=on_cpu, default=on_host)
     return _vary_like(out, *args)
 
 
