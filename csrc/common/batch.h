@@ -54,8 +54,11 @@ inline std::string dims_str(ffi::Span<const int64_t> d) {
 // array with `trailing` trailing axes whose batch shape must be the output's.
 inline ffi::Error make_batch(ffi::Span<const int64_t> vd, ffi::Span<const int64_t> fd,
                              ffi::Span<const int64_t> od, size_t trailing, Batch* batch) {
-  if (vd.size() < 2 || fd.size() < 2 || od.size() < trailing)
+  if (vd.size() < 2 || fd.size() < 2)
     return ffi::Error::InvalidArgument("voxax: vertices and faces need at least 2 axes");
+  if (od.size() < trailing)
+    return ffi::Error::InvalidArgument("voxax: output " + dims_str(od) + " has fewer than " +
+                                       std::to_string(trailing) + " axes");
   size_t nb = vd.size() - 2;
   if (fd.size() - 2 != nb || od.size() - trailing != nb)
     return ffi::Error::InvalidArgument("voxax: vertices " + dims_str(vd) + ", faces " +
