@@ -73,8 +73,8 @@ inline ffi::Error make_batch(ffi::Span<const int64_t> vd, ffi::Span<const int64_
     bool fok = batch->fdim[a] == 1 || batch->fdim[a] == o;
     if (!vok || !fok)
       return ffi::Error::InvalidArgument("voxax: batch axes of vertices " + dims_str(vd) +
-                                         " and faces " + dims_str(fd) +
-                                         " do not broadcast to " + dims_str(od));
+                                         " and faces " + dims_str(fd) + " do not broadcast to " +
+                                         dims_str(od));
   }
   return ffi::Error::Success();
 }

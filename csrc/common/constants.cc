@@ -10,8 +10,7 @@ extern "C" {
 //   0: kMaxAbsCoordinate, 1: kMinCellVolume, 2: kMaxCellVolume,
 //   3: kMaxCellsPerAxis.
 __attribute__((visibility("default"))) int voxax_constants(double* out, int n) {
-  const double values[] = {voxax::kMaxAbsCoordinate, voxax::kMinCellVolume,
-                           voxax::kMaxCellVolume,
+  const double values[] = {voxax::kMaxAbsCoordinate, voxax::kMinCellVolume, voxax::kMaxCellVolume,
                            static_cast<double>(voxax::kMaxCellsPerAxis)};
   const int count = static_cast<int>(sizeof(values) / sizeof(values[0]));
   for (int i = 0; i < n && i < count; ++i) out[i] = values[i];

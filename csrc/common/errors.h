@@ -44,8 +44,7 @@ inline ffi::Error current_exception_error(const char* where) {
   } catch (const InvalidInput& e) {
     return ffi::Error::InvalidArgument(e.what());
   } catch (const std::exception& e) {
-    return ffi::Error::Internal(std::string("voxax: internal error in ") + where + ": " +
-                                e.what());
+    return ffi::Error::Internal(std::string("voxax: internal error in ") + where + ": " + e.what());
   } catch (...) {
     return ffi::Error::Internal(std::string("voxax: internal error in ") + where +
                                 ": unknown exception");

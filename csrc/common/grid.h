@@ -73,9 +73,9 @@ inline ffi::Error check_grid(int dim, double x0, double x1, int64_t nx, double y
   const int64_t n[3] = {nx, ny, nz};
   for (int a = 0; a < dim; ++a) {
     if (n[a] < 1 || n[a] > kMaxCellsPerAxis)
-      return ffi::Error::InvalidArgument("voxax: grid shape must be in [1, 2^31] on every axis, got " +
-                                         std::to_string(n[a]) + " cells along axis " +
-                                         std::to_string(a));
+      return ffi::Error::InvalidArgument(
+          "voxax: grid shape must be in [1, 2^31] on every axis, got " + std::to_string(n[a]) +
+          " cells along axis " + std::to_string(a));
     if (!std::isfinite(lo[a]) || !std::isfinite(hi[a]) || !(hi[a] > lo[a]))
       return ffi::Error::InvalidArgument("voxax: grid corners must be finite with upper > lower");
     g->lo[a] = lo[a];

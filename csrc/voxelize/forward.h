@@ -63,7 +63,6 @@ struct Bins {
   std::vector<int32_t> items;
 };
 
-
 // ---------------------------------------------------------------------------
 // 3D
 
@@ -164,8 +163,7 @@ inline bool load_triangle(const T* V, const int32_t* F, int64_t t, Poly<3>* P) {
 // Faces are counted and filled in parallel over fixed chunks (independent of
 // the thread count), so every tile lists its faces in ascending order.
 template <typename Ranges>
-void bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ranges,
-               Bins* bins) {
+void bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ranges, Bins* bins) {
   const int64_t tiles = tl.count();
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(32, nf / 8192));
   const int64_t per = (nf + chunks - 1) / chunks;
@@ -206,19 +204,22 @@ void bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ran
 template <typename T>
 void bin_triangles_3d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
                       const int32_t* F, int64_t nf, Bins* bins) {
-  bin_faces(pool, tl, nf, [&](int64_t t, int32_t* r) {
-    Poly<3> P;
-    if (!load_triangle(V, F, t, &P)) return false;
-    if (P.max(2) <= g.lo[2]) return false;
-    int64_t i0, i1, j0, j1;
-    if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) return false;
-    if (!g.span(1, P.min(1), P.max(1), &j0, &j1)) return false;
-    r[0] = static_cast<int32_t>(i0 / tl.tx);
-    r[1] = static_cast<int32_t>(i1 / tl.tx);
-    r[2] = static_cast<int32_t>(j0 / tl.ty);
-    r[3] = static_cast<int32_t>(j1 / tl.ty);
-    return true;
-  }, bins);
+  bin_faces(
+      pool, tl, nf,
+      [&](int64_t t, int32_t* r) {
+        Poly<3> P;
+        if (!load_triangle(V, F, t, &P)) return false;
+        if (P.max(2) <= g.lo[2]) return false;
+        int64_t i0, i1, j0, j1;
+        if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) return false;
+        if (!g.span(1, P.min(1), P.max(1), &j0, &j1)) return false;
+        r[0] = static_cast<int32_t>(i0 / tl.tx);
+        r[1] = static_cast<int32_t>(i1 / tl.tx);
+        r[2] = static_cast<int32_t>(j0 / tl.ty);
+        r[3] = static_cast<int32_t>(j1 / tl.ty);
+        return true;
+      },
+      bins);
 }
 
 // Stores [first, last) of a column: out[k] = T(src ? src[k] : value). Plain
@@ -271,7 +272,6 @@ struct TileScratch {
   }
 };
 
-
 template <typename T>
 void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
                      const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
@@ -294,17 +294,18 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
     if (i0 == i1 && i0 >= ia && i0 < ib && x0 >= g.plane(0, i0) && x1 <= g.plane(0, i0 + 1)) {
       const double y0 = P.min(1), y1 = P.max(1);
       int64_t k0, k1;
-      if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb &&
-          y0 >= g.plane(1, j0) && y1 <= g.plane(1, j0 + 1)) {
+      if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb && y0 >= g.plane(1, j0) &&
+          y1 <= g.plane(1, j0 + 1)) {
         const double z0 = P.min(2), z1 = P.max(2);
         const Column col = scratch.column((i0 - ia) * wy + (j0 - ja), nz);
         if (g.span(2, z0, z1, &k0, &k1) && k0 == k1 && z0 >= g.plane(2, k0) &&
             z1 <= g.plane(2, k0 + 1)) {
-          const double(*q)[3] = P.v;
+          const double (*q)[3] = P.v;
           const double A = 0.5 * ((q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) -
                                   (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]));
           const double zl = g.plane(2, k0);
-          const double b = A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
+          const double b =
+              A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
           col.add(k0, b);
           if (k0 > 0) col.add(k0 - 1, A * inv_area - b);
         } else {
@@ -324,7 +325,8 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       yb = std::min(yb, jb - 1);
       if (ya > yb) return;
       sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Q) {
-        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j), scratch.column((i - ia) * wy + (j - ja), nz));
+        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j),
+                      scratch.column((i - ia) * wy + (j - ja), nz));
       });
     });
   }
@@ -383,18 +385,21 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col
 template <typename T>
 void bin_segments_2d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
                      const int32_t* F, int64_t nf, Bins* bins) {
-  bin_faces(pool, tl, nf, [&](int64_t s, int32_t* r) {
-    Poly<2> S;
-    if (!load_segment(V, F, s, &S)) return false;
-    if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) return false;
-    int64_t i0, i1;
-    if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) return false;
-    r[0] = static_cast<int32_t>(i0 / tl.tx);
-    r[1] = static_cast<int32_t>(i1 / tl.tx);
-    r[2] = 0;
-    r[3] = 0;
-    return true;
-  }, bins);
+  bin_faces(
+      pool, tl, nf,
+      [&](int64_t s, int32_t* r) {
+        Poly<2> S;
+        if (!load_segment(V, F, s, &S)) return false;
+        if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) return false;
+        int64_t i0, i1;
+        if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) return false;
+        r[0] = static_cast<int32_t>(i0 / tl.tx);
+        r[1] = static_cast<int32_t>(i1 / tl.tx);
+        r[2] = 0;
+        r[3] = 0;
+        return true;
+      },
+      bins);
 }
 
 template <typename T>

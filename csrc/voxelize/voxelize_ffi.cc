@@ -84,8 +84,8 @@ ffi::Error check_shapes(const ffi::AnyBuffer& vertices, const ffi::AnyBuffer& fa
   if (pb->nv > INT32_MAX || pb->nf > INT32_MAX)
     return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 vertices and faces are supported");
 
-  ffi::Error err = check_grid(pb->dim, at.x0, at.x1, at.nx, at.y0, at.y1, at.ny, at.z0, at.z1,
-                              at.nz, &pb->grid);
+  ffi::Error err =
+      check_grid(pb->dim, at.x0, at.x1, at.nx, at.y0, at.y1, at.ny, at.z0, at.z1, at.nz, &pb->grid);
   if (err.failure()) return err;
   const size_t trailing = cotangent ? 3 : static_cast<size_t>(pb->dim);
   err = make_batch(vd, fd, od, trailing, &pb->batch);
@@ -103,8 +103,7 @@ ffi::Error check_shapes(const ffi::AnyBuffer& vertices, const ffi::AnyBuffer& fa
         "voxax: backward output must have shape (..., F, d, d), got " + dims_str(od));
   const auto gd = cotangent->dimensions();
   if (gd.size() != nb + static_cast<size_t>(pb->dim))
-    return ffi::Error::InvalidArgument("voxax: cotangent " + dims_str(gd) +
-                                       " has the wrong rank");
+    return ffi::Error::InvalidArgument("voxax: cotangent " + dims_str(gd) + " has the wrong rank");
   // The cotangent's batch axes broadcast like the inputs' (a vmap of a
   // gradient passes a size-1 axis when the cotangent does not vary).
   pb->cotangent_batch.assign(gd.begin(), gd.begin() + nb);
@@ -147,8 +146,7 @@ ffi::Error prepare(const ffi::AnyBuffer& vertices, const ffi::AnyBuffer& faces,
 }
 
 template <typename T>
-void forward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V, const int32_t* F,
-                  T* out) {
+void forward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V, const int32_t* F, T* out) {
   const GridSpec& g = pb.grid;
   const int64_t B = pb.batch.size();
   const int64_t vstride = pb.nv * pb.dim, fstride = pb.nf * pb.dim;
@@ -219,8 +217,8 @@ ffi::Error Forward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
 }
 
 ffi::Error Backward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer faces,
-                    ffi::AnyBuffer cotangent, ffi::Result<ffi::AnyBuffer> out, double x0,
-                    double x1, int64_t nx, double y0, double y1, int64_t ny, double z0, double z1,
+                    ffi::AnyBuffer cotangent, ffi::Result<ffi::AnyBuffer> out, double x0, double x1,
+                    int64_t nx, double y0, double y1, int64_t ny, double z0, double z1,
                     int64_t nz) {
   return guarded("the backward kernel", [&]() {
     Problem pb;
