@@ -40,8 +40,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ._mesh import Mesh, from_manifold
 from ._grid import Grid
+from ._mesh import Mesh, from_manifold
 
 __all__ = [
     "PLANE_AXES",

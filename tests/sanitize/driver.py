@@ -48,8 +48,11 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import voxax  # noqa: E402
-from voxax import _ffi, reference  # noqa: E402
-from voxax import Grid  # noqa: E402
+from voxax import (  # noqa: E402
+    Grid,  # noqa: E402
+    _ffi,
+    reference,
+)
 
 # -- bookkeeping ---------------------------------------------------------------------------
 

@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._mesh import Mesh
-from .._grid import Grid
-from .. import io as _io
 from .. import _minimize as solve
+from .. import io as _io
+from .._grid import Grid
+from .._mesh import Mesh
 
 
 def as_mesh(mesh: Any) -> Mesh:
