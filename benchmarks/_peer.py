@@ -24,12 +24,10 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from _common import op_handlers, proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
-
+import dvx_ext  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-
-import dvx_ext  # noqa: E402
+from _common import op_handlers, proc_status_kib, reset_peak_rss, serve, timed, trim_memory  # noqa: E402
 from dvx.torch import voxelize as dvx_voxelize  # noqa: E402
 
 STATE: dict = {"v": None, "f": None, "ops": {}}

@@ -21,9 +21,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from _resolve_cases import deformed_hand, overlapping_letters, torus_knot_tube  # noqa: E402
+
 import voxax  # noqa: E402
 import voxax.apps  # noqa: E402
-from _resolve_cases import deformed_hand, overlapping_letters, torus_knot_tube  # noqa: E402
 
 CASES = {
     "bent_bar": lambda: voxax.data.bent_bar(),

@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     cases = setups(rng)
     # Compile everything first: the compiled executables are part of the baseline.
-    for name, fn, base in cases:
+    for _name, fn, base in cases:
         jax.block_until_ready(fn(base))
     trim()
     samples = [(0, rss_mib())]

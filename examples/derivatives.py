@@ -43,8 +43,7 @@ def compute(resolution: int = 64, samples: int = 2048, seed: int = 0) -> dict:
     import numpy as np
 
     import voxax
-    from voxax import baselines, curves
-    from voxax import Box, box_filter, voxelize_mc_tangent
+    from voxax import Box, baselines, box_filter, curves, voxelize_mc_tangent
 
     grid = voxax.Grid.cube(resolution, dim=2)
     star = voxax.data.star_polyline(center=(0.031, 0.017))
@@ -69,12 +68,12 @@ def compute(resolution: int = 64, samples: int = 2048, seed: int = 0) -> dict:
         W = voxax.voxelize(shape(t0), faces, grid)
         eps = 1e-6
         fd = (voxax.voxelize(shape(t0 + eps), faces, grid) - voxax.voxelize(shape(t0 - eps), faces, grid)) / (2 * eps)
-        ad = jax.jacrev(lambda t: voxax.voxelize(shape(t), faces, grid))(t0)
+        ad = jax.jacrev(lambda t, shape=shape, faces=faces: voxax.voxelize(shape(t), faces, grid))(t0)
         v0, dv = jax.jvp(shape, (t0,), (jnp.ones_like(t0),))
         mc = voxelize_mc_tangent(v0, faces, grid, Box(1.5), key, dv, surface_samples=samples)
         fd3 = box_filter(fd, 3)  # the FD of the exact box-3 forward (box_filter is linear)
         small = 1e-7
-        base = lambda t: baselines.point_sampled(shape(t), faces, grid)
+        base = lambda t, shape=shape, faces=faces: baselines.point_sampled(shape(t), faces, grid)
         base_fd = (base(t0 + small) - base(t0 - small)) / (2 * small)
         base_ad = jax.jacfwd(base)(t0)
         results[name] = {

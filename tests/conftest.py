@@ -6,7 +6,7 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 
-import voxax  # noqa: E402
+import voxax  # noqa: E402, F401  (imported once x64 is on)
 
 
 def random_star_mesh(rng, n_theta=6, n_phi=5, center=(0.0, 0.0, 0.0), scale=0.5, jitter=0.35):

@@ -36,21 +36,21 @@ def arap_numpy(V, rest, F):
     cells = [[] for _ in range(nV)]
     for f, tri in enumerate(F):
         for k in range(3):
-            j, l = tri[(k + 1) % 3], tri[(k + 2) % 3]
+            j, m = tri[(k + 1) % 3], tri[(k + 2) % 3]
             for i in tri:
-                cells[i].append((weights[f, k], j, l))
+                cells[i].append((weights[f, k], j, m))
     total = 0.0
     for i in range(nV):
         S = np.zeros((3, 3))
-        for w, j, l in cells[i]:
-            S += w * np.outer(rest[l] - rest[j], V[l] - V[j])
+        for w, j, m in cells[i]:
+            S += w * np.outer(rest[m] - rest[j], V[m] - V[j])
         U, _, Vt = np.linalg.svd(S)
         R = Vt.T @ U.T
         if np.linalg.det(R) < 0:
             U[:, -1] *= -1
             R = Vt.T @ U.T
-        for w, j, l in cells[i]:
-            r = (V[l] - V[j]) - R @ (rest[l] - rest[j])
+        for w, j, m in cells[i]:
+            r = (V[m] - V[j]) - R @ (rest[m] - rest[j])
             total += w * r @ r
     area = sum(0.5 * np.linalg.norm(np.cross(rest[b] - rest[a], rest[c] - rest[a])) for a, b, c in F)
     return total / area

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 import voxax
-from voxax import curves
-from voxax import Box, box_filter
+from voxax import Box, box_filter, curves
 
 GRID = voxax.Grid.cube(32, dim=2)
 KAPPA = 0.5522847498  # cubic Bezier approximation of a quarter circle

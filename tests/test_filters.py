@@ -44,7 +44,7 @@ def _exact_rect(lo, hi, grid, kernel):
         s = kernel.sigma * grid.spacing[a]
         T = kernel.truncate * s
 
-        def cdf(x):  # CDF of the normal truncated to [-T, T] (renormalized)
+        def cdf(x, T=T, s=s):  # CDF of the normal truncated to [-T, T] (renormalized)
             return (erf(jnp.clip(x, -T, T) / (s * np.sqrt(2))) + mass) / (2 * mass)
 
         out = out * (cdf(hi[a] - c[..., a]) - cdf(lo[a] - c[..., a]))

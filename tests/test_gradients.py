@@ -18,13 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import random_polygon, random_star_mesh
 from jax.test_util import check_grads
 
 import voxax
-from voxax import reference
-from voxax import Grid
-
-from conftest import random_polygon, random_star_mesh
+from voxax import Grid, reference
 
 # ---------------------------------------------------------------------------------------
 # Helpers
@@ -457,7 +455,7 @@ def _run_all(inputs):
     for i, (v, f, g, c) in enumerate(inputs):
         for dt in (np.float64, np.float32):
             x = jnp.asarray(v.astype(dt))
-            W, vjp = jax.vjp(lambda y: voxax.voxelize(y, f, g), x)
+            W, vjp = jax.vjp(lambda y, f=f, g=g: voxax.voxelize(y, f, g), x)
             (dv,) = vjp(jnp.asarray(c.astype(dt)))
             corners = voxax.voxelize_corner_gradients(x, jnp.asarray(f), g, jnp.asarray(c.astype(dt)))
             tangent = jnp.asarray(np.cos(np.arange(v.size)).reshape(v.shape).astype(dt))

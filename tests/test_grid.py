@@ -30,7 +30,7 @@ def test_hashable_and_static_under_jit():
     a = Grid((0, 0, 0), (1, 1, 1), (2, 3, 4))
     b = Grid([0.0, 0.0, 0.0], np.array([1.0, 1.0, 1.0]), [2, 3, 4])
     assert a == b and hash(a) == hash(b)
-    with pytest.raises(Exception):
+    with pytest.raises(AttributeError):
         a.shape = (1, 1, 1)
     traces = []
 

@@ -8,7 +8,6 @@ import trimesh
 
 from voxax import data, io
 
-
 # ------------------------------------------------------------------------- round trips
 
 

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _iso_checks import area, assert_closed_manifold, closed_report, brute_force_vertices, signed_volume
+from _iso_checks import area, assert_closed_manifold, brute_force_vertices, closed_report, signed_volume
 from scipy.ndimage import gaussian_filter
 
 import voxax

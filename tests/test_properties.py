@@ -29,8 +29,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import voxax
-from voxax import reference
-from voxax import Grid
+from voxax import Grid, reference
 
 RANDOM = os.environ.get("VOXAX_HYPOTHESIS_RANDOM", "") == "1"
 

@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _resolve_cases import deformed_hand, overlapping_letters, torus_knot_tube
 
 import voxax
 import voxax.apps as apps
-
-from _resolve_cases import deformed_hand, overlapping_letters, torus_knot_tube
 
 RES = 32
 

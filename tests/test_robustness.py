@@ -22,8 +22,7 @@ import pytest
 from conftest import random_star_mesh
 
 import voxax
-from voxax import _ffi, reference
-from voxax import Grid
+from voxax import Grid, _ffi, reference
 
 GRID = Grid.cube(6)
 

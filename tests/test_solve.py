@@ -10,8 +10,8 @@ import pytest
 from conftest import random_star_mesh
 
 import voxax
-from voxax import energies as E
 from voxax import MinimizeResult, StopRules, minimize
+from voxax import energies as E
 
 
 def rosenbrock(y, args):

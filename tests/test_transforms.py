@@ -11,12 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from conftest import random_polygon, random_star_mesh
 
 import voxax
-from voxax import reference
-from voxax import Grid
-
-from conftest import random_polygon, random_star_mesh
+from voxax import Grid, reference
 
 GRID3 = Grid(lower=(-0.9, -1.0, -0.8), upper=(1.0, 0.9, 1.1), shape=(7, 8, 6))
 GRID2 = Grid(lower=(-0.9, -1.0), upper=(1.0, 0.9), shape=(9, 8))
@@ -206,7 +204,7 @@ def test_batched_vertices_and_faces_with_padding(dim):
     unpadded = [voxax.voxelize(v, f, g) for v, f in meshes]
 
     # Padding with degenerate faces (and unused vertices) does not change W.
-    for i, (v, f) in enumerate(meshes):
+    for i in range(len(meshes)):
         assert same(voxax.voxelize(V[i], F[i], g), unpadded[i])
     expected = jnp.stack(unpadded)
     assert same(jax.vmap(lambda v, f: voxax.voxelize(v, f, g))(jnp.asarray(V), jnp.asarray(F)), expected)
@@ -217,7 +215,7 @@ def test_batched_vertices_and_faces_with_padding(dim):
     direct = jax.grad(lambda v: energy(voxax.voxelize(v, jnp.asarray(F), g), cs))(jnp.asarray(V))
     np.testing.assert_allclose(direct, grads, rtol=1e-13, atol=1e-15)
     for i, (v, f) in enumerate(meshes):
-        gi = jax.grad(lambda y: energy(voxax.voxelize(y, f, g), cs[i]))(jnp.asarray(v))
+        gi = jax.grad(lambda y, f=f, i=i: energy(voxax.voxelize(y, f, g), cs[i]))(jnp.asarray(v))
         assert same(grads[i, : len(v)], gi)
         assert np.all(np.asarray(grads[i, len(v):]) == 0.0)
 
@@ -237,7 +235,7 @@ def test_shared_vertices_gradients_are_summed(dim):
     cs = jnp.asarray(rng.normal(size=(4,) + g.shape))
     x = jnp.asarray(v)
 
-    individual = [jax.grad(lambda y: energy(voxax.voxelize(y, faces[i], g), cs[i]))(x) for i in range(4)]
+    individual = [jax.grad(lambda y, i=i: energy(voxax.voxelize(y, faces[i], g), cs[i]))(x) for i in range(4)]
     expected = sum(np.asarray(gi) for gi in individual)
     assert all(np.any(np.asarray(gi) != 0) for gi in individual)
 
@@ -252,7 +250,7 @@ def test_shared_vertices_gradients_are_summed(dim):
     # vmap over the cotangent only, with vertices and faces unbatched: one gradient each.
     per_c = jax.vmap(lambda c: jax.grad(lambda y: energy(voxax.voxelize(y, fa, g), c))(x))(cs)
     for i in range(4):
-        gi = jax.grad(lambda y: energy(voxax.voxelize(y, fa, g), cs[i]))(x)
+        gi = jax.grad(lambda y, i=i: energy(voxax.voxelize(y, fa, g), cs[i]))(x)
         np.testing.assert_allclose(per_c[i], gi, rtol=1e-13, atol=1e-15)
     _, vjp = jax.vjp(lambda y: voxax.voxelize(y, fa, g), x)
     batched_vjp = jax.vmap(vjp)(cs)[0]

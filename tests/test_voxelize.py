@@ -7,8 +7,7 @@ import pytest
 from conftest import random_polygon, random_star_mesh
 
 import voxax
-from voxax import reference
-from voxax import Grid
+from voxax import Grid, reference
 
 TOL = {np.float64: 1e-10, np.float32: 1e-5}
 

@@ -17,7 +17,12 @@
 #include <thread>
 #include <vector>
 
-#include "common.h"
+#include "common/batch.h"
+#include "common/constants.h"
+#include "common/errors.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "common/validate.h"
 #include "contour/marching_cubes.h"
 
 namespace voxax {
@@ -46,7 +51,10 @@ ffi::Error mc_impl(ffi::ThreadPool* pool, const Shape& sh, int64_t batch, const 
                    double level, int32_t* edges, int64_t vcap, int32_t* faces, int64_t fcap,
                    int32_t* counts) {
   const int64_t cells = sh.cells();
-  auto run = [&](int64_t n, auto&& body) { return ParallelFor::run(pool, n, body); };
+  auto run = [&](int64_t n, auto&& body) {
+    ParallelFor::run(pool, n, body);
+    return true;
+  };
   for (int64_t b = 0; b < batch; ++b) {
     const T* v = values + b * cells;
     const int64_t bad = first_non_finite(v, cells);

@@ -13,7 +13,12 @@
 #include <limits>
 #include <string>
 
-#include "common.h"
+#include "common/batch.h"
+#include "common/constants.h"
+#include "common/errors.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "common/validate.h"
 #include "spatial/bvh.h"
 
 namespace voxax {
@@ -87,7 +92,7 @@ ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, f
     double* B = bary->typed_data();
     double* Q = point->typed_data();
     const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
-    const bool ok = ParallelFor::run(&pool, chunks, [&](int64_t c) {
+    ParallelFor::run(&pool, chunks, [&](int64_t c) {
       int32_t hint = -1;
       for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
         const auto r = bvh.closest(P + 3 * i, hint);
@@ -100,7 +105,6 @@ ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, f
         }
       }
     });
-    if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: closest-point queries failed");
     return ffi::Error::Success();
   });
 }
@@ -134,7 +138,7 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::
     double* B = bary->typed_data();
     int32_t* S = sign->typed_data();
     const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
-    const bool ok = ParallelFor::run(&pool, chunks, [&](int64_t c) {
+    ParallelFor::run(&pool, chunks, [&](int64_t c) {
       for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
         const auto ray = spatial::make_ray(O + 3 * i, Dd + 3 * i, t_min, t_max);
         spatial::RayHit h;
@@ -151,7 +155,6 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::
         }
       }
     });
-    if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: ray queries failed");
     return ffi::Error::Success();
   });
 }

@@ -9,7 +9,12 @@
 #include <cstring>
 #include <string>
 
-#include "common.h"
+#include "common/batch.h"
+#include "common/constants.h"
+#include "common/errors.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "common/validate.h"
 #include "spatial/host_pool.h"
 #include "spatial/knn.h"
 
@@ -52,11 +57,10 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
     double* D = dist->typed_data();
     const int64_t m = qd[0];
     const int64_t chunks = (m + kKnnChunk - 1) / kKnnChunk;
-    const bool ok = ParallelFor::run(&pool, chunks, [&](int64_t c) {
+    ParallelFor::run(&pool, chunks, [&](int64_t c) {
       for (int64_t i = c * kKnnChunk; i < std::min(m, (c + 1) * kKnnChunk); ++i)
         grid.query(Q + 3 * i, static_cast<int>(k), I + k * i, D + k * i);
     });
-    if (!ok) return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: kNN queries failed");
     return ffi::Error::Success();
   } catch (const std::bad_alloc&) {
     return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the kNN kernel");

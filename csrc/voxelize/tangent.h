@@ -19,19 +19,24 @@
 #include <cmath>
 #include <vector>
 
-#include "backward.h"
-#include "clip.h"
-#include "common.h"
-#include "forward.h"
+#include "voxelize/backward.h"
+#include "voxelize/clip.h"
+#include "common/batch.h"
+#include "common/constants.h"
+#include "common/errors.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "common/validate.h"
+#include "voxelize/forward.h"
 
 namespace voxax {
 
 // Bins every face that can have a piece inside the grid (vertical ones
 // included) to the column tiles its bounding box touches.
 template <typename T>
-bool bin_tangent_faces(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, int dim,
+void bin_tangent_faces(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, int dim,
                        const T* V, const int32_t* F, int64_t nf, Bins* bins) {
-  return bin_faces(pool, tl, nf, [&](int64_t f, int32_t* r) {
+  bin_faces(pool, tl, nf, [&](int64_t f, int32_t* r) {
     const int32_t* idx = F + dim * f;
     double mn[3] = {0, 0, 0}, mx[3] = {0, 0, 0};
     for (int a = 0; a < dim; ++a) {
@@ -42,7 +47,7 @@ bool bin_tangent_faces(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& t
         mx[a] = std::max(mx[a], x);
       }
     }
-    int64_t c0[3], c1[3];
+    int64_t c0[3] = {0, 0, 0}, c1[3] = {0, 0, 0};
     for (int a = 0; a < dim; ++a)
       if (!g.span(a, mn[a], mx[a], &c0[a], &c1[a])) return false;
     r[0] = static_cast<int32_t>(c0[0] / tl.tx);

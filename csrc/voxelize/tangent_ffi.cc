@@ -14,9 +14,13 @@
 #include <utility>
 #include <vector>
 
-#include "common.h"
-#include "tangent.h"
-#include "validate.h"
+#include "common/batch.h"
+#include "common/constants.h"
+#include "common/errors.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "common/validate.h"
+#include "voxelize/tangent.h"
 
 namespace voxax {
 namespace {
@@ -38,16 +42,14 @@ ffi::Error tangent_impl(ffi::ThreadPool* pool, const GridSpec& g, const Batch& b
     auto it = which.find(key);
     if (it == which.end()) {
       bins.emplace_back();
-      if (!bin_tangent_faces(pool, g, tl, dim, V + key.first * vstride, F + key.second * fstride,
-                             nf, &bins.back()))
-        return ffi::Error(ffi::ErrorCode::kResourceExhausted,
-                          "voxax: out of memory while binning faces");
+      bin_tangent_faces(pool, g, tl, dim, V + key.first * vstride, F + key.second * fstride,
+                             nf, &bins.back());
       it = which.emplace(key, bins.size() - 1).first;
     }
     bin_of[b] = it->second;
   }
   const int64_t tiles = tl.count();
-  bool ok = ParallelFor::run(pool, B * tiles, [&](int64_t task) {
+  ParallelFor::run(pool, B * tiles, [&](int64_t task) {
     thread_local TangentScratch scratch;
     const int64_t b = task / tiles, tile = task % tiles;
     const T* Vb = V + batch.vsrc(b) * vstride;
@@ -58,8 +60,6 @@ ffi::Error tangent_impl(ffi::ThreadPool* pool, const GridSpec& g, const Batch& b
     else tangent_tile_2d(g, tl, tile, Vb, Fb, Tb, bins[bin_of[b]], acc);
     store_tile(g, tl, tile, acc, out + b * g.cell_count());
   });
-  if (!ok)
-    return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the tangent kernel");
   return ffi::Error::Success();
 }
 
@@ -103,8 +103,9 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
     if (nv > INT32_MAX || nf > INT32_MAX)
       return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 vertices and faces are supported");
     GridSpec g;
-    ffi::Error err = make_grid(dim, x0, x1, nx, y0, y1, ny, z0, z1, nz, &g);
+    ffi::Error err = check_grid(dim, x0, x1, nx, y0, y1, ny, z0, z1, nz, &g);
     if (err.failure()) return err;
+    g.build_planes();
     Batch batch;
     err = make_batch(vd, fd, od, static_cast<size_t>(dim), &batch);
     if (err.failure()) return err;

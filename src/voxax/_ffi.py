@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 __all__ = ["BACKWARD", "FORWARD", "TANGENT", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "TARGETS",
-           "grid_attributes", "library", "library_path"]
+           "grid_attributes", "kernel_constants", "library", "library_path"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
@@ -57,10 +57,31 @@ def _register() -> ctypes.CDLL:
     lib = ctypes.CDLL(str(library_path()))
     for name in TARGETS:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(lib, name)), platform="cpu")
+    lib.voxax_constants.argtypes = [ctypes.POINTER(ctypes.c_double), ctypes.c_int]
+    lib.voxax_constants.restype = ctypes.c_int
     return lib
 
 
 _LIB = _register()
+
+# The order in which `voxax_constants` (csrc/common/constants.cc) writes the bounds.
+_CONSTANT_NAMES = ("MAX_ABS_COORDINATE", "MIN_CELL_VOLUME", "MAX_CELL_VOLUME", "MAX_CELLS_PER_AXIS")
+
+
+def kernel_constants() -> dict[str, float]:
+    """The numerical bounds compiled into the kernels, by name.
+
+    **Returns:**
+
+    A dict with `MAX_ABS_COORDINATE`, `MIN_CELL_VOLUME`, `MAX_CELL_VOLUME` (which
+    `voxax._constants` must equal) and `MAX_CELLS_PER_AXIS`.
+    """
+    count = _LIB.voxax_constants(None, 0)
+    if count != len(_CONSTANT_NAMES):
+        raise RuntimeError(f"voxax: the kernels export {count} constants, expected {len(_CONSTANT_NAMES)}")
+    values = (ctypes.c_double * count)()
+    _LIB.voxax_constants(values, count)
+    return dict(zip(_CONSTANT_NAMES, values))
 
 
 def library() -> ctypes.CDLL:

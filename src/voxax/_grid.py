@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -73,9 +73,9 @@ class Grid:
             raise ValueError(f"Grid: every entry of `shape` must be >= 1, got {shape}")
         if not all(math.isfinite(v) for v in lower + upper):
             raise ValueError(f"Grid: corners must be finite, got lower={lower}, upper={upper}")
-        if any(u <= l for l, u in zip(lower, upper)):
+        if any(u <= lo for lo, u in zip(lower, upper)):
             raise ValueError(f"Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
-        if any(not math.isfinite((u - l) / n) or (u - l) / n <= 0 for l, u, n in zip(lower, upper, shape)):
+        if any(not math.isfinite((u - lo) / n) or (u - lo) / n <= 0 for lo, u, n in zip(lower, upper, shape)):
             raise ValueError("Grid: the cell size underflows or overflows on some axis")
         volume = math.prod((u - l) / n for l, u, n in zip(lower, upper, shape))
         if not (MIN_CELL_VOLUME <= volume <= MAX_CELL_VOLUME):
@@ -90,7 +90,7 @@ class Grid:
     # -- constructors -------------------------------------------------------------------
 
     @classmethod
-    def cube(cls, n: int | Sequence[int], dim: int = 3, half_width: float = 1.0) -> "Grid":
+    def cube(cls, n: int | Sequence[int], dim: int = 3, half_width: float = 1.0) -> Grid:
         """The cube `[-half_width, half_width]^dim` split into `n` cells per axis.
 
         With the defaults this is the grid of the paper: `[-1, 1]^3`.
@@ -113,7 +113,7 @@ class Grid:
         return cls(lower=(-h,) * dim, upper=(h,) * dim, shape=shape)
 
     @classmethod
-    def around(cls, vertices, n: int | Sequence[int] = 64, pad: float = 0.05, cubic_cells: bool = True) -> "Grid":
+    def around(cls, vertices, n: int | Sequence[int] = 64, pad: float = 0.05, cubic_cells: bool = True) -> Grid:
         """A grid that encloses `vertices` with a margin.
 
         The bounding box of the vertices is enlarged by `pad` times its largest side on
@@ -182,7 +182,7 @@ class Grid:
     @property
     def spacing(self) -> tuple[float, ...]:
         """The cell size per axis, `(upper - lower) / shape`."""
-        return tuple((u - l) / n for l, u, n in zip(self.lower, self.upper, self.shape))
+        return tuple((u - lo) / n for lo, u, n in zip(self.lower, self.upper, self.shape))
 
     @property
     def voxel_volume(self) -> float:

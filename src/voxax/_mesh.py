@@ -154,7 +154,7 @@ class Mesh:
         a, b = v[:, 0], v[:, 1]
         return float(np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]) / 2.0)
 
-    def flipped(self) -> "Mesh":
+    def flipped(self) -> Mesh:
         """The same mesh with reversed orientation (inward normals).
 
         Reverses the vertex order of every face, which negates the winding number
@@ -168,7 +168,7 @@ class Mesh:
         """
         return Mesh(self.vertices, self.faces[:, ::-1], self.info)
 
-    def translated(self, offset: Sequence[float]) -> "Mesh":
+    def translated(self, offset: Sequence[float]) -> Mesh:
         """The mesh moved by `offset` (shape `(d,)`).
 
         >>> from voxax import data
@@ -196,7 +196,7 @@ class Mesh:
         )
 
     @classmethod
-    def from_trimesh(cls, mesh) -> "Mesh":
+    def from_trimesh(cls, mesh) -> Mesh:
         """A `Mesh` from a `trimesh.Trimesh` (vertex order and faces kept as they are).
 
         >>> import trimesh
@@ -210,7 +210,7 @@ class Mesh:
         return cls(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
 
     @staticmethod
-    def concatenate(*meshes: "Mesh") -> "Mesh":
+    def concatenate(*meshes: Mesh) -> Mesh:
         """Concatenate meshes of one dimension into one (no boolean union).
 
         Overlapping parts stay overlapping, so their winding numbers add.

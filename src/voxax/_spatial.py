@@ -675,7 +675,6 @@ def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None
     if not 1 <= k <= 32:
         raise ValueError(f"k must lie in [1, 32], got {k}")
     if _traced(points, queries):
-        import jax.numpy as jnp
 
         if not jax.config.jax_enable_x64:
             raise ValueError("the jit path of nearest_neighbors computes in float64: enable jax_enable_x64")

@@ -150,11 +150,17 @@ def _forward_call(vertices, faces, grid: Grid):
 def use_host_callback(enabled: bool) -> None:
     """Forces (or stops forcing) the host-callback path used on non-CPU backends.
 
-    The kernels are CPU code. On a GPU or TPU default backend, `voxelize` runs them on
-    the host through `jax.pure_callback` (data goes to the host and back). This switch
-    forces that path on a CPU backend too, which is how it is tested; it takes effect
-    for functions lowered after the call. The environment variable
+    The kernels are CPU code. A traced `voxelize` holds both ways of running them and
+    the platform it is compiled for picks one (each primitive has a CPU lowering and a
+    default one): the XLA FFI call on CPU, and on a GPU or TPU a `jax.pure_callback`
+    that runs them on the host (data goes to the host and back). This switch makes
+    functions lowered after the call use the host callback on every platform, CPU
+    included, which is how that path is tested. The environment variable
     `VOXAX_HOST_CALLBACK=1` sets it at import.
+
+    **Arguments:**
+
+    - `enabled`: `True` to force the host callback, `False` to choose by platform.
     """
     _ops.set_host_callback(enabled)
 

@@ -27,14 +27,15 @@ paper's Fig. 2: its gradient samples points on the exact curve (any differentiab
 from __future__ import annotations
 
 import functools
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._grid import Grid
 from . import _filters, _validate
+from ._grid import Grid
 
 __all__ = [
     "Curve",

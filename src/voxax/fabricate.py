@@ -41,9 +41,9 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from . import _validate
-from ._values import ValueEquality
-from ._mesh import Mesh, from_manifold
 from ._grid import Grid
+from ._mesh import Mesh, from_manifold
+from ._values import ValueEquality
 
 __all__ = [
     "PLANE_AXES",

@@ -613,7 +613,7 @@ def gradient_field(
 def _history_series(source) -> dict[str, np.ndarray]:
     if isinstance(source, Mapping):
         series = dict(source)
-    elif hasattr(source, "history") and isinstance(getattr(source, "history"), Mapping):
+    elif hasattr(source, "history") and isinstance(source.history, Mapping):
         series = dict(source.history)  # MinimizeResult, app reports
         if "energy" not in series and getattr(source, "energy_history", None) is not None:
             series = {"energy": source.energy_history, **series}

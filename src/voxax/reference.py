@@ -232,7 +232,7 @@ def _voxelize_2d(v: np.ndarray, f: np.ndarray, grid: Grid) -> np.ndarray:
             # sign(a.x - b.x), so the signed x-measure is -u.x dt. y(t) = a.y + t u.y.
             scale = -u[0]
 
-            def ramp(c, t0=t0, t1=t1):
+            def ramp(c, t0=t0, t1=t1, a=a, u=u):
                 # integral over [t0, t1] of max(y(t) - c, 0) dt, exactly
                 if u[1] == 0.0:
                     return (t1 - t0) * max(a[1] - c, 0.0)

@@ -48,8 +48,11 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import voxax  # noqa: E402
-from voxax import _ffi, reference  # noqa: E402
-from voxax import Grid  # noqa: E402
+from voxax import (  # noqa: E402
+    Grid,  # noqa: E402
+    _ffi,
+    reference,
+)
 
 # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -671,8 +674,9 @@ def run_raw_ffi(rng):
     for name, fn in cases.items():
         try:
             jax.block_until_ready(fn())
-        except Exception:  # noqa: BLE001 - any clean error will do; a crash would abort
-            pass
+        except Exception as err:  # noqa: BLE001 - a crash would abort instead
+            if "INVALID_ARGUMENT" not in str(err):
+                fail(f"raw FFI call '{name}' failed with an error that is not INVALID_ARGUMENT: {err}")
         else:
             fail(f"raw FFI call '{name}' was accepted")
         CALLS["raw_ffi"] += 1

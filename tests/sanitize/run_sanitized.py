@@ -3,7 +3,7 @@
     python tests/sanitize/run_sanitized.py [--build-dir DIR] [driver options, e.g. --inputs 1500]
 
 1. Configures and builds the kernels with `-DVOXAX_SANITIZE=ON` (cmake + ninja, against the
-   XLA FFI headers of the running Python's jaxlib) into a cached build directory
+   XLA FFI headers of the running Python's jax, `jax.ffi.include_dir()`) into a cached build directory
    (`$VOXAX_SANITIZE_BUILD_DIR`, else `<tmp>/voxax-sanitize-<hash>`); ninja rebuilds only
    when `csrc/` changed.
 2. Runs `driver.py` in a subprocess with the compiler's `libasan.so` and `libubsan.so` in
@@ -66,10 +66,10 @@ def missing_tools() -> list[str]:
     return missing
 
 
-def jaxlib_include() -> str:
-    import jaxlib
+def ffi_include() -> str:
+    import jax
 
-    return os.path.join(os.path.dirname(jaxlib.__file__), "include")
+    return jax.ffi.include_dir()
 
 
 def default_build_dir() -> Path:
@@ -100,7 +100,7 @@ def build(build_dir: Path) -> Path:
             "-DVOXAX_SANITIZE=ON",
             f"-DCMAKE_CXX_COMPILER={cxx}",
             f"-DPython3_EXECUTABLE={sys.executable}",
-            f"-DXLA_FFI_INCLUDE_DIR={jaxlib_include()}",
+            f"-DXLA_FFI_INCLUDE_DIR={ffi_include()}",
         ]
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     subprocess.run(["cmake", "--build", str(build_dir)], check=True)

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from .._mesh import Mesh
 from .._grid import Grid
+from .._mesh import Mesh
 from .._voxelize import voxelize
 from . import _common
 

@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from collections.abc import Mapping
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _validate
-from .._values import ValueEquality
-from .._mesh import Mesh
-from .._grid import Grid
-from .. import io as _io
 from .. import _minimize as solve
+from .. import _validate
+from .. import io as _io
+from .._grid import Grid
+from .._mesh import Mesh
+from .._values import ValueEquality
 
 
 def as_mesh(where: str, mesh: Any) -> Mesh:

@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from .._mesh import Mesh
 from .._grid import Grid
-from .._voxelize import voxelize
 from .._intersections import intersections
+from .._mesh import Mesh
+from .._voxelize import voxelize
 from . import _common
 
 

@@ -13,10 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import energies
-from .._mesh import Mesh
 from .._grid import Grid
-from .._voxelize import voxelize
 from .._intersections import intersections
+from .._mesh import Mesh
+from .._voxelize import voxelize
 from . import _common
 
 #: A cell voxel counts as "covered exactly once" when its folded value is within this of 1.
@@ -329,7 +329,7 @@ def optimize_tiling(
     def arap_total(local):
         total = jnp.zeros((), dt)
         for idx, nv, rest_c, faces_c in class_rows:
-            per = jax.vmap(lambda x: energies.arap(x, rest_c, faces_c))(local[idx, :nv])
+            per = jax.vmap(lambda x, rest_c=rest_c, faces_c=faces_c: energies.arap(x, rest_c, faces_c))(local[idx, :nv])
             total = total + jnp.sum(per)
         return total
 

@@ -12,13 +12,20 @@
 // prefix-summed in a thread-local double buffer while it is in cache, then
 // written to the output once. A tile is always processed by one thread in
 // bin order, so results are identical bit for bit for any thread count.
+//
+// Scratch memory is bounded: each worker of a call owns one TileScratch for
+// the duration of the call (freed when the call returns), sized for the
+// largest tile it processes: about kTileCells doubles, or one column when a
+// column is longer than that.
 #pragma once
 
-#include <cstring>
+#include <algorithm>
+#include <cstdint>
 #include <vector>
 
-#include "clip.h"
-#include "common.h"
+#include "common/grid.h"
+#include "common/parallel.h"
+#include "voxelize/clip.h"
 
 namespace voxax {
 
@@ -28,11 +35,12 @@ struct Tiling {
   int64_t count() const { return ntx * nty; }
 };
 
+// Cells per tile the tiling aims for: 256 KiB of double scratch.
+constexpr int64_t kTileCells = 32768;
+
 inline Tiling make_tiling(const GridSpec& g) {
   Tiling t;
-  // Aim for about 256 KiB of double scratch per tile.
-  const int64_t target_cells = 32768;
-  int64_t cols = std::max<int64_t>(1, target_cells / g.column_length());
+  int64_t cols = std::max<int64_t>(1, kTileCells / g.column_length());
   if (g.dim == 3) {
     int64_t side = 1;
     while ((side * 2) * (side * 2) <= cols) side *= 2;
@@ -54,36 +62,6 @@ struct Bins {
   std::vector<int64_t> start;  // tiles + 1 offsets
   std::vector<int32_t> items;
 };
-
-
-// Sweeps polygon P across the cells [c0, c1] along axis a, calling
-// visit(i, piece) with the part of P in each cell. Cells are half-open,
-// [lo, hi), except the last one along each axis, which is closed: a piece
-// lying flat in the upper plane of cell i (a face exactly on a grid plane)
-// belongs to cell i + 1, so it is counted once.
-template <int N, typename Visit>
-inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_t c1,
-                  Visit&& visit) {
-  Poly<N> rest, piece, upper;
-  const Poly<N>* cur = &P;
-  if (P.min(a) < g.plane(a, c0)) {
-    split<N>(P, a, g.plane(a, c0), &piece, &rest);
-    cur = &rest;
-  }
-  for (int64_t i = c0; i <= c1 && cur->count >= 3; ++i) {
-    const double hi = g.plane(a, i + 1);
-    const double mn = cur->min(a), mx = cur->max(a);
-    if (mn >= hi && i + 1 < g.n[a]) continue;  // entirely in later cells
-    if (mx <= hi) {
-      visit(i, *cur);
-      return;
-    }
-    split<N>(*cur, a, hi, &piece, &upper);
-    if (piece.count >= 3) visit(i, piece);
-    rest = upper;
-    cur = &rest;
-  }
-}
 
 // ---------------------------------------------------------------------------
 // 3D
@@ -185,13 +163,12 @@ inline bool load_triangle(const T* V, const int32_t* F, int64_t t, Poly<3>* P) {
 // Faces are counted and filled in parallel over fixed chunks (independent of
 // the thread count), so every tile lists its faces in ascending order.
 template <typename Ranges>
-bool bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ranges,
-               Bins* bins) {
+void bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ranges, Bins* bins) {
   const int64_t tiles = tl.count();
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(32, nf / 8192));
   const int64_t per = (nf + chunks - 1) / chunks;
   std::vector<int64_t> counts(chunks * tiles, 0);
-  bool ok = ParallelFor::run(pool, chunks, [&](int64_t c) {
+  ParallelFor::run(pool, chunks, [&](int64_t c) {
     int64_t* cnt = counts.data() + c * tiles;
     int32_t r[4];
     for (int64_t f = c * per; f < std::min(nf, (c + 1) * per); ++f) {
@@ -200,7 +177,6 @@ bool bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ran
         for (int32_t tj = r[2]; tj <= r[3]; ++tj) ++cnt[ti * tl.nty + tj];
     }
   });
-  if (!ok) return false;
   bins->start.assign(tiles + 1, 0);
   for (int64_t t = 0; t < tiles; ++t) {
     int64_t s = bins->start[t];
@@ -213,7 +189,7 @@ bool bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ran
   }
   bins->items.resize(bins->start[tiles]);
   // The second pass recomputes the ranges (cheaper than storing them).
-  return ParallelFor::run(pool, chunks, [&](int64_t c) {
+  ParallelFor::run(pool, chunks, [&](int64_t c) {
     int64_t* pos = counts.data() + c * tiles;
     int32_t r[4];
     for (int64_t f = c * per; f < std::min(nf, (c + 1) * per); ++f) {
@@ -226,21 +202,24 @@ bool bin_faces(ffi::ThreadPool* pool, const Tiling& tl, int64_t nf, Ranges&& ran
 }
 
 template <typename T>
-bool bin_triangles_3d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
+void bin_triangles_3d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
                       const int32_t* F, int64_t nf, Bins* bins) {
-  return bin_faces(pool, tl, nf, [&](int64_t t, int32_t* r) {
-    Poly<3> P;
-    if (!load_triangle(V, F, t, &P)) return false;
-    if (P.max(2) <= g.lo[2]) return false;
-    int64_t i0, i1, j0, j1;
-    if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) return false;
-    if (!g.span(1, P.min(1), P.max(1), &j0, &j1)) return false;
-    r[0] = static_cast<int32_t>(i0 / tl.tx);
-    r[1] = static_cast<int32_t>(i1 / tl.tx);
-    r[2] = static_cast<int32_t>(j0 / tl.ty);
-    r[3] = static_cast<int32_t>(j1 / tl.ty);
-    return true;
-  }, bins);
+  bin_faces(
+      pool, tl, nf,
+      [&](int64_t t, int32_t* r) {
+        Poly<3> P;
+        if (!load_triangle(V, F, t, &P)) return false;
+        if (P.max(2) <= g.lo[2]) return false;
+        int64_t i0, i1, j0, j1;
+        if (!g.span(0, P.min(0), P.max(0), &i0, &i1)) return false;
+        if (!g.span(1, P.min(1), P.max(1), &j0, &j1)) return false;
+        r[0] = static_cast<int32_t>(i0 / tl.tx);
+        r[1] = static_cast<int32_t>(i1 / tl.tx);
+        r[2] = static_cast<int32_t>(j0 / tl.ty);
+        r[3] = static_cast<int32_t>(j1 / tl.ty);
+        return true;
+      },
+      bins);
 }
 
 // Stores [first, last) of a column: out[k] = T(src ? src[k] : value). Plain
@@ -277,8 +256,9 @@ inline void finish_column(double* col, int64_t lo, int64_t hi, int64_t n, T* out
   std::fill(col + lo, col + hi + 1, 0.0);
 }
 
-// Per-thread scratch of a tile: the difference buffer (all zero between
-// tiles) and each column's written range.
+// A worker's scratch for its tiles: the difference buffer (all zero between
+// tiles) and each column's written range. It grows to the largest tile the
+// worker processes and lives as long as the call that owns it.
 struct TileScratch {
   std::vector<double> buf;
   std::vector<int64_t> lo, hi;
@@ -291,7 +271,6 @@ struct TileScratch {
     return Column{buf.data() + c * length, lo.data() + c, hi.data() + c};
   }
 };
-
 
 template <typename T>
 void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
@@ -315,17 +294,18 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
     if (i0 == i1 && i0 >= ia && i0 < ib && x0 >= g.plane(0, i0) && x1 <= g.plane(0, i0 + 1)) {
       const double y0 = P.min(1), y1 = P.max(1);
       int64_t k0, k1;
-      if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb &&
-          y0 >= g.plane(1, j0) && y1 <= g.plane(1, j0 + 1)) {
+      if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb && y0 >= g.plane(1, j0) &&
+          y1 <= g.plane(1, j0 + 1)) {
         const double z0 = P.min(2), z1 = P.max(2);
         const Column col = scratch.column((i0 - ia) * wy + (j0 - ja), nz);
         if (g.span(2, z0, z1, &k0, &k1) && k0 == k1 && z0 >= g.plane(2, k0) &&
             z1 <= g.plane(2, k0 + 1)) {
-          const double(*q)[3] = P.v;
+          const double (*q)[3] = P.v;
           const double A = 0.5 * ((q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) -
                                   (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]));
           const double zl = g.plane(2, k0);
-          const double b = A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
+          const double b =
+              A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
           col.add(k0, b);
           if (k0 > 0) col.add(k0 - 1, A * inv_area - b);
         } else {
@@ -345,7 +325,8 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       yb = std::min(yb, jb - 1);
       if (ya > yb) return;
       sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Q) {
-        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j), scratch.column((i - ia) * wy + (j - ja), nz));
+        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j),
+                      scratch.column((i - ia) * wy + (j - ja), nz));
       });
     });
   }
@@ -368,22 +349,6 @@ inline bool load_segment(const T* V, const int32_t* F, int64_t s, Poly<2>* P) {
     for (int a = 0; a < 2; ++a) P->v[c][a] = static_cast<double>(V[2 * int64_t(f[c]) + a]);
   P->count = 2;
   return P->v[0][0] != P->v[1][0];
-}
-
-// Clips segment S (2 points) to lo <= coordinate a <= hi; returns false if empty.
-template <int N>
-inline bool clip_segment(const Poly<N>& S, int a, double lo, double hi, Poly<N>* out) {
-  const double* p = S.v[0];
-  const double* q = S.v[1];
-  double mn = std::min(p[a], q[a]), mx = std::max(p[a], q[a]);
-  if (mx < lo || mn > hi) return false;
-  *out = S;
-  for (int e = 0; e < 2; ++e) {
-    double* r = out->v[e];
-    if (r[a] < lo) cut<N>(p, q, a, lo, r);
-    else if (r[a] > hi) cut<N>(p, q, a, hi, r);
-  }
-  return true;
 }
 
 inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col) {
@@ -418,20 +383,23 @@ inline void add_column_2d(const GridSpec& g, const Poly<2>& S, const Column& col
 }
 
 template <typename T>
-bool bin_segments_2d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
+void bin_segments_2d(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, const T* V,
                      const int32_t* F, int64_t nf, Bins* bins) {
-  return bin_faces(pool, tl, nf, [&](int64_t s, int32_t* r) {
-    Poly<2> S;
-    if (!load_segment(V, F, s, &S)) return false;
-    if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) return false;
-    int64_t i0, i1;
-    if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) return false;
-    r[0] = static_cast<int32_t>(i0 / tl.tx);
-    r[1] = static_cast<int32_t>(i1 / tl.tx);
-    r[2] = 0;
-    r[3] = 0;
-    return true;
-  }, bins);
+  bin_faces(
+      pool, tl, nf,
+      [&](int64_t s, int32_t* r) {
+        Poly<2> S;
+        if (!load_segment(V, F, s, &S)) return false;
+        if (std::max(S.v[0][1], S.v[1][1]) <= g.lo[1]) return false;
+        int64_t i0, i1;
+        if (!g.span(0, S.min(0), S.max(0), &i0, &i1)) return false;
+        r[0] = static_cast<int32_t>(i0 / tl.tx);
+        r[1] = static_cast<int32_t>(i1 / tl.tx);
+        r[2] = 0;
+        r[3] = 0;
+        return true;
+      },
+      bins);
 }
 
 template <typename T>

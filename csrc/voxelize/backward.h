@@ -10,9 +10,11 @@
 // read. Triangles are independent: each writes its own three corners.
 #pragma once
 
-#include "clip.h"
-#include "common.h"
-#include "forward.h"
+#include <cmath>
+#include <cstdint>
+
+#include "common/grid.h"
+#include "voxelize/clip.h"
 
 namespace voxax {
 
@@ -21,8 +23,8 @@ namespace voxax {
 // over P; beta is affine, so it is evaluated at the piece's area centroid
 // through the triangle's barycentric map beta_m(p) = r_m . (p - a).
 template <typename T>
-void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
-                           int64_t t0, int64_t t1, T* out) {
+void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G, int64_t t0,
+                           int64_t t1, T* out) {
   const double inv_vol = 1.0 / g.cell_volume();
   const int64_t ny = g.n[1], nz = g.n[2];
   Poly<3> P;
@@ -49,9 +51,11 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
     // Rows of the barycentric map: beta_1 = r1 . (p - a), beta_2 = r2 . (p - a),
     // r1 = (e2 x N) / |N|^2 and r2 = (N x e1) / |N|^2 (exact for slivers too).
     const double inv_nn = 1.0 / (len * len);
-    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn, (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
+    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn,
+                          (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
                           (e2[0] * N[1] - e2[1] * N[0]) * inv_nn};
-    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn, (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
+    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn,
+                          (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
                           (N[0] * e1[1] - N[1] * e1[0]) * inv_nn};
     const double* a0 = p[0];
     P.count = 3;
@@ -83,9 +87,9 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
                 u[a] = q1[a] - q0[a];
                 w[a] = q2[a] - q0[a];
               }
-              const double area = 0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) +
-                                         nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                                         nh[2] * (u[0] * w[1] - u[1] * w[0]));
+              const double area =
+                  0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+                         nh[2] * (u[0] * w[1] - u[1] * w[0]));
               A += area;
               for (int a = 0; a < 3; ++a)
                 M[a] += area * ((q0[a] - a0[a]) + (q1[a] - a0[a]) + (q2[a] - a0[a])) * (1.0 / 3.0);
@@ -107,8 +111,8 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
 
 // Corner gradients of segments [s0, s1) of one batch item into out (F, 2, 2).
 template <typename T>
-void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const T* G,
-                          int64_t s0, int64_t s1, T* out) {
+void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const T* G, int64_t s0,
+                          int64_t s1, T* out) {
   const double inv_area = 1.0 / g.cell_volume();
   const int64_t ny = g.n[1];
   Poly<3> S, Sx, Sy;
