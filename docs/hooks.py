@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import sys
 
 from mkdocs.structure.files import File
 
@@ -55,7 +56,11 @@ def _benchmark_results() -> tuple[str, list[str]]:
 def _load_cli():
     spec = importlib.util.spec_from_file_location("_voxax_cli_for_docs", os.path.join(ROOT, "src", "voxax", "cli.py"))
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        del sys.modules[spec.name]
     return module
 
 

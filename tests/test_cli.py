@@ -1,8 +1,17 @@
-"""Tests for the `voxax` command line, run in-process through `voxax.cli.main`."""
+"""Tests for the `voxax` command line: the commands (in-process through `voxax.cli.main`)
+and every subcommand's error paths (in real subprocesses: exit status 2, one line on
+stderr, no traceback)."""
 
 from __future__ import annotations
 
+import argparse
+import io
 import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import matplotlib
 import numpy as np
@@ -11,7 +20,11 @@ import pytest
 matplotlib.use("Agg")
 
 import voxax  # noqa: E402
+from voxax import cli  # noqa: E402
+from voxax._progress import ProgressBar  # noqa: E402
 from voxax.cli import main  # noqa: E402
+
+# -- the commands -----------------------------------------------------------------------------
 
 
 def test_demo(tmp_path, capsys):
@@ -23,10 +36,54 @@ def test_demo(tmp_path, capsys):
     assert rel < 1e-9
 
 
-def test_voxelize(tmp_path):
+def test_voxelize_writes_npz_with_the_grid(tmp_path, capsys):
+    out = tmp_path / "W.npz"
+    assert main(["voxelize", "torus", "-n", "16", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""  # the torus lies inside [-1, 1]^3: no warning
+    with np.load(out) as z:
+        assert set(z.files) == {"W", "lower", "upper", "shape"}
+        grid = voxax.Grid(tuple(z["lower"]), tuple(z["upper"]), tuple(int(n) for n in z["shape"]))
+        W = z["W"]
+    assert grid == voxax.Grid.cube(16)
+    mesh = voxax.data.torus()
+    np.testing.assert_array_equal(W, np.asarray(voxax.voxelize(mesh.vertices, mesh.faces, grid)))
+
+
+def test_voxelize_npy_and_fit(tmp_path):
     out = tmp_path / "W.npy"
     assert main(["voxelize", "torus", "-n", "16", "-o", str(out)]) == 0
     assert np.load(out).shape == (16, 16, 16)
+    # --fit: the grid is Grid.around(vertices, n), recorded in the .npz.
+    out = tmp_path / "fit.npz"
+    assert main(["voxelize", "hand", "-n", "12", "--fit", "-o", str(out)]) == 0
+    mesh = voxax.data.hand()
+    expected = voxax.Grid.around(mesh.vertices, 12)
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["lower"], expected.lower)
+        np.testing.assert_array_equal(z["upper"], expected.upper)
+        assert tuple(z["shape"]) == expected.shape == z["W"].shape
+        assert float(z["W"].sum()) * expected.voxel_volume == pytest.approx(mesh.signed_volume(), rel=1e-12)
+
+
+@pytest.mark.parametrize("offset, expected", [(0.9, "are cut off"), (5.0, "so every voxel is 0")])
+def test_voxelize_warns_when_the_mesh_leaves_the_grid(tmp_path, capsys, offset, expected):
+    mesh = voxax.data.icosphere(1, radius=0.5)
+    path = tmp_path / "moved.ply"
+    voxax.io.save(voxax.Mesh(mesh.vertices + offset, mesh.faces), path)
+    out = tmp_path / "W.npz"
+    assert main(["voxelize", str(path), "-n", "8", "-o", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("voxax voxelize: warning: ") and expected in err[0]
+    assert "--fit" in err[0] and "--normalize" in err[0] and "normalize=True" not in err[0]
+    with np.load(out) as z:
+        assert (z["W"].max() == 0) == (offset == 5.0)
+    # Following the advice removes the warning.
+    for option in ("--fit", "--normalize"):
+        assert main(["voxelize", str(path), "-n", "8", option, "-o", str(out)]) == 0
+        assert capsys.readouterr().err == ""
+        with np.load(out) as z:
+            assert z["W"].max() == pytest.approx(1.0)
 
 
 def test_resolve(tmp_path, capsys):
@@ -39,13 +96,18 @@ def test_resolve(tmp_path, capsys):
     assert (tmp_path / "overlaps.png").exists() and (tmp_path / "history.png").exists()
 
 
-def test_resolve_reads_mesh_files_and_reports_failure(tmp_path):
+def test_resolve_reads_mesh_files_and_reports_failure(tmp_path, capsys):
     path = tmp_path / "overlap.ply"
-    voxax.io.save(voxax.data.overlapping_cubes(), path)
+    cubes = voxax.data.overlapping_cubes()  # in [-0.6, 0.6]^3
+    voxax.io.save(voxax.Mesh(cubes.vertices + [0.7, 0.0, 0.0], cubes.faces), path)
     # Two steps cannot separate the cubes: the command says so with exit status 1.
     assert main(["resolve", str(path), "-n", "16", "--max-steps", "2", "--out", str(tmp_path / "r"), "-q",
-                 "--no-figures"]) == 1
+                 "--no-figures", "--no-normalize"]) == 1
     assert not json.loads((tmp_path / "r" / "report.json").read_text())["resolved"]
+    # The mesh sticks out of [-1, 1]^3: one warning, in command-line words.
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("voxax resolve: warning: parts of the mesh"), err
+    assert "drop --no-normalize" in err[0] and "normalize=True" not in err[0]
 
 
 def test_bandsaw(tmp_path):
@@ -72,6 +134,181 @@ def test_tile(tmp_path):
     assert (tmp_path / "instance_02.ply").exists() and (tmp_path / "cell.png").exists()
 
 
-def test_unknown_mesh_is_a_clear_error(tmp_path):
-    with pytest.raises(SystemExit, match="neither a mesh file nor a built-in mesh"):
-        main(["resolve", "no-such-mesh", "--out", str(tmp_path)])
+# -- structure and help -----------------------------------------------------------------------
+
+
+def _subparsers(parser):
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return action.choices
+
+
+def test_every_option_of_every_command_has_help():
+    parser = cli.build_parser()
+    subparsers = _subparsers(parser)
+    assert list(subparsers) == [c.name for c in cli.COMMANDS] == ["demo", "voxelize", "resolve", "bandsaw", "tile"]
+    for name, sub in {"voxax": parser, **subparsers}.items():
+        for action in sub._actions:
+            assert action.help and action.help.strip(), (name, action.dest)
+        text = sub.format_help()  # formats every help string (a stray % would raise here)
+        assert "usage:" in text
+
+
+def test_a_new_command_is_one_table_entry(capsys):
+    seen = {}
+
+    def add(p):
+        p.add_argument("--count", type=int, default=1, help="how many")
+
+    def run(args):
+        seen["count"] = args.count
+        return 0
+
+    command = cli.Command("hello", "say hello", add, run)
+    parser = cli.build_parser([*cli.COMMANDS, command])
+    args = parser.parse_args(["hello", "--count", "3"])
+    assert args.run(args) == 0 and seen == {"count": 3}
+    assert "hello" in parser.format_help()
+
+
+def test_in_process_errors_return_2_with_one_line(tmp_path, capsys):
+    assert main(["resolve", "no-such-mesh", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "neither a mesh file nor a built-in mesh" in err
+    assert err.startswith("voxax resolve: error: ")
+    with pytest.raises(cli.UsageError, match="neither a mesh file"):
+        main(["--traceback", "resolve", "no-such-mesh", "--out", str(tmp_path)])
+
+
+def test_progress_bar_ignores_the_compiling_step_and_ends_at_the_stop():
+    out = io.StringIO()
+    bar = ProgressBar(1000, "minimize", file=out)
+    assert "compiling" in bar.bar.desc
+    after_compiling = time.time()
+    bar.update({"E": "1.0"})
+    # The clock (rate, ETA) starts after the first, compiling step.
+    assert bar.bar.start_t >= after_compiling and bar.bar.desc.startswith("minimize")
+    for _ in range(9):
+        bar.update({"E": "0.5"})
+    bar.bar.refresh()
+    running = out.getvalue().rstrip().split("\r")[-1]
+    assert "10/1000" in running and "at most" in running  # the time left is an upper bound
+    bar.close("min_step")
+    last = out.getvalue().rstrip().split("\r")[-1]
+    assert "10/10" in last and "100%" in last and "stop: min_step" in last and "E=0.5" in last
+    assert "at most" not in last
+    # A run that uses every step ends at total/total.
+    out = io.StringIO()
+    bar = ProgressBar(3, "minimize", file=out)
+    for _ in range(3):
+        bar.update()
+    bar.close("max_steps")
+    assert "3/3" in out.getvalue().split("\r")[-1]
+
+
+def test_minimize_progress_bar_total_is_max_steps_and_ends_at_the_stop(capsys):
+    import jax.numpy as jnp
+
+    quad = lambda y, args: jnp.sum((y - 1.0) ** 2)  # noqa: E731
+    r = voxax.minimize(quad, jnp.zeros(3), learning_rate=0.5, solver="bfgs",
+                       stop=voxax.StopRules(max_steps=500))
+    assert r.steps < 500
+    err = capsys.readouterr().err
+    last = err.rstrip().split("\r")[-1]
+    assert f"{r.steps}/{r.steps}" in last and f"stop: {r.stop_reason}" in last, last
+    assert "/500" in err  # the total shown while running is max_steps
+
+
+# -- error paths, each in a subprocess ------------------------------------------------------------
+
+ERRORS = [
+    # (arguments, words the one-line message must contain)
+    ([], "required: COMMAND"),
+    (["frobnicate"], "invalid choice"),
+    (["demo", "--mesh", "no_such_mesh"], "neither a mesh file nor a built-in mesh"),
+    (["demo", "-n", "0"], "at least 1"),
+    (["voxelize", "{tmp}/missing.ply"], "no such mesh file"),
+    (["voxelize", "{tmp}/garbage.ply"], "cannot read the mesh file"),
+    (["voxelize", "torus", "-o", "{tmp}/W.txt"], "must end in .npz or .npy"),
+    (["voxelize", "torus", "-n", "ten"], "expected an integer"),
+    (["voxelize", "torus", "--bogus"], "unrecognized arguments: --bogus"),
+    (["voxelize", "torus", "-n", "100000", "-o", "{tmp}/W.npz"], "more than the"),  # memory
+    (["resolve", "no_such_mesh", "-o", "{tmp}/r"], "neither a mesh file"),
+    (["resolve", "bent_bar", "--lr", "-1"], "expected a number > 0"),
+    (["resolve", "bent_bar", "--eps", "nan"], "finite"),
+    (["resolve", "--traceback", "bent_bar"], "unrecognized arguments: --traceback"),  # an option of voxax
+    (["bandsaw"], "required: mesh"),
+    (["bandsaw", "star_polyline", "-o", "{tmp}/b"], "2D mesh"),
+    (["bandsaw", "hand", "--w", "0"], "expected a number > 0"),
+    (["tile", "-n", "32", "torus"], "multiple of 3"),
+    (["tile", "torus", "cube", "--instances", "1", "2", "3"], "3 counts for 2 meshes"),
+    (["tile", "torus", "--init", "grid"], "invalid choice"),
+]
+
+
+# One Python process imports voxax once and forks a child per case; each child runs the
+# command the way the `voxax` entry point does (`sys.exit(main())`: an uncaught exception
+# prints a traceback and exits 1) with its own stdout and stderr, and exits.
+_DRIVER = r"""
+import json, os, sys, traceback
+from voxax.cli import main
+
+results = []
+for argv in json.loads(sys.argv[1]):
+    pipes = [os.pipe(), os.pipe()]
+    pid = os.fork()
+    if pid == 0:
+        os.dup2(pipes[0][1], 1)
+        os.dup2(pipes[1][1], 2)
+        try:
+            code = main(argv)
+        except SystemExit as exit:
+            code = exit.code if isinstance(exit.code, int) else (0 if exit.code is None else 1)
+            if isinstance(exit.code, str):
+                print(exit.code, file=sys.stderr)
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    for r, w in pipes:
+        os.close(w)
+    _, status = os.waitpid(pid, 0)
+    texts = []
+    for r, _ in pipes:
+        with os.fdopen(r, "rb") as fh:
+            texts.append(fh.read().decode("utf-8", "replace"))
+    results.append([os.waitstatus_to_exitcode(status), *texts])
+print(json.dumps(results))
+"""
+
+
+@pytest.fixture(scope="module")
+def error_runs(tmp_path_factory):
+    """Every case of ERRORS, each in its own process (see `_DRIVER`)."""
+    if not hasattr(os, "fork"):
+        pytest.skip("needs os.fork")
+    tmp = tmp_path_factory.mktemp("cli_errors")
+    (tmp / "garbage.ply").write_bytes(b"ply\nthis is not a mesh\n\x00\x01")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
+    cases = [[a.replace("{tmp}", str(tmp)) for a in argv] for argv, _ in ERRORS]
+    proc = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(cases)], cwd=tmp, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    results = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(results) == len(ERRORS)
+    return results
+
+
+@pytest.mark.parametrize("case", range(len(ERRORS)), ids=[" ".join(a) or "(none)" for a, _ in ERRORS])
+def test_error_paths_exit_2_with_one_line_and_no_traceback(error_runs, case):
+    argv, words = ERRORS[case]
+    returncode, stdout, stderr = error_runs[case]
+    assert returncode == 2, (returncode, stdout, stderr)
+    assert "Traceback" not in stderr and "Traceback" not in stdout
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    command = argv[0] if argv and argv[0] in {c.name for c in cli.COMMANDS} else None
+    assert lines[0].startswith(f"voxax {command}: error: " if command else "voxax: error: "), lines[0]
+    assert words in lines[0], lines[0]

@@ -114,6 +114,39 @@ def test_silhouettes_max_and_mellowmax(torus_grid):
         plot.silhouettes(W[0])
 
 
+def test_projections_rows_per_grid_shared_range_and_titles(torus_grid, tmp_path):
+    mesh, grid, W = torus_grid
+    doubled = 2 * W
+    fig = plot.projections([W, doubled], grid, labels=["before", "after"], path=tmp_path / "p.png")
+    images = _images(fig)
+    assert len(images) == 6 and len(fig.axes) == 7  # two rows of three and a colour bar
+    for r, G in enumerate((W, doubled)):
+        for a in range(3):
+            im = images[3 * r + a]
+            np.testing.assert_array_equal(np.asarray(im.get_array()), G.max(axis=a).T)
+            assert im.get_clim() == (0.0, pytest.approx(doubled.max()))  # one range for all
+            assert im.get_extent() == [-1.0, 1.0, -1.0, 1.0]
+    assert fig.axes[4].get_title() == f"after: max of W along y ({doubled.max():.3f})"
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes[:3]] == [("y", "z"), ("x", "z"), ("x", "y")]
+    assert (tmp_path / "p.png").stat().st_size > 0
+    # One grid; the range is at least [0, 1] so that values above 1 stand out.
+    fig = plot.projections(0.5 * W)
+    assert len(_images(fig)) == 3 and _images(fig)[0].get_clim() == (0.0, 1.0)
+    assert fig.axes[0].get_title().startswith("0: max of W along x")
+    with pytest.raises(ValueError, match="3D grids"):
+        plot.projections([W[0]])
+    with pytest.raises(ValueError, match="differ in shape"):
+        plot.projections([W, W[:-1]])
+    with pytest.raises(ValueError, match="labels"):
+        plot.projections([W, W], labels=["one"])
+
+
+def test_pyplot_is_headless_outside_ipython():
+    plt = plot.pyplot()
+    assert plt is matplotlib.pyplot
+    assert matplotlib.get_backend().lower() == "agg"
+
+
 # -- meshes ------------------------------------------------------------------------------
 
 
@@ -217,6 +250,18 @@ def test_history_from_minimize_result_dict_and_array(tmp_path):
         plot.history(r, keys=["nope"])
     with pytest.raises(ValueError, match="'step' or 'time'"):
         plot.history(r, x="epoch")
+
+
+def test_report_plot_history_draws_every_series():
+    report = voxax.apps.Report(
+        energy_history=np.array([4.0, 2.0, 1.0]),
+        history={"energy": np.array([4.0, 2.0, 1.0]), "max_w": np.array([2.0, 1.5, 1.0]), "time": np.arange(3.0)},
+        steps=3, stop_reason="max_steps", energy=1.0, resolution=8,
+    )
+    fig = report.plot_history()
+    assert [ax.get_ylabel() for ax in fig.axes] == ["energy", "max_w"]
+    assert fig._suptitle.get_text() == "Report: 3 steps (max_steps)"
+    np.testing.assert_array_equal(fig.axes[1].lines[0].get_ydata(), [2.0, 1.5, 1.0])
 
 
 def test_history_of_an_app_style_report():

@@ -4,9 +4,9 @@ The documented errors (see docs/robustness.md) must come out of `jax.lax.fori_lo
 `scan` and `while_loop` bodies too, where the Python-side checks cannot see the values
 and the kernels' own validation has to catch them; afterwards the process keeps working.
 
-The tests under "Reproducers" pin down wrong results and inconsistencies found by the
-fuzzing in tests/sanitize and the property tests; they fail until the kernels (or the
-Python validation) are fixed.
+The tests under "Edge cases" pin down behaviour at the edges of the input domain (inputs
+on grid lines, empty batches, unsigned indices, huge and sliver triangles, extreme cell
+sizes), each with the exact expected result.
 """
 
 from __future__ import annotations
@@ -261,14 +261,14 @@ def test_rss_stays_flat_over_repeated_jitted_calls():
     assert growth < 50, f"RSS grew by {growth:.1f} MiB over 300 calls"
 
 
-# -- Reproducers: these fail until the kernels (or the validation) are fixed ---------------
+# -- Edge cases: exact results at the edges of the input domain -----------------------------
 
 
 def test_2d_horizontal_edge_on_a_grid_line_is_counted_once():
-    """A horizontal segment lying exactly on an interior grid line y = const is counted
-    twice by the 2D forward kernel (by the pixel below it, whose top it lies in, and by the
-    pixel above it, whose bottom it lies in), so everything below it gets its sign twice.
-    Here a square whose top and bottom edges are grid lines gives 2 inside, not 1."""
+    """A horizontal segment lying exactly on an interior grid line y = const belongs to
+    the top of the pixel below it and to the bottom of the pixel above it; it is counted
+    once, so a square whose top and bottom edges are grid lines gives exactly 1 inside
+    and 0 outside."""
     grid = Grid.cube(4, dim=2)
     m = voxax.data.polygon_square((-0.5, -0.5), (0.5, 0.5))
     W = np.asarray(voxax.voxelize(m.vertices, m.faces, grid))
@@ -278,8 +278,9 @@ def test_2d_horizontal_edge_on_a_grid_line_is_counted_once():
     np.testing.assert_allclose(W, reference.voxelize(m.vertices, m.faces, grid), atol=1e-12)
 
 
-def test_2d_single_horizontal_segment_on_a_grid_line():
-    """The minimal case: one segment on the line y = 0 of a 4 x 4 grid on [-1, 1]^2."""
+def test_2d_single_horizontal_segment_on_a_grid_line_is_counted_once():
+    """The minimal case: one segment on the line y = 0 of a 4 x 4 grid on [-1, 1]^2 gives
+    1 in every pixel below it."""
     grid = Grid.cube(4, dim=2)
     v = np.array([[0.9, 0.0], [-0.9, 0.0]])
     f = np.array([[0, 1]], dtype=np.int32)
@@ -288,11 +289,10 @@ def test_2d_single_horizontal_segment_on_a_grid_line():
     assert W[1, 0] == pytest.approx(1.0)  # column x in [-0.5, 0], fully under the segment
 
 
-def test_zero_size_faces_batch_eagerly_matches_jit():
-    """Faces with a zero-size batch axis, (0, F, 3): under jit voxelize returns an empty
-    (0, *grid.shape) result (as it does for vertices (0, V, 3), eagerly and under jit),
-    but eagerly the Python validation fails with NumPy's "zero-size array to reduction
-    operation minimum which has no identity" (`f.min()` on an empty array)."""
+def test_zero_size_faces_batch_gives_an_empty_result_eagerly_and_under_jit():
+    """Faces with a zero-size batch axis, (0, F, 3), give an empty (0, *grid.shape)
+    result, eagerly and under jit, as vertices (0, V, 3) do (the index range check skips
+    empty arrays)."""
     v, f = _box()
     f0 = np.zeros((0,) + f.shape, np.int32)
     W_jit = jax.jit(lambda a, b: voxax.voxelize(a, b, GRID))(v, f0)
@@ -303,9 +303,9 @@ def test_zero_size_faces_batch_eagerly_matches_jit():
 
 @pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
 def test_uint64_faces_are_accepted(jit):
-    """Valid uint64 face indices are rejected with "face index 2147483647 is out of range":
-    `jnp.clip(faces, -1, 2**31 - 1)` turns the -1 into 2**64 - 1 for an unsigned array, so
-    every index is clipped to 2**31 - 1. (uint8/16/32 and all signed types work.)"""
+    """Valid uint64 face indices are accepted like signed ones, eagerly and under jit:
+    clamping them to the int32 range keeps every valid index (an unsigned array has no
+    -1, so the lower clamp bound must not wrap around to 2**64 - 1)."""
     v, f = _box()
     fn = jax.jit(lambda a, b: voxax.voxelize(a, b, GRID)) if jit else (lambda a, b: voxax.voxelize(a, b, GRID))
     W = fn(v, np.asarray(f).astype(np.uint64))
@@ -313,7 +313,7 @@ def test_uint64_faces_are_accepted(jit):
 
 
 @pytest.mark.parametrize("L", [1e60, 1e70, 1e74, 4.9e74])
-def test_backward_of_huge_triangles_is_not_zero(L):
+def test_backward_of_huge_triangles_is_exact(L):
     """Coordinates up to 1e75 are accepted (the bound keeps |N|^2 of the unnormalized
     normal, a fourth power of the coordinates, finite), and both the forward and the
     backward handle a huge triangle crossing the grid exactly: the gradient of a
@@ -333,10 +333,10 @@ def test_backward_of_huge_triangles_is_not_zero(L):
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_backward_of_sliver_triangles_is_finite_and_exact(eps, dtype):
     """Slivers (one corner `eps` away from the opposite edge) and rounding-collinear
-    triangles must get finite corner gradients that match the reference. Computing the
-    barycentric map with the denominator |e1|^2 |e2|^2 - (e1 . e2)^2 (Lagrange's identity
-    for |e1 x e2|^2) cancels catastrophically for slivers and gives NaN; |N|^2 with
-    N = e1 x e2, and r1 = (e2 x N) / |N|^2, r2 = (N x e1) / |N|^2, do not."""
+    triangles get finite corner gradients that match the reference. The barycentric map
+    uses |N|^2 with N = e1 x e2, and r1 = (e2 x N) / |N|^2, r2 = (N x e1) / |N|^2, which
+    stay accurate for slivers (the equivalent |e1|^2 |e2|^2 - (e1 . e2)^2 would cancel
+    catastrophically and give NaN)."""
     grid = Grid.cube(4)
     f = np.array([[0, 1, 2], [3, 4, 5]], dtype=np.int32)
     a, b = np.array([-0.9, -0.3, 0.1]), np.array([0.9, -0.3, 0.2])

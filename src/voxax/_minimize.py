@@ -37,6 +37,7 @@ import optax
 import optimistix as optx
 
 from ._optional import require
+from ._progress import ProgressBar
 from ._values import ValueEquality
 
 __all__ = ["StopReason", "StopRules", "MinimizeResult", "minimize"]
@@ -329,7 +330,7 @@ def minimize(
     - `learning_rate`: for `"adam"` / `"sgd"`.
     - `stop`: a `StopRules`.
     - `has_aux`: whether `fn` returns `(scalar, aux)`.
-    - `progress`: show a tqdm progress bar (energy and max W as postfix).
+    - `progress`: show a progress bar (energy and max W as postfix).
     - `callback`: `callback(step, y, info) -> bool | None`, called after every step
       (before the stopping rules are checked) with the number of steps taken so far (1
       after the first), the new iterate, and a dict of floats: this step's history
@@ -480,9 +481,7 @@ def minimize(
 
     bar = None
     if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=stop.max_steps, desc="minimize", unit="step", dynamic_ncols=True)
+        bar = ProgressBar(stop.max_steps, "minimize")
     try:
         while steps < stop.max_steps:
             y_new, state, info, result = _step(y, state, args)
@@ -502,8 +501,7 @@ def minimize(
                 if "max_w" in aux_vals:
                     post["max_w"] = f"{aux_vals['max_w']:.4f}"
                 post["step"] = f"{step_size:.2e}"
-                bar.set_postfix(post, refresh=False)
-                bar.update(1)
+                bar.update(post)
             if callback is not None:
                 cb_info = {"energy": energy, "step_size": step_size, **aux_vals}
                 stop_by_callback = bool(callback(steps, y_new, cb_info))
@@ -553,7 +551,7 @@ def minimize(
         stop_reason = StopReason.INTERRUPTED
     finally:
         if bar is not None:
-            bar.close()
+            bar.close(stop_reason)
 
     # The energy and aux at the returned iterate (one extra evaluation when unknown).
     final_eval = eqx.filter_jit(fn_aux) if jit else fn_aux

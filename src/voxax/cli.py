@@ -1,25 +1,268 @@
-"""The `voxax` command line."""
+"""The `voxax` command line.
+
+Every subcommand is a [`Command`][voxax.cli.Command]: a name, a one-line help, a function
+that adds its options to an `argparse` parser and a function that runs it. `COMMANDS`
+lists them in the order `voxax --help` shows; adding a subcommand is adding an entry.
+
+Mistakes in the input (a missing file, an unknown mesh name, an invalid option value,
+an output the library refuses) end with one line on stderr, `voxax <command>: error:
+...`, and exit status 2, never with a Python traceback (`voxax --traceback ...` shows
+it). Building the parser imports nothing heavy, so `voxax --help` is instant and the
+documentation can render the help without the compiled kernels.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
+import math
+import os
 import sys
 import time
+import warnings
+from collections.abc import Callable
+
+__all__ = ["COMMANDS", "Command", "UsageError", "build_parser", "main"]
+
+
+class UsageError(Exception):
+    """A mistake in the command line or its input: reported in one line, exit status 2."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Command:
+    """One `voxax` subcommand.
+
+    - `name`: the subcommand (`voxax <name> ...`).
+    - `help`: one line for `voxax --help`.
+    - `add_arguments`: `(parser) -> None`, adds the options (each with a `help=` text).
+    - `run`: `(args) -> int`, runs the command on the parsed options; returns the exit
+      status. Raises `UsageError` (or `ValueError`/`TypeError`/`OSError` from the
+      library) for mistakes in the input.
+    - `description`: a longer text for `voxax <name> --help` (default: `help`).
+    """
+
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str | None = None
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (raised, reported by `main`)."""
+
+    def error(self, message):
+        err = UsageError(f"{message} (see '{self.prog} --help')")
+        err.prog = self.prog
+        raise err
+
+
+# -- option types: each check gives one clear line ------------------------------------------
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _resolution(multiple: int = 1, least: int = 1) -> Callable[[str], int]:
+    least = max(least, multiple)
+
+    def check(text: str) -> int:
+        n = _integer(text)
+        if n < least:
+            raise argparse.ArgumentTypeError(f"the resolution must be at least {least}, got {n}")
+        if n % multiple:
+            raise argparse.ArgumentTypeError(f"the resolution must be a multiple of {multiple}, got {n}")
+        return n
+
+    check.__name__ = "resolution"
+    return check
+
+
+def _at_least(least: int) -> Callable[[str], int]:
+    def check(text: str) -> int:
+        n = _integer(text)
+        if n < least:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {least}, got {n}")
+        return n
+
+    check.__name__ = "count"
+    return check
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+
+
+# -- shared pieces ----------------------------------------------------------------------------
+
+
+def _setup_jax(float32: bool) -> None:
+    import jax
+
+    jax.config.update("jax_enable_x64", not float32)
+
+
+def _load_mesh(name: str, dim: int | None = 3):
+    """A mesh from a file, or a built-in mesh by name; `dim` (if given) is required."""
+    import voxax
+
+    if os.path.isdir(name):
+        raise UsageError(f"{name!r} is a folder, not a mesh file")
+    if os.path.exists(name):
+        try:
+            mesh = voxax.io.load(name)
+        except Exception as err:  # trimesh raises many kinds for unreadable files
+            raise UsageError(f"cannot read the mesh file {name!r}: {err}") from None
+    elif os.sep in name or os.path.splitext(name)[1]:
+        raise UsageError(f"no such mesh file: {name!r}")
+    else:
+        try:
+            mesh = voxax.data.get(name)
+        except (ValueError, KeyError):
+            builtin = ", ".join(voxax.data.names(dim) if dim else voxax.data.names())
+            raise UsageError(f"{name!r} is neither a mesh file nor a built-in mesh ({builtin})") from None
+    if dim is not None and mesh.dim != dim:
+        raise UsageError(f"{name!r} is a {mesh.dim}D mesh; this command needs a {dim}D triangle mesh")
+    return mesh
+
+
+def _check_output(path: str, suffixes: tuple[str, ...] = ()) -> None:
+    """Refuses an output path early (before minutes of computing) if it cannot be written."""
+    if suffixes and not path.lower().endswith(suffixes):
+        raise UsageError(f"the output {path!r} must end in {' or '.join(suffixes)}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UsageError(f"the folder of the output {path!r} does not exist")
+
+
+def _prepare_folder(path: str) -> None:
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"the output folder {path!r} is a file")
+    os.makedirs(path, exist_ok=True)
+
+
+_prog = "voxax"  # the running command, in messages
+
+
+def _warn(message: str) -> None:
+    """One line on stderr: `voxax <command>: warning: <message>`."""
+    print(f"{_prog}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python warnings from the library, as one line each (installed by `main`)."""
+    _warn(message)
+
+
+@contextlib.contextmanager
+def _grid_check(mesh, normalize: bool):
+    """With --no-normalize, warns in command-line words when the mesh leaves the
+    [-1, 1]^3 grid, and keeps the library's own warning on this (worded for Python
+    callers) quiet while the block runs."""
+    with warnings.catch_warnings():
+        outside = None if normalize else _outside(mesh.vertices, (-1.0,) * 3, (1.0,) * 3)
+        if outside:
+            _warn(f"{outside[1]}; what lies outside is not penalized; drop --no-normalize to scale the mesh "
+                  "into the grid")
+            warnings.filterwarnings("ignore", message=".*outside the grid", category=RuntimeWarning)
+        yield
+
+
+def _write_json(data, path) -> None:
+    import json
+
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=2)
+
+
+def _close(fig) -> None:
+    import voxax
+
+    voxax.plot.pyplot().close(fig)
+
+
+def _add_optimization_options(p, resolution: int, learning_rate: float, arap_weight: float, max_steps: int,
+                              out: str, multiple: int = 1) -> None:
+    p.add_argument("--resolution", "-n", type=_resolution(multiple, least=2), default=resolution, metavar="N",
+                   help=f"cells per axis of the [-1, 1]^3 grid (default {resolution}"
+                   + (f"; a multiple of {multiple}" if multiple > 1 else "") + ")")
+    p.add_argument("--learning-rate", "--lr", type=_positive, default=learning_rate, metavar="RATE",
+                   help=f"Adam learning rate (default {learning_rate:g})")
+    p.add_argument("--arap-weight", type=_non_negative, default=arap_weight, metavar="WEIGHT",
+                   help=f"weight of the as-rigid-as-possible regularizer (default {arap_weight:g})")
+    p.add_argument("--max-steps", type=_at_least(0), default=max_steps, metavar="STEPS",
+                   help=f"most optimization steps (default {max_steps})")
+    p.add_argument("--out", "-o", default=out, metavar="FOLDER", help=f"output folder (default {out})")
+    p.add_argument("--float32", action="store_true", help="optimize in float32 instead of float64")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+
+
+def _optimization_options(args) -> dict:
+    """The keyword arguments of the applications that `_add_optimization_options` adds."""
+    return {"resolution": args.resolution, "arap_weight": args.arap_weight, "learning_rate": args.learning_rate,
+            "max_steps": args.max_steps, "progress": not args.quiet}
+
+
+def _add_mesh_argument(p, example: str) -> None:
+    p.add_argument("mesh", help=f"a mesh file readable by trimesh, or a built-in mesh name (e.g. {example})")
+
+
+# -- voxax demo -------------------------------------------------------------------------------
+
+
+def _demo_arguments(p) -> None:
+    p.add_argument("--mesh", default="hand", help="a built-in mesh name or a mesh file (default hand)")
+    p.add_argument("--resolution", "-n", type=_resolution(), default=128, metavar="N",
+                   help="cells per axis of the [-1, 1]^d grid (default 128)")
+    p.add_argument("--float32", action="store_true", help="use float32 instead of float64")
+    p.add_argument("--output", "-o", default="voxax-demo.png", metavar="PNG",
+                   help="image file for the slices (default voxax-demo.png)")
 
 
 def _demo(args) -> int:
+    _check_output(args.output)
+    _setup_jax(False)
     import jax
-
-    jax.config.update("jax_enable_x64", True)
     import numpy as np
 
     import voxax
 
-    mesh = voxax.data.get(args.mesh)
-    grid = voxax.Grid.cube(args.resolution)
+    mesh = _load_mesh(args.mesh, dim=None)
+    grid = voxax.Grid.cube(args.resolution, dim=mesh.dim)
     dtype = np.float32 if args.float32 else np.float64
     vertices = np.asarray(mesh.vertices, dtype=dtype)
     faces = np.asarray(mesh.faces)
+    outside = _outside(vertices, grid.lower, grid.upper)
+    if outside:
+        _warn(f"{outside[1]}, so the volume from the grid counts only the part inside; "
+              "use 'voxax voxelize --fit' for meshes of any size")
 
     fn = jax.jit(lambda v, f: voxax.voxelize(v, f, grid))
     W = fn(vertices, faces).block_until_ready()  # compile + first run
@@ -30,153 +273,154 @@ def _demo(args) -> int:
     volume_grid = float(np.asarray(W, dtype=np.float64).sum() * grid.voxel_volume)
     volume_exact = float(mesh.signed_volume())
     rel = abs(volume_grid - volume_exact) / max(abs(volume_exact), 1e-300)
+    d = mesh.dim
     print(f"voxax {voxax.__version__} demo: mesh '{args.mesh}' ({len(vertices)} vertices, {len(faces)} faces)")
-    print(f"  grid            {grid.shape} cells over [{grid.lower[0]}, {grid.upper[0]}]^3, {np.dtype(dtype).name}")
+    print(f"  grid            {grid.shape} cells over [{grid.lower[0]}, {grid.upper[0]}]^{d}, {np.dtype(dtype).name}")
     print(f"  time            {elapsed * 1e3:.1f} ms per voxelization (jit-compiled, after warm-up)")
     print(f"  volume (grid)   {volume_grid:.12f}")
     print(f"  volume (exact)  {volume_exact:.12f}")
     print(f"  relative error  {rel:.2e}")
     print(f"  W range         [{float(W.min()):.4f}, {float(W.max()):.4f}]")
-    voxax.plot.slices(W, grid, axis=None, count=4, title=f"voxax: '{args.mesh}' at {args.resolution}^3", path=args.output)
+    _close(voxax.plot.slices(W, grid, axis=None, count=4, title=f"voxax: '{args.mesh}' at {args.resolution}^{d}",
+                             path=args.output))
     print(f"  slices written  {args.output}")
     return 0
 
 
-def _voxelize_cmd(args) -> int:
-    import jax
+# -- voxax voxelize ---------------------------------------------------------------------------
 
-    jax.config.update("jax_enable_x64", not args.float32)
+
+def _voxelize_arguments(p) -> None:
+    p.add_argument("mesh", help="a mesh file readable by trimesh (3D), or a built-in mesh name (3D or 2D)")
+    p.add_argument("--resolution", "-n", type=_resolution(), default=128, metavar="N",
+                   help="cells per axis of [-1, 1]^d, or along the longest axis with --fit (default 128)")
+    p.add_argument("--fit", action="store_true",
+                   help="fit the grid around the mesh (cubic cells, 5%% margin) instead of [-1, 1]^d")
+    p.add_argument("--normalize", action="store_true",
+                   help="first centre the mesh and scale it so that its largest |coordinate| is 0.8")
+    p.add_argument("--float32", action="store_true", help="voxelize in float32 instead of float64")
+    p.add_argument("--output", "-o", default="voxels.npz", metavar="FILE",
+                   help="output file: .npz with arrays W, lower, upper, shape (default voxels.npz), "
+                   "or .npy with W alone")
+
+
+def _outside(vertices, lower, upper) -> tuple[bool, str] | None:
+    """How the vertices' bounding box leaves the box `[lower, upper]`: (entirely outside?,
+    a description), or None if it lies inside."""
+    import numpy as np
+
+    lo, hi = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    vmin, vmax = vertices.min(axis=0), vertices.max(axis=0)
+    if np.all(vmin >= lo) and np.all(vmax <= hi):
+        return None
+    box = "[" + ", ".join(f"{a:.3g}..{b:.3g}" for a, b in zip(vmin, vmax)) + "]"
+    where = "[" + ", ".join(f"{a:.3g}..{b:.3g}" for a, b in zip(lo, hi)) + "]"
+    if np.any(vmax <= lo) or np.any(vmin >= hi):
+        return True, f"the mesh (bounding box {box}) lies entirely outside the grid {where}"
+    return False, f"parts of the mesh (bounding box {box}) lie outside the grid {where}"
+
+
+def _voxelize(args) -> int:
+    _check_output(args.output, (".npz", ".npy"))
+    _setup_jax(args.float32)
     import numpy as np
 
     import voxax
 
-    mesh = voxax.io.load(args.mesh) if args.mesh not in voxax.data.names() else voxax.data.get(args.mesh)
+    mesh = _load_mesh(args.mesh, dim=None)
     if args.normalize:
         mesh = voxax.io.normalize(mesh)
     if mesh.dim == 3 and not voxax.io.is_watertight(mesh.vertices, mesh.faces):
-        print("warning: the mesh is not closed; the result depends on the +z ray direction", file=sys.stderr)
-    grid = voxax.Grid.cube(args.resolution, dim=mesh.dim) if not args.fit else voxax.Grid.around(mesh.vertices, args.resolution)
+        _warn("the mesh is not closed; the result depends on the +z ray direction")
     dtype = np.float32 if args.float32 else np.float64
-    W = np.asarray(voxax.voxelize(np.asarray(mesh.vertices, dtype), mesh.faces, grid))
-    np.save(args.output, W)
-    print(f"wrote {args.output}: shape {W.shape}, volume {W.sum() * grid.voxel_volume:.8g}, grid {grid}")
+    vertices = np.asarray(mesh.vertices, dtype)
+    if args.fit:
+        grid = voxax.Grid.around(vertices, args.resolution)
+    else:
+        grid = voxax.Grid.cube(args.resolution, dim=mesh.dim)
+        outside = _outside(vertices, grid.lower, grid.upper)
+        if outside:
+            whole, text = outside
+            _warn(f"{text}{', so every voxel is 0' if whole else ' and are cut off'}; use --fit to fit the grid "
+                  "around the mesh, or --normalize to scale the mesh into the grid")
+    W = np.asarray(voxax.voxelize(vertices, mesh.faces, grid))
+    if args.output.lower().endswith(".npy"):
+        np.save(args.output, W)
+    else:
+        np.savez(args.output, W=W, lower=np.asarray(grid.lower, np.float64),
+                 upper=np.asarray(grid.upper, np.float64), shape=np.asarray(grid.shape, np.int64))
+    volume = float(np.sum(W, dtype=np.float64) * grid.voxel_volume)
+    print(f"wrote {args.output}: W {W.shape} {W.dtype}, volume {volume:.8g}, grid {grid}")
     return 0
 
 
-# -- applications ---------------------------------------------------------------------------
+# -- voxax resolve ----------------------------------------------------------------------------
 
 
-def _setup_jax(float32: bool):
-    import jax
-
-    jax.config.update("jax_enable_x64", not float32)
-
-
-def _load_mesh(name: str):
-    import os
-
-    import voxax
-
-    if os.path.exists(name):
-        return voxax.io.load(name)
-    try:
-        return voxax.data.get(name)
-    except ValueError:
-        raise SystemExit(
-            f"voxax: {name!r} is neither a mesh file nor a built-in mesh ({', '.join(voxax.data.names(3))})"
-        ) from None
+def _resolve_arguments(p) -> None:
+    _add_mesh_argument(p, "bent_bar")
+    _add_optimization_options(p, 128, 1e-2, 0.005, 2000, "voxax-resolve")
+    p.add_argument("--eps", type=_non_negative, default=1e-3,
+                   help="voxels above 1 + EPS count as overlapping (default 0.001)")
+    p.add_argument("--no-normalize", action="store_true", help="use the mesh as is (it must lie in [-1, 1]^3)")
 
 
-def _write_json(data, path) -> None:
-    import json
-
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=2)
-
-
-def _projections_before_after(mesh_a, mesh_b, grid, path, title):
-    """Maximum of W along x, y and z for two meshes (e.g. before and after an optimization)."""
-    import numpy as np
-
-    import voxax
-    from voxax.apps._common import pyplot
-
-    plt = pyplot()
-    Ws = [np.asarray(voxax.voxelize(m.vertices, m.faces, grid)) for m in (mesh_a, mesh_b)]
-    vmax = max(max(float(W.max()), 1.0) for W in Ws)
-    fig, axes = plt.subplots(2, 3, figsize=(10.5, 6.6), squeeze=False)
-    im = None
-    for r, (W, label) in enumerate(zip(Ws, ("before", "after"))):
-        for axis in range(3):
-            p, q = (a for a in range(3) if a != axis)
-            ax = axes[r, axis]
-            im = ax.imshow(W.max(axis=axis).T, origin="lower", cmap="magma", vmin=0.0, vmax=vmax,
-                           extent=(grid.lower[p], grid.upper[p], grid.lower[q], grid.upper[q]),
-                           interpolation="nearest")
-            ax.set_title(f"{label}: max of W along {'xyz'[axis]} ({W.max():.3f})", fontsize=9)
-            ax.set_xlabel("xyz"[p])
-            ax.set_ylabel("xyz"[q])
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8)
-    fig.suptitle(title)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def _resolve_cmd(args) -> int:
-    import os
-
+def _resolve(args) -> int:
+    _prepare_folder(args.out)
     _setup_jax(args.float32)
     import voxax
     from voxax import apps
 
     mesh = _load_mesh(args.mesh)
-    os.makedirs(args.out, exist_ok=True)
-    out, report = apps.resolve_self_intersections(
-        mesh,
-        resolution=args.resolution,
-        eps=args.eps,
-        arap_weight=args.arap_weight,
-        learning_rate=args.learning_rate,
-        max_steps=args.max_steps,
-        normalize=not args.no_normalize,
-        progress=not args.quiet,
-    )
+    with _grid_check(mesh, not args.no_normalize):
+        out, report = apps.resolve_self_intersections(
+            mesh, eps=args.eps, normalize=not args.no_normalize, **_optimization_options(args)
+        )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
     voxax.io.save(out, os.path.join(args.out, "resolved.ply"))
     _write_json(report.to_dict(), os.path.join(args.out, "report.json"))
     if not args.no_figures:
-        from voxax.apps._common import pyplot
-
-        pyplot().close(report.plot_history(os.path.join(args.out, "history.png")))
+        _close(report.plot_history(os.path.join(args.out, "history.png")))
         work = voxax.io.normalize(mesh) if not args.no_normalize else mesh
-        after = voxax.data.Mesh((out.vertices - report.centre) * report.scale, out.faces)
-        _projections_before_after(work, after, voxax.Grid.cube(args.resolution), os.path.join(args.out, "overlaps.png"),
-                                  "largest winding number along each axis (above 1: overlaps)")
-    print(f"wrote {args.out}/: input.ply, resolved.ply, report.json" + ("" if args.no_figures else ", history.png, overlaps.png"))
+        after = voxax.Mesh((out.vertices - report.centre) * report.scale, out.faces)
+        grid = voxax.Grid.cube(args.resolution)
+        Ws = [voxax.voxelize(m.vertices, m.faces, grid) for m in (work, after)]
+        _close(voxax.plot.projections(Ws, grid, labels=["before", "after"],
+                                      title="largest winding number along each axis (above 1: overlaps)",
+                                      path=os.path.join(args.out, "overlaps.png")))
+    print(f"wrote {args.out}/: input.ply, resolved.ply, report.json"
+          + ("" if args.no_figures else ", history.png, overlaps.png"))
     return 0 if report.resolved else 1
 
 
-def _bandsaw_cmd(args) -> int:
-    import os
+# -- voxax bandsaw ----------------------------------------------------------------------------
 
+
+def _bandsaw_arguments(p) -> None:
+    _add_mesh_argument(p, "hand")
+    _add_optimization_options(p, 128, 1e-3, 0.05, 1000, "voxax-bandsaw")
+    p.add_argument("--w", type=_positive, default=1000.0, help="mellowmax sharpness of the silhouettes (default 1000)")
+    p.add_argument("--min-step", type=_non_negative, default=5e-4,
+                   help="stop when no vertex moves more than this in a step; 0: never (default 0.0005)")
+    p.add_argument("--size-mm", type=_positive, default=100.0,
+                   help="largest block side of the printed templates, in mm (default 100)")
+    p.add_argument("--no-templates", action="store_true", help="skip the SVG templates and cut solids")
+    p.add_argument("--no-normalize", action="store_true", help="use the mesh as is (it must lie in [-1, 1]^3)")
+
+
+def _bandsaw(args) -> int:
+    _prepare_folder(args.out)
     _setup_jax(args.float32)
     import voxax
     from voxax import apps, fabricate
 
     mesh = _load_mesh(args.mesh)
-    os.makedirs(args.out, exist_ok=True)
-    out, report = apps.optimize_for_bandsaw(
-        mesh,
-        resolution=args.resolution,
-        w=args.w,
-        arap_weight=args.arap_weight,
-        learning_rate=args.learning_rate,
-        min_step=args.min_step if args.min_step > 0 else None,
-        max_steps=args.max_steps,
-        normalize=not args.no_normalize,
-        progress=not args.quiet,
-    )
+    with _grid_check(mesh, not args.no_normalize):
+        out, report = apps.optimize_for_bandsaw(
+            mesh, w=args.w, min_step=args.min_step or None, normalize=not args.no_normalize,
+            **_optimization_options(args),
+        )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
     voxax.io.save(out, os.path.join(args.out, "optimized.ply"))
@@ -190,16 +434,35 @@ def _bandsaw_cmd(args) -> int:
               f"optimized {after.waste_fraction:.1%}")
     _write_json(data, os.path.join(args.out, "report.json"))
     if not args.no_figures:
-        from voxax.apps._common import pyplot
-
-        pyplot().close(report.plot_history(os.path.join(args.out, "history.png")))
+        _close(report.plot_history(os.path.join(args.out, "history.png")))
     print(f"wrote {args.out}/")
     return 0
 
 
-def _tile_cmd(args) -> int:
-    import os
+# -- voxax tile -------------------------------------------------------------------------------
 
+
+def _tile_arguments(p) -> None:
+    p.add_argument("meshes", nargs="+", help="mesh files or built-in mesh names (one or more)")
+    _add_optimization_options(p, 96, 1e-3, 0.005, 1000, "voxax-tile", multiple=3)  # the paper uses 192
+    p.add_argument("--instances", type=_at_least(1), nargs="+", default=[27], metavar="COUNT",
+                   help="total instances, or one count per mesh (default 27)")
+    p.add_argument("--min-step", type=_non_negative, default=1e-3,
+                   help="stop when no vertex moves more than this in a step; 0: never (default 0.001)")
+    p.add_argument("--rigid", action="store_true", help="only rigid motions, no deformation")
+    p.add_argument("--init", choices=("random", "lattice"), default="random",
+                   help="initial placement: random (the paper's) or a lattice (default random)")
+    p.add_argument("--seed", type=_integer, default=0, help="seed of the random placement (default 0)")
+    p.add_argument("--separate", action="store_true", help="also write each instance to its own file")
+
+
+def _tile(args) -> int:
+    meshes_given, counts = len(args.meshes), len(args.instances)
+    if counts > 1 and counts != meshes_given:
+        raise UsageError(f"--instances gives {counts} counts for {meshes_given} meshes (give one total or one per mesh)")
+    if counts == 1 and args.instances[0] < meshes_given:
+        raise UsageError(f"--instances {args.instances[0]} is fewer than the {meshes_given} meshes")
+    _prepare_folder(args.out)
     _setup_jax(args.float32)
     import numpy as np
 
@@ -207,112 +470,94 @@ def _tile_cmd(args) -> int:
     from voxax import apps
 
     meshes = [_load_mesh(m) for m in args.meshes]
-    os.makedirs(args.out, exist_ok=True)
-    instances = args.instances if len(args.instances) > 1 else args.instances[0]
+    instances = args.instances if counts > 1 else args.instances[0]
     placed, report = apps.optimize_tiling(
-        meshes,
-        instances=instances,
-        resolution=args.resolution,
-        arap_weight=args.arap_weight,
-        learning_rate=args.learning_rate,
-        max_steps=args.max_steps,
-        min_step=args.min_step if args.min_step > 0 else None,
-        deform=not args.rigid,
-        init=args.init,
-        seed=args.seed,
-        progress=not args.quiet,
+        meshes, instances=instances, min_step=args.min_step or None, deform=not args.rigid, init=args.init,
+        seed=args.seed, **_optimization_options(args),
     )
     print(report.summary())
-    voxax.io.save(voxax.data.Mesh.concatenate(*placed), os.path.join(args.out, "tiling.ply"))
+    voxax.io.save(voxax.Mesh.concatenate(*placed), os.path.join(args.out, "tiling.ply"))
     if args.separate:
         for b, m in enumerate(placed):
             voxax.io.save(m, os.path.join(args.out, f"instance_{b:02d}.ply"))
     _write_json(report.to_dict(), os.path.join(args.out, "report.json"))
     np.save(os.path.join(args.out, "cell.npy"), report.cell)
     if not args.no_figures:
-        from voxax.apps._common import pyplot
-
-        plt = pyplot()
-        plt.close(report.plot_history(os.path.join(args.out, "history.png")))
+        _close(report.plot_history(os.path.join(args.out, "history.png")))
         n = report.cell.shape[0]
         cell_grid = voxax.Grid((report.cell_lower,) * 3, (report.cell_upper,) * 3, (n, n, n))
-        plt.close(voxax.plot.slices(report.cell, cell_grid, axis=2, count=4,
-                                    title=f"periodic cell: {report.coverage_final:.1%} covered once",
-                                    path=os.path.join(args.out, "cell.png")))
+        _close(voxax.plot.slices(report.cell, cell_grid, axis=2, count=4,
+                                 title=f"periodic cell: {report.coverage_final:.1%} covered once",
+                                 path=os.path.join(args.out, "cell.png")))
     print(f"wrote {args.out}/")
     return 0
 
 
-def _add_common(p, resolution: int, learning_rate: float, arap_weight: float, max_steps: int, out: str):
-    p.add_argument("--resolution", "-n", type=int, default=resolution, help=f"cells per axis of [-1, 1]^3 (default {resolution})")
-    p.add_argument("--learning-rate", "--lr", type=float, default=learning_rate, help=f"Adam learning rate (default {learning_rate:g})")
-    p.add_argument("--arap-weight", type=float, default=arap_weight, help=f"weight of the ARAP regulariser (default {arap_weight:g})")
-    p.add_argument("--max-steps", type=int, default=max_steps, help=f"most optimization steps (default {max_steps})")
-    p.add_argument("--out", "-o", default=out, help=f"output folder (default {out})")
-    p.add_argument("--float32", action="store_true", help="optimize in float32 instead of float64")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+# -- the table of subcommands -----------------------------------------------------------------
+
+COMMANDS: list[Command] = [
+    Command("demo", "voxelize a built-in mesh, check its volume and plot slices", _demo_arguments, _demo),
+    Command("voxelize", "voxelize a mesh file (or built-in name) into a .npz (or .npy) grid",
+            _voxelize_arguments, _voxelize,
+            "Voxelize a mesh file (or a built-in mesh) on the grid [-1, 1]^d, or around the mesh with --fit. "
+            "Writes W and the grid's corners and shape to a .npz file (W alone to a .npy file)."),
+    Command("resolve", "remove self-intersections by an ARAP deformation (paper 4.2)", _resolve_arguments, _resolve,
+            "Remove self-intersections by an ARAP deformation (paper 4.2). Writes the input and the resolved "
+            "mesh, report.json and figures; exits with status 1 if overlapping voxels remain."),
+    Command("bandsaw", "deform a mesh for bandsaw cutting and write templates (paper 4.3)",
+            _bandsaw_arguments, _bandsaw),
+    Command("tile", "pack copies of meshes into a periodic space-filling cell (paper 4.4)", _tile_arguments, _tile),
+]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="voxax", description="Exact differentiable voxelization for JAX.")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    demo = sub.add_parser("demo", help="voxelize a built-in mesh, check its volume and plot slices")
-    demo.add_argument("--mesh", default="hand", help="a built-in mesh name (see voxax.data.names())")
-    demo.add_argument("--resolution", "-n", type=int, default=128, help="cells per axis of the [-1, 1]^3 grid")
-    demo.add_argument("--float32", action="store_true", help="use float32 instead of float64")
-    demo.add_argument("--output", "-o", default="voxax-demo.png", help="PNG file for the slices")
-    demo.set_defaults(func=_demo)
-
-    vox = sub.add_parser("voxelize", help="voxelize a mesh file (or built-in name) into a .npy grid")
-    vox.add_argument("mesh", help="a mesh file readable by trimesh, or a built-in mesh name")
-    vox.add_argument("--resolution", "-n", type=int, default=128)
-    vox.add_argument("--fit", action="store_true", help="fit the grid around the mesh instead of [-1, 1]^d")
-    vox.add_argument("--normalize", action="store_true", help="centre and scale the mesh so max |v| = 0.8 first")
-    vox.add_argument("--float32", action="store_true")
-    vox.add_argument("--output", "-o", default="voxels.npy")
-    vox.set_defaults(func=_voxelize_cmd)
-
-    res = sub.add_parser(
-        "resolve",
-        help="remove self-intersections by an ARAP deformation (paper 4.2)",
-        description="Remove self-intersections by an ARAP deformation (paper 4.2). Writes the input and the "
-        "resolved mesh, report.json and figures; exits with status 1 if overlapping voxels remain.",
-    )
-    res.add_argument("mesh", help="a mesh file readable by trimesh, or a built-in mesh name (e.g. bent_bar)")
-    _add_common(res, 128, 1e-2, 0.005, 2000, "voxax-resolve")
-    res.add_argument("--eps", type=float, default=1e-3, help="voxels above 1 + eps count as overlapping")
-    res.add_argument("--no-normalize", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
-    res.set_defaults(func=_resolve_cmd)
-
-    saw = sub.add_parser("bandsaw", help="deform a mesh for bandsaw cutting and write templates (paper 4.3)")
-    saw.add_argument("mesh", help="a mesh file readable by trimesh, or a built-in mesh name (e.g. hand)")
-    _add_common(saw, 128, 1e-3, 0.05, 1000, "voxax-bandsaw")
-    saw.add_argument("--w", type=float, default=1000.0, help="mellowmax sharpness of the silhouettes")
-    saw.add_argument("--min-step", type=float, default=5e-4, help="stop when no vertex moves more (0: never)")
-    saw.add_argument("--size-mm", type=float, default=100.0, help="largest block side of the printed templates")
-    saw.add_argument("--no-templates", action="store_true", help="skip the SVG templates and cut solids")
-    saw.add_argument("--no-normalize", action="store_true", help="use the mesh as is (must lie in [-1, 1]^3)")
-    saw.set_defaults(func=_bandsaw_cmd)
-
-    tile = sub.add_parser("tile", help="pack copies of meshes into a periodic space-filling cell (paper 4.4)")
-    tile.add_argument("meshes", nargs="+", help="mesh files or built-in mesh names (one or more)")
-    _add_common(tile, 96, 1e-3, 0.005, 1000, "voxax-tile")  # the paper uses 192
-    tile.add_argument("--instances", type=int, nargs="+", default=[27],
-                      help="total instances, or one count per mesh (default 27)")
-    tile.add_argument("--min-step", type=float, default=1e-3, help="stop when no vertex moves more (0: never)")
-    tile.add_argument("--rigid", action="store_true", help="only rigid motions, no deformation")
-    tile.add_argument("--init", choices=("random", "lattice"), default="random", help="initial placement")
-    tile.add_argument("--seed", type=int, default=0, help="seed of the random placement")
-    tile.add_argument("--separate", action="store_true", help="also write each instance to its own file")
-    tile.set_defaults(func=_tile_cmd)
+def build_parser(commands: list[Command] | None = None) -> argparse.ArgumentParser:
+    """The `voxax` argument parser with one subparser per entry of `commands` (default
+    `COMMANDS`); each subparser's `run` default is the command's `run`."""
+    parser = _Parser(prog="voxax", description="Exact differentiable voxelization for JAX.")
+    parser.add_argument("--traceback", action="store_true",
+                        help="on an error, show the Python traceback instead of a one-line message")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
+                                help="the command to run (see 'voxax COMMAND --help')")
+    for command in COMMANDS if commands is None else commands:
+        p = sub.add_parser(command.name, help=command.help, description=command.description or command.help)
+        command.add_arguments(p)
+        p.set_defaults(run=command.run)
     return parser
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    return args.func(args)
+def _one_line(err: BaseException) -> str:
+    if isinstance(err, OSError) and err.strerror:
+        return f"{err.strerror}: {err.filename!r}" if err.filename else err.strerror
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if isinstance(err, (UsageError, ValueError)) else f"{type(err).__name__}: {text}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs `voxax` with `argv` (default `sys.argv[1:]`) and returns the exit status:
+    0 on success, 1 when a command reports failure (e.g. overlaps remain), 2 for a
+    mistake in the input (after a one-line message on stderr), 130 on Ctrl-C."""
+    global _prog
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser()
+    _prog = "voxax"
+    command_at = next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))
+    show_traceback = "--traceback" in argv[:command_at]  # an option of `voxax` itself
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            args, extra = parser.parse_known_args(argv)
+            _prog = f"voxax {args.command}"
+            if extra:
+                raise UsageError(f"unrecognized arguments: {' '.join(extra)} (see '{_prog} --help')")
+            return int(args.run(args))
+    except (UsageError, ValueError, TypeError, OSError, MemoryError) as err:
+        if show_traceback:
+            raise
+        print(f"{getattr(err, 'prog', _prog)}: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{_prog}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -14,8 +14,11 @@ unless a backend has been chosen already, so they work on headless machines; cal
 - [`mesh`][voxax.plot.mesh]: a triangle mesh (or 2D polyline) coloured by a per-vertex or
   per-face quantity, e.g. the displacement from the input of an optimization.
 - [`gradient_field`][voxax.plot.gradient_field]: per-vertex gradients as arrows.
+- [`projections`][voxax.plot.projections]: the maximum of one or more 3D grids along x, y
+  and z (e.g. before and after an optimization).
 - [`history`][voxax.plot.history]: the energy history of `voxax.minimize` or an app report.
 - [`mesh_plotly`][voxax.plot.mesh_plotly]: an interactive plotly rendering of a mesh.
+- [`pyplot`][voxax.plot.pyplot]: `matplotlib.pyplot`, with the backend chosen as above.
 """
 
 from __future__ import annotations
@@ -24,14 +27,32 @@ from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["slices", "silhouettes", "mesh", "gradient_field", "history", "mesh_plotly"]
+from . import _validate
+from ._optional import require
+
+__all__ = ["slices", "silhouettes", "projections", "mesh", "gradient_field", "history", "mesh_plotly", "pyplot"]
 
 _NAMES = "xyz"
 
 
-def _pyplot():
-    """matplotlib.pyplot, with the Agg backend outside IPython unless one was chosen."""
-    import matplotlib
+def pyplot():
+    """`matplotlib.pyplot`, switched to the non-interactive `Agg` backend outside IPython
+    unless a backend has been chosen already.
+
+    Every figure of voxax is drawn through it, so figures can be made on headless
+    machines; close them with `pyplot().close(fig)` when making many.
+
+    **Returns:** the `matplotlib.pyplot` module.
+
+    **Example:**
+
+    ```python
+    >>> plt = voxax.plot.pyplot()
+    >>> fig = voxax.plot.history([3.0, 2.0, 1.0])
+    >>> plt.close(fig)
+    ```
+    """
+    matplotlib = require("matplotlib", "voxax.plot")
 
     if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
         try:
@@ -118,7 +139,7 @@ def slices(
     4
     ```
     """
-    plt = _pyplot()
+    plt = pyplot()
     W = np.asarray(W, dtype=np.float64)
     if W.ndim not in (2, 3):
         raise ValueError(f"slices: expected a 2D or 3D grid, got shape {W.shape}")
@@ -205,7 +226,7 @@ def silhouettes(
     ['along x', 'along y', 'along z']
     ```
     """
-    plt = _pyplot()
+    plt = pyplot()
     W = np.asarray(W)
     if W.ndim != 3:
         raise ValueError(f"silhouettes: expected a 3D grid (nx, ny, nz), got shape {W.shape}")
@@ -236,24 +257,83 @@ def silhouettes(
     return _finish(fig, title, path)
 
 
+def projections(
+    grids,
+    grid=None,
+    *,
+    labels=None,
+    title: str | None = None,
+    path=None,
+    cmap: str = "magma",
+    vmax: float | None = None,
+):
+    """Draws the maximum of one or more 3D grids along x, y and z: one row per grid.
+
+    Made to compare grids, e.g. the winding numbers before and after removing
+    self-intersections: every panel shares one colour range `[0, vmax]`, by default the
+    largest value of all grids but at least 1, so values above 1 (overlaps) stand out.
+
+    **Arguments:**
+
+    - `grids`: one `(nx, ny, nz)` array, or a sequence of them (all the same shape).
+    - `grid`: the `voxax.Grid` of the arrays, for axis extents in world units (optional).
+    - `labels`: one name per array for the panel titles (default `"0"`, `"1"`, ...).
+    - `title`, `path`, `cmap`: as for `slices`.
+    - `vmax`: the colour range's upper limit.
+
+    **Returns:**
+
+    The matplotlib `Figure`: three image axes per grid (max along x, y, z, titled with the
+    label and the largest value) and a colour bar.
+
+    **Example:**
+
+    ```python
+    >>> m, grid = voxax.data.overlapping_cubes(), voxax.Grid.cube(16)
+    >>> W = voxax.voxelize(m.vertices, m.faces, grid)
+    >>> fig = voxax.plot.projections([W, W.clip(0, 1)], grid, labels=["before", "after"])
+    >>> fig.axes[3].get_title()
+    'after: max of W along x (1.000)'
+    ```
+    """
+    plt = pyplot()
+    if isinstance(grids, (list, tuple)):
+        Ws = [np.asarray(W, dtype=np.float64) for W in grids]
+    else:
+        Ws = [np.asarray(grids, dtype=np.float64)]
+    if not Ws or any(W.ndim != 3 for W in Ws):
+        raise ValueError(f"projections: expected 3D grids (nx, ny, nz), got shapes {[W.shape for W in Ws]}")
+    if len({W.shape for W in Ws}) != 1:
+        raise ValueError(f"projections: the grids differ in shape: {[W.shape for W in Ws]}")
+    if grid is not None and tuple(grid.shape) != Ws[0].shape:
+        raise ValueError(f"projections: W has shape {Ws[0].shape} but the grid has shape {tuple(grid.shape)}")
+    labels = [str(i) for i in range(len(Ws))] if labels is None else [str(x) for x in labels]
+    if len(labels) != len(Ws):
+        raise ValueError(f"projections: {len(labels)} labels for {len(Ws)} grids")
+    top = float(vmax) if vmax is not None else max(max(float(np.nanmax(W)), 1.0) for W in Ws)
+    fig, axes = plt.subplots(len(Ws), 3, figsize=(10.5, 3.3 * len(Ws)), squeeze=False, layout="constrained")
+    im = None
+    for r, (W, label) in enumerate(zip(Ws, labels)):
+        for a in range(3):
+            a0, a1 = (b for b in range(3) if b != a)
+            ax = axes[r, a]
+            im = ax.imshow(W.max(axis=a).T, origin="lower", cmap=cmap, vmin=0.0, vmax=top,
+                           extent=_extent(grid, a0, a1), interpolation="nearest")
+            ax.set_title(f"{label}: max of W along {_NAMES[a]} ({W.max():.3f})", fontsize=9)
+            ax.set_xlabel(_NAMES[a0])
+            ax.set_ylabel(_NAMES[a1])
+    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8)
+    return _finish(fig, title, path, dpi=100)
+
+
 # --------------------------------------------------------------------------------------
 # Meshes
 # --------------------------------------------------------------------------------------
 
 
-def _mesh_arrays(vertices, faces):
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] not in (2, 3):
-        raise ValueError(f"expected vertices of shape (V, 3) or (V, 2), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != v.shape[1]:
-        kind = "triangles (F, 3)" if v.shape[1] == 3 else "segments (F, 2)"
-        raise ValueError(f"{v.shape[1]}D vertices need faces as {kind}, got faces of shape {f.shape}")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise TypeError(f"faces must be an integer array, got dtype {f.dtype}")
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    return v, f.astype(np.int64)
+def _mesh_arrays(vertices, faces, where):
+    v, f = _validate.mesh(where, vertices, faces, integer_vertices=True, finite=False)
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
 def _face_values(values, n_vertices: int, faces: np.ndarray):
@@ -363,8 +443,8 @@ def mesh(
     """
     import matplotlib.colors as mcolors
 
-    plt = _pyplot()
-    v, f = _mesh_arrays(vertices, faces)
+    plt = pyplot()
+    v, f = _mesh_arrays(vertices, faces, "mesh")
     dim = v.shape[1]
     fig, ax = _new_axes(plt, dim, ax)
     face_q = None
@@ -465,8 +545,8 @@ def gradient_field(
     >>> fig = voxax.plot.gradient_field(c.vertices, c.faces, g, voxax.voxelize(c.vertices, c.faces, grid), grid)
     ```
     """
-    plt = _pyplot()
-    v, f = _mesh_arrays(vertices, faces)
+    plt = pyplot()
+    v, f = _mesh_arrays(vertices, faces, "gradient_field")
     g = np.asarray(gradient, dtype=np.float64)
     if g.shape != v.shape:
         raise ValueError(f"gradient_field: gradient must have the vertices' shape {v.shape}, got {g.shape}")
@@ -585,7 +665,7 @@ def history(
     ['energy', 'step_size']
     ```
     """
-    plt = _pyplot()
+    plt = pyplot()
     series = _history_series(result_or_history)
     if x not in ("step", "time"):
         raise ValueError(f"history: x must be 'step' or 'time', got {x!r}")
@@ -680,7 +760,7 @@ def mesh_plotly(
             "`pip install \"voxax[plot]\"` (or `pip install plotly`), or use voxax.plot.mesh for "
             "a matplotlib rendering"
         ) from err
-    v, f = _mesh_arrays(vertices, faces)
+    v, f = _mesh_arrays(vertices, faces, "mesh_plotly")
     if v.shape[1] != 3:
         raise ValueError("mesh_plotly: needs a 3D triangle mesh; use voxax.plot.mesh for 2D polylines")
     kwargs = {}

@@ -1,4 +1,4 @@
-"""Shared pieces of the applications: mesh input, normalization, reports, plotting."""
+"""Shared pieces of the applications: mesh input, normalization, reports."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
-from .._optional import require
 from .._values import ValueEquality
 from .._mesh import Mesh
 from .._grid import Grid
@@ -147,7 +146,8 @@ class Report(ValueEquality):
     def plot_history(self, path=None, title: str | None = None):
         """Plots every recorded series (energy terms, `max_w`, step size) against the step.
 
-        One panel per series; series spanning more than two decades get a log scale.
+        One panel per series; series spanning more than two decades get a log scale (drawn
+        by [`voxax.plot.history`][voxax.plot.history]).
 
         **Arguments:**
 
@@ -156,44 +156,10 @@ class Report(ValueEquality):
 
         **Returns:** the matplotlib `Figure`.
         """
-        plt = pyplot()
-        series = {"energy": np.asarray(self.energy_history)}
-        series.update({k: v for k, v in self.history.items() if k not in ("energy", "time")})
-        series = {k: np.asarray(v, dtype=np.float64).reshape(-1) for k, v in series.items() if np.size(v)}
-        n = max(len(series), 1)
-        fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.6 * n + 0.8), sharex=True, squeeze=False)
-        for ax, (name, values) in zip(axes[:, 0], series.items()):
-            steps = np.arange(1, values.size + 1)
-            ax.plot(steps, values, lw=1.2)
-            finite = values[np.isfinite(values)]
-            if finite.size and finite.min() > 0 and finite.max() / finite.min() > 100:
-                ax.set_yscale("log")
-                ax.set_ylim(bottom=max(finite.min(), finite.max() * 1e-6) * 0.8)
-            ax.set_ylabel(name, fontsize="small")
-            ax.grid(alpha=0.3)
-        axes[-1, 0].set_xlabel("step")
-        fig.suptitle(title or f"{type(self).__name__}: {self.steps} steps ({self.stop_reason})")
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=110)
-        return fig
+        from .. import plot
 
-
-def pyplot():
-    """matplotlib.pyplot with a non-interactive backend unless one is already in use."""
-    matplotlib = require("matplotlib", "plotting")
-
-    if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
-        try:
-            import IPython  # noqa: F401
-
-            if IPython.get_ipython() is None:
-                matplotlib.use("Agg")
-        except ImportError:
-            matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+        return plot.history(self, title=title or f"{type(self).__name__}: {self.steps} steps ({self.stop_reason})",
+                            path=path)
 
 
 def to_jax(x, dtype):
