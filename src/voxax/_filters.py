@@ -238,7 +238,7 @@ def _unravel(flat, shape):
     return jnp.stack(idx[::-1], axis=-1)
 
 
-def mc_forward(vertices, faces, key, st: "MCSettings"):
+def mc_forward(vertices, faces, key, st: MCSettings):
     """Monte Carlo estimate of the filtered winding numbers of one mesh (the forward pass)."""
     grid, kernel = st.grid, st.kernel
     d = grid.dim
@@ -330,7 +330,7 @@ def _stencil_weights(x, st: MCSettings):
     return jnp.broadcast_to(flat, full).reshape(lead + (K,)), weight.reshape(lead + (K,))
 
 
-def kernel_gather(g, x, st: "MCSettings"):
+def kernel_gather(g, x, st: MCSettings):
     """G(x) = sum_b g[b] k(x - c_b) for points `x` (..., d): the kernel-weighted cotangent."""
     flat, weight = _stencil_weights(x, st)
     return jnp.sum(g.reshape(-1)[flat] * weight, axis=-1)
@@ -381,7 +381,7 @@ def _surface_samples(vertices, faces, fidx, key, S):
 
 
 def _backward(vertices, faces, key, g, st: MCSettings):
-    grid, kernel = st.grid, st.kernel
+    grid = st.grid
     d = grid.dim
     S = st.surface_samples
     bkey = jax.random.fold_in(key, 1)
@@ -399,7 +399,7 @@ def _backward(vertices, faces, key, g, st: MCSettings):
 
 
 def _tangent(vertices, faces, key, tangent, st: MCSettings):
-    grid, kernel = st.grid, st.kernel
+    grid = st.grid
     S = st.surface_samples
     bkey = jax.random.fold_in(key, 1)
     tangent = tangent.astype(vertices.dtype)

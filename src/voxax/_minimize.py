@@ -432,7 +432,8 @@ def minimize(
             info = _info(state.value, state.aux, step_size_fn(y_new, y), jnp.array(True), done, state.failed_linesearch)
             return y_new, state, info, jnp.array(0)
 
-        failure = lambda result: "the line search failed"  # noqa: E731
+        def failure(result):
+            return "the line search failed"
 
     else:
         if isinstance(solver, str):
@@ -453,7 +454,8 @@ def minimize(
             failed = done & (result != optx.RESULTS.successful)
             return y_new, new_state, _info(energy, aux, step_size, accepted, done, failed), result
 
-        failure = lambda result: str(optx.RESULTS[result])  # noqa: E731
+        def failure(result):
+            return str(optx.RESULTS[result])
 
     if jit:
         _init = eqx.filter_jit(_init)
