@@ -381,7 +381,7 @@ def _surface_samples(vertices, faces, fidx, key, S):
 
 
 def _backward(vertices, faces, key, g, st: MCSettings):
-    grid, kernel = st.grid, st.kernel
+    grid = st.grid
     d = grid.dim
     S = st.surface_samples
     bkey = jax.random.fold_in(key, 1)
@@ -399,7 +399,7 @@ def _backward(vertices, faces, key, g, st: MCSettings):
 
 
 def _tangent(vertices, faces, key, tangent, st: MCSettings):
-    grid, kernel = st.grid, st.kernel
+    grid = st.grid
     S = st.surface_samples
     bkey = jax.random.fold_in(key, 1)
     tangent = tangent.astype(vertices.dtype)

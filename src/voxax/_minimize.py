@@ -331,7 +331,7 @@ def minimize(
     - `learning_rate`: for `"adam"` / `"sgd"`.
     - `stop`: a `StopRules`.
     - `has_aux`: whether `fn` returns `(scalar, aux)`.
-    - `progress`: show a tqdm progress bar (energy and max W as postfix).
+    - `progress`: show a progress bar (energy and max W as postfix).
     - `callback`: `callback(step, y, info) -> bool | None`, called after every step
       (before the stopping rules are checked) with the number of steps taken so far (1
       after the first), the new iterate, and a dict of floats: this step's history
@@ -433,7 +433,8 @@ def minimize(
             info = _info(state.value, state.aux, step_size_fn(y_new, y), jnp.array(True), done, state.failed_linesearch)
             return y_new, state, info, jnp.array(0)
 
-        failure = lambda result: "the line search failed"  # noqa: E731
+        def failure(result):
+            return "the line search failed"
 
     else:
         if isinstance(solver, str):
@@ -454,7 +455,8 @@ def minimize(
             failed = done & (result != optx.RESULTS.successful)
             return y_new, new_state, _info(energy, aux, step_size, accepted, done, failed), result
 
-        failure = lambda result: str(optx.RESULTS[result])  # noqa: E731
+        def failure(result):
+            return str(optx.RESULTS[result])
 
     if jit:
         _init = eqx.filter_jit(_init)

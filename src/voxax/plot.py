@@ -27,6 +27,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from . import _validate
 from ._optional import require
 
 __all__ = ["slices", "silhouettes", "projections", "mesh", "gradient_field", "history", "mesh_plotly", "pyplot"]
@@ -330,19 +331,9 @@ def projections(
 # --------------------------------------------------------------------------------------
 
 
-def _mesh_arrays(vertices, faces):
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] not in (2, 3):
-        raise ValueError(f"expected vertices of shape (V, 3) or (V, 2), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != v.shape[1]:
-        kind = "triangles (F, 3)" if v.shape[1] == 3 else "segments (F, 2)"
-        raise ValueError(f"{v.shape[1]}D vertices need faces as {kind}, got faces of shape {f.shape}")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise TypeError(f"faces must be an integer array, got dtype {f.dtype}")
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    return v, f.astype(np.int64)
+def _mesh_arrays(vertices, faces, where):
+    v, f = _validate.mesh(where, vertices, faces, integer_vertices=True, finite=False)
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
 def _face_values(values, n_vertices: int, faces: np.ndarray):
@@ -453,7 +444,7 @@ def mesh(
     import matplotlib.colors as mcolors
 
     plt = pyplot()
-    v, f = _mesh_arrays(vertices, faces)
+    v, f = _mesh_arrays(vertices, faces, "mesh")
     dim = v.shape[1]
     fig, ax = _new_axes(plt, dim, ax)
     face_q = None
@@ -555,7 +546,7 @@ def gradient_field(
     ```
     """
     plt = pyplot()
-    v, f = _mesh_arrays(vertices, faces)
+    v, f = _mesh_arrays(vertices, faces, "gradient_field")
     g = np.asarray(gradient, dtype=np.float64)
     if g.shape != v.shape:
         raise ValueError(f"gradient_field: gradient must have the vertices' shape {v.shape}, got {g.shape}")
@@ -769,7 +760,7 @@ def mesh_plotly(
             "`pip install \"voxax[plot]\"` (or `pip install plotly`), or use voxax.plot.mesh for "
             "a matplotlib rendering"
         ) from err
-    v, f = _mesh_arrays(vertices, faces)
+    v, f = _mesh_arrays(vertices, faces, "mesh_plotly")
     if v.shape[1] != 3:
         raise ValueError("mesh_plotly: needs a 3D triangle mesh; use voxax.plot.mesh for 2D polylines")
     kwargs = {}
