@@ -81,7 +81,7 @@ def main(argv=None):
                 mesh = voxax.data.large()
                 f = np.asarray(voxax.voxelize(mesh.vertices.astype(np.float32), mesh.faces, grid))
                 level, inside = 0.5, "above"
-            f = np.ascontiguousarray(f, np.float32)
+            f = np.array(f, np.float32, order="C", copy=True)  # writeable: scikit-image needs it
             e, fc = host_topology(f, level)
             v_sk, f_sk, _, _ = marching_cubes(f, level, allow_degenerate=False)
             v_mc, f_mc = mcubes.marching_cubes(f, level)

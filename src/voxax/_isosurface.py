@@ -148,7 +148,7 @@ def _check_values(values, grid: Grid, name: str):
         values = np.asarray(values)
     dtype = np.dtype(values.dtype)
     if dtype.kind in "iub":
-        values = jnp.asarray(values, dtype=jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+        values = np.asarray(values, dtype=np.float64 if jax.config.jax_enable_x64 else np.float32)
     elif dtype not in (np.float32, np.float64):
         raise TypeError(f"{name}: `values` must be a real float array, got dtype {dtype}")
     d = grid.dim
@@ -157,7 +157,11 @@ def _check_values(values, grid: Grid, name: str):
             f"{name}: `values` must have shape (..., {', '.join(map(str, grid.shape))}) to match the grid, "
             f"got {tuple(values.shape)}"
         )
-    return jnp.asarray(values) if not isinstance(values, jax.Array) else values
+    if isinstance(values, (jax.Array, np.ndarray)):
+        if isinstance(values, np.ndarray) and values.dtype == np.float64 and not jax.config.jax_enable_x64:
+            values = values.astype(np.float32)
+        return values  # NumPy input stays NumPy on the eager path (no device copies)
+    return jnp.asarray(values)
 
 
 def _check_level(level, name):
@@ -204,6 +208,21 @@ def _pad(values, grid: Grid, level: float, inside: str, close):
     """Pads the field with one layer of an outside value; returns (values, grid)."""
     d = grid.dim
     outward = 1.0 if inside == "below" else -1.0
+    if isinstance(values, np.ndarray):
+        if close is True:
+            span = np.max(np.abs(values.astype(np.float64) - level), axis=tuple(range(values.ndim - d, values.ndim)))
+            pad = level + outward * np.where(span > 0, span, 1.0)
+        else:
+            pad = float(close)
+            ok = pad > level if inside == "below" else pad < level
+            if not np.isfinite(pad) or not ok:
+                side = "above" if inside == "below" else "below"
+                raise ValueError(f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}")
+        pad = np.broadcast_to(np.asarray(pad, values.dtype), values.shape[: values.ndim - d])
+        out = np.empty(values.shape[: values.ndim - d] + tuple(n + 2 for n in grid.shape), values.dtype)
+        out[...] = pad.reshape(pad.shape + (1,) * d)
+        out[(Ellipsis,) + (slice(1, -1),) * d] = values
+        return out, _padded(grid)
     if close is True:
         g = jax.lax.stop_gradient(values) - level
         span = jnp.max(jnp.abs(g), axis=tuple(range(values.ndim - d, values.ndim)), keepdims=True)
@@ -243,10 +262,16 @@ def _cell_points(idx, grid: Grid):
 def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
     """Vertex positions and the conditioning figure; differentiable in `values`."""
     ft = _float()
-    flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,)).astype(ft)
+    if isinstance(values, np.ndarray) and not isinstance(edges, jax.core.Tracer):
+        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))  # a view
+        e = np.asarray(edges)
+        fa = jnp.asarray(np.take_along_axis(flat, e[..., 0], axis=-1), ft)
+        fb = jnp.asarray(np.take_along_axis(flat, e[..., 1], axis=-1), ft)
+    else:
+        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))
+        fa = jnp.take_along_axis(flat, edges[..., 0], axis=-1).astype(ft)
+        fb = jnp.take_along_axis(flat, edges[..., 1], axis=-1).astype(ft)
     ia, ib = edges[..., 0], edges[..., 1]
-    fa = jnp.take_along_axis(flat, ia, axis=-1)
-    fb = jnp.take_along_axis(flat, ib, axis=-1)
     valid = jnp.arange(edges.shape[-2]) < n_vertices[..., None]
     gap = fb - fa
     safe = jnp.where(valid, gap, 1.0)
@@ -388,7 +413,7 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
                 RuntimeWarning,
                 stacklevel=2,
             )
-        edges = jnp.asarray(edges.reshape(batch + edges.shape))
+        edges = edges.reshape(batch + edges.shape)
         faces = jnp.asarray(faces.reshape(batch + faces.shape))
         nv = jnp.full(batch, edges.shape[-2], jnp.int32)
         nf = jnp.full(batch, faces.shape[-2], jnp.int32)
@@ -409,7 +434,7 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
     if inside == "above":
         faces = faces[..., ::-1] if d == 2 else faces[..., jnp.array([0, 2, 1])]
     vertices, min_gap = _interpolate(values, edges, nv, grid, level)
-    return IsoMesh(vertices, faces, edges, nv, nf, min_gap)
+    return IsoMesh(vertices, faces, jnp.asarray(edges), nv, nf, min_gap)
 
 
 # -- fields given as functions (MeshSDF) -----------------------------------------------------
