@@ -21,7 +21,13 @@ def test_mesh_from_voxelized_grid(tmp_path):
     grid = voxax.Grid.cube(24)
     ico = voxax.data.icosphere(3)
     W = np.asarray(voxax.voxelize(ico.vertices * 0.7, ico.faces, grid))
-    np.savez(tmp_path / "W.npz", W=W, lower=np.array(grid.lower), upper=np.array(grid.upper), shape=np.array(grid.shape))
+    np.savez(
+        tmp_path / "W.npz",
+        W=W,
+        lower=np.array(grid.lower),
+        upper=np.array(grid.upper),
+        shape=np.array(grid.shape),
+    )
     assert run([str(tmp_path / "W.npz"), "-o", str(tmp_path / "out.ply")]) == 0
     m = trimesh.load(tmp_path / "out.ply", process=False)
     assert m.is_watertight

@@ -27,11 +27,15 @@ def _sdf(name: str):
 
     def box(x):
         d = jnp.abs(x) - jnp.array([0.5, 0.4, 0.3])
-        return jnp.linalg.norm(jnp.maximum(d, 0), axis=-1) + jnp.minimum(jnp.max(d, axis=-1), 0)
+        return jnp.linalg.norm(jnp.maximum(d, 0), axis=-1) + jnp.minimum(
+            jnp.max(d, axis=-1), 0
+        )
 
     def gyroid(x):
         y = x * 3 * jnp.pi
-        g = jnp.sin(y[..., 0]) * jnp.cos(y[..., 1]) + jnp.sin(y[..., 1]) * jnp.cos(y[..., 2])
+        g = jnp.sin(y[..., 0]) * jnp.cos(y[..., 1]) + jnp.sin(y[..., 1]) * jnp.cos(
+            y[..., 2]
+        )
         g = g + jnp.sin(y[..., 2]) * jnp.cos(y[..., 0])
         return jnp.maximum(g / (3 * jnp.pi), jnp.linalg.norm(x, axis=-1) - 0.9)
 
@@ -76,11 +80,16 @@ def _mesh_cmd(args) -> int:
     iso = voxax.isosurface(values, grid, level, inside=inside, close=not args.open)
     mesh = iso.to_mesh()
     if mesh.n_faces == 0:
-        print("voxax mesh: the field does not cross the level; nothing written", file=sys.stderr)
+        print(
+            "voxax mesh: the field does not cross the level; nothing written",
+            file=sys.stderr,
+        )
         return 1
     voxax.io.save(mesh, args.output)
     extra = f", volume {mesh.signed_volume():.8g}" if mesh.dim == 3 else ""
-    print(f"wrote {args.output}: {mesh.n_vertices} vertices, {mesh.n_faces} faces{extra}")
+    print(
+        f"wrote {args.output}: {mesh.n_vertices} vertices, {mesh.n_faces} faces{extra}"
+    )
     return 0
 
 
@@ -91,15 +100,56 @@ def add_mesh_command(subparsers) -> argparse.ArgumentParser:
     `voxax voxelize` (`.npz` with `W`, `lower`, `upper`; or a plain `.npy` on `[-1, 1]^d`),
     `voxax mesh --sdf sphere -n 128 -o sphere.ply` meshes a built-in field.
     """
-    p = subparsers.add_parser("mesh", help="extract an iso-surface (marching cubes) from a grid or a built-in field")
-    p.add_argument("grid", nargs="?", help="a .npz (W, lower, upper) or .npy grid, e.g. from `voxax voxelize`")
-    p.add_argument("--sdf", choices=sorted(_SDFS), help="mesh a built-in field instead: " + "; ".join(f"{k}: {v}" for k, v in _SDFS.items()))
-    p.add_argument("--resolution", "-n", type=int, default=128, help="cells per axis for --sdf (grid [-1, 1]^3)")
-    p.add_argument("--level", type=float, default=None, help="iso-value (default 0.5 for grids, 0 for --sdf)")
-    p.add_argument("--inside", choices=["above", "below"], default="above", help="which side of the level is inside (grids)")
-    p.add_argument("--lower", type=float, nargs="+", help="override the grid's lower corner")
-    p.add_argument("--upper", type=float, nargs="+", help="override the grid's upper corner")
-    p.add_argument("--open", action="store_true", help="do not close surfaces at the grid's boundary")
-    p.add_argument("--output", "-o", default="mesh.ply", help="mesh file to write (any format trimesh writes)")
+    p = subparsers.add_parser(
+        "mesh",
+        help="extract an iso-surface (marching cubes) from a grid or a built-in field",
+    )
+    p.add_argument(
+        "grid",
+        nargs="?",
+        help="a .npz (W, lower, upper) or .npy grid, e.g. from `voxax voxelize`",
+    )
+    p.add_argument(
+        "--sdf",
+        choices=sorted(_SDFS),
+        help="mesh a built-in field instead: "
+        + "; ".join(f"{k}: {v}" for k, v in _SDFS.items()),
+    )
+    p.add_argument(
+        "--resolution",
+        "-n",
+        type=int,
+        default=128,
+        help="cells per axis for --sdf (grid [-1, 1]^3)",
+    )
+    p.add_argument(
+        "--level",
+        type=float,
+        default=None,
+        help="iso-value (default 0.5 for grids, 0 for --sdf)",
+    )
+    p.add_argument(
+        "--inside",
+        choices=["above", "below"],
+        default="above",
+        help="which side of the level is inside (grids)",
+    )
+    p.add_argument(
+        "--lower", type=float, nargs="+", help="override the grid's lower corner"
+    )
+    p.add_argument(
+        "--upper", type=float, nargs="+", help="override the grid's upper corner"
+    )
+    p.add_argument(
+        "--open",
+        action="store_true",
+        help="do not close surfaces at the grid's boundary",
+    )
+    p.add_argument(
+        "--output",
+        "-o",
+        default="mesh.ply",
+        help="mesh file to write (any format trimesh writes)",
+    )
     p.set_defaults(func=_mesh_cmd)
     return p
