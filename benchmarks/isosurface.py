@@ -53,7 +53,9 @@ def best_of(fn, repeats):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
-    ap.add_argument("--cases", nargs="+", default=["sphere", "large"], choices=["sphere", "large"])
+    ap.add_argument(
+        "--cases", nargs="+", default=["sphere", "large"], choices=["sphere", "large"]
+    )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--write-readme", action="store_true")
     args = ap.parse_args(argv)
@@ -75,13 +77,21 @@ def main(argv=None):
             if case == "sphere":
                 axes = [np.float32(-1 + (i + 0.5) * 2 / n) for i in range(n)]
                 x = np.asarray(axes, np.float32)
-                f = np.sqrt(x[:, None, None] ** 2 + x[None, :, None] ** 2 + x[None, None, :] ** 2) - np.float32(0.6)
+                f = np.sqrt(
+                    x[:, None, None] ** 2
+                    + x[None, :, None] ** 2
+                    + x[None, None, :] ** 2
+                ) - np.float32(0.6)
                 level, inside = 0.0, "below"
             else:
                 mesh = voxax.data.large()
-                f = np.asarray(voxax.voxelize(mesh.vertices.astype(np.float32), mesh.faces, grid))
+                f = np.asarray(
+                    voxax.voxelize(mesh.vertices.astype(np.float32), mesh.faces, grid)
+                )
                 level, inside = 0.5, "above"
-            f = np.ascontiguousarray(f, np.float32)
+            f = np.array(
+                f, np.float32, order="C", copy=True
+            )  # writeable: scikit-image needs it
             e, fc = host_topology(f, level)
             v_sk, f_sk, _, _ = marching_cubes(f, level, allow_degenerate=False)
             v_mc, f_mc = mcubes.marching_cubes(f, level)
@@ -91,13 +101,33 @@ def main(argv=None):
                 flush=True,
             )
             del v_sk, f_sk, v_mc, f_mc
-            t_kernel = best_of(lambda: host_topology(f, level), args.repeats)
-            t_iso = best_of(
-                lambda: voxax.isosurface(f, grid, level, inside=inside).vertices.block_until_ready(), args.repeats
+            t_kernel = best_of(
+                lambda f=f, level=level: host_topology(f, level), args.repeats
             )
-            t_sk = best_of(lambda: marching_cubes(f, level, allow_degenerate=False), args.repeats)
-            t_mc = best_of(lambda: mcubes.marching_cubes(f, level), args.repeats)
-            row = dict(case=case, n=n, faces=len(fc), kernel=t_kernel, iso=t_iso, skimage=t_sk, pymcubes=t_mc)
+            t_iso = best_of(
+                lambda f=f, grid=grid, level=level, inside=inside: voxax.isosurface(
+                    f, grid, level, inside=inside
+                ).vertices.block_until_ready(),
+                args.repeats,
+            )
+            t_sk = best_of(
+                lambda f=f, level=level: marching_cubes(
+                    f, level, allow_degenerate=False
+                ),
+                args.repeats,
+            )
+            t_mc = best_of(
+                lambda f=f, level=level: mcubes.marching_cubes(f, level), args.repeats
+            )
+            row = {
+                "case": case,
+                "n": n,
+                "faces": len(fc),
+                "kernel": t_kernel,
+                "iso": t_iso,
+                "skimage": t_sk,
+                "pymcubes": t_mc,
+            }
             rows.append(row)
             print(
                 f"  kernel {t_kernel:.3f} s, isosurface {t_iso:.3f} s, skimage {t_sk:.3f} s ({t_sk / t_iso:.1f}x), "
@@ -106,13 +136,15 @@ def main(argv=None):
             )
             del f
     table = [
-        "| case | grid | faces | voxax kernel | voxax isosurface | skimage / voxax | PyMCubes / voxax |",
-        "|---|---|---|---|---|---|---|",
+        "| case | grid | faces | voxax kernel | voxax isosurface | skimage / voxax | PyMCubes / voxax "
+        "| skimage / kernel |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         table.append(
             f"| {r['case']} | {r['n']}^3 | {r['faces']} | {r['kernel']:.3f} s | {r['iso']:.3f} s | "
-            f"{r['skimage'] / r['iso']:.1f}x | {r['pymcubes'] / r['iso']:.1f}x |"
+            f"{r['skimage'] / r['iso']:.1f}x | {r['pymcubes'] / r['iso']:.1f}x | "
+            f"{r['skimage'] / r['kernel']:.1f}x |"
         )
     machine = (
         f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
@@ -122,17 +154,31 @@ def main(argv=None):
     print(text)
     if args.write_readme:
         readme = Path(__file__).with_name("README.md")
-        start, end = "<!-- isosurface-results:start -->", "<!-- isosurface-results:end -->"
-        cmd = "python benchmarks/isosurface.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        start, end = (
+            "<!-- isosurface-results:start -->",
+            "<!-- isosurface-results:end -->",
+        )
+        cmd = "python benchmarks/isosurface.py " + " ".join(
+            argv if argv is not None else sys.argv[1:]
+        )
         body = f"{start}\n\nMachine: {machine}. Command: `{cmd}`. Best of {args.repeats}.\n\n{text}\n\n{end}"
         old = readme.read_text()
         if start in old:
-            new = re.sub(re.escape(start) + ".*?" + re.escape(end), lambda _: body, old, flags=re.S)
+            new = re.sub(
+                re.escape(start) + ".*?" + re.escape(end),
+                lambda _: body,
+                old,
+                flags=re.DOTALL,
+            )
         else:
-            new = old.rstrip() + "\n\n## Marching cubes: voxax vs scikit-image and PyMCubes\n\n" + (
-                "`isosurface.py` times `voxax.isosurface` (and its C++ kernel alone) against "
-                "`skimage.measure.marching_cubes` and `mcubes.marching_cubes` on float32 fields; "
-                "see its docstring for the cases.\n\n" + body + "\n"
+            new = (
+                old.rstrip()
+                + "\n\n## Marching cubes: voxax vs scikit-image and PyMCubes\n\n"
+                + (
+                    "`isosurface.py` times `voxax.isosurface` (and its C++ kernel alone) against "
+                    "`skimage.measure.marching_cubes` and `mcubes.marching_cubes` on float32 fields; "
+                    "see its docstring for the cases.\n\n" + body + "\n"
+                )
             )
         readme.write_text(new)
 

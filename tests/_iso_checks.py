@@ -10,7 +10,9 @@ def closed_report(vertices, faces) -> dict:
     V = len(vertices)
     F = np.asarray(faces, np.int64)
     report = {}
-    report["degenerate_indices"] = int(np.sum((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])))
+    report["degenerate_indices"] = int(
+        np.sum((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2]))
+    )
     key = np.sort(F, axis=1)
     key = (key[:, 0] * V + key[:, 1]) * V + key[:, 2]
     report["duplicate_faces"] = len(F) - len(np.unique(key))
@@ -20,7 +22,10 @@ def closed_report(vertices, faces) -> dict:
     report["repeated_directed_edges"] = len(code) - len(np.unique(code))
     report["unmatched_edges"] = int(np.sum(~np.isin(rev, code)))
     report["unreferenced_vertices"] = V - len(np.unique(F))
-    undirected = np.unique(np.minimum(directed[:, 0], directed[:, 1]) * V + np.maximum(directed[:, 0], directed[:, 1]))
+    undirected = np.unique(
+        np.minimum(directed[:, 0], directed[:, 1]) * V
+        + np.maximum(directed[:, 0], directed[:, 1])
+    )
     report["euler"] = V - len(undirected) + len(F)
     # Vertex manifoldness: rotating around vertex a moves from face (a, b, c) to the face
     # holding the directed edge (a, c). On a manifold every vertex has one such orbit.
@@ -37,7 +42,9 @@ def closed_report(vertices, faces) -> dict:
         target = a * V + c
         pos = np.searchsorted(sorted_codes, target)
         nxt = order[pos]  # edge index i * nf + f, which is also that face's corner at a
-        graph = coo_matrix((np.ones(len(a)), (np.arange(len(a)), nxt)), shape=(len(a), len(a)))
+        graph = coo_matrix(
+            (np.ones(len(a)), (np.arange(len(a)), nxt)), shape=(len(a), len(a))
+        )
         n_orbits = connected_components(graph, directed=True, connection="weak")[0]
         bad = n_orbits - len(np.unique(F))
     report["nonmanifold_vertices"] = bad
@@ -81,7 +88,11 @@ def brute_force_vertices(values, lower, spacing, level):
     pos = f >= level
     ids, pts = [], []
     centres = np.stack(
-        np.meshgrid(*[lower[a] + (np.arange(f.shape[a]) + 0.5) * spacing[a] for a in range(d)], indexing="ij"), -1
+        np.meshgrid(
+            *[lower[a] + (np.arange(f.shape[a]) + 0.5) * spacing[a] for a in range(d)],
+            indexing="ij",
+        ),
+        -1,
     )
     lin = np.arange(f.size).reshape(f.shape)
     for axis in range(d):

@@ -27,7 +27,13 @@ def sphere_grads():
     out = {}
     for name, fn in (("sdf", sphere), ("scaled", scaled_sphere)):
         for rule in ("meshsdf", "theorem1", "level_set", "interpolation"):
-            out[name, rule] = float(jax.grad(lambda r: mean_sq(voxax.isosurface_fn(fn, r, GRID, rule=rule)))(0.6))
+            out[name, rule] = float(
+                jax.grad(
+                    lambda r, fn=fn, rule=rule: mean_sq(
+                        voxax.isosurface_fn(fn, r, GRID, rule=rule)
+                    )
+                )(0.6)
+            )
     return out
 
 
@@ -39,7 +45,9 @@ def test_sphere_radius_gradient_field_rules(sphere_grads, rule):
 
 def test_interpolation_rule_is_the_discrete_derivative(sphere_grads):
     def loss(r):
-        return float(mean_sq(voxax.isosurface_fn(sphere, r, GRID, rule="interpolation")))
+        return float(
+            mean_sq(voxax.isosurface_fn(sphere, r, GRID, rule="interpolation"))
+        )
 
     eps = 1e-6
     fd = (loss(0.6 + eps) - loss(0.6 - eps)) / (2 * eps)
@@ -52,10 +60,18 @@ def test_interpolation_rule_is_the_discrete_derivative(sphere_grads):
 def test_scaled_sdf_shows_the_rules_differ(sphere_grads):
     # f = 3(|x| - r): |grad f| = 3. level_set and interpolation are unchanged, meshsdf scales
     # by |grad f| and Theorem 1 by |grad f|^2.
-    assert sphere_grads["scaled", "level_set"] == pytest.approx(sphere_grads["sdf", "level_set"], rel=1e-12)
-    assert sphere_grads["scaled", "interpolation"] == pytest.approx(sphere_grads["sdf", "interpolation"], rel=1e-9)
-    assert sphere_grads["scaled", "meshsdf"] == pytest.approx(3 * sphere_grads["sdf", "meshsdf"], rel=1e-12)
-    assert sphere_grads["scaled", "theorem1"] == pytest.approx(9 * sphere_grads["sdf", "theorem1"], rel=1e-12)
+    assert sphere_grads["scaled", "level_set"] == pytest.approx(
+        sphere_grads["sdf", "level_set"], rel=1e-12
+    )
+    assert sphere_grads["scaled", "interpolation"] == pytest.approx(
+        sphere_grads["sdf", "interpolation"], rel=1e-9
+    )
+    assert sphere_grads["scaled", "meshsdf"] == pytest.approx(
+        3 * sphere_grads["sdf", "meshsdf"], rel=1e-12
+    )
+    assert sphere_grads["scaled", "theorem1"] == pytest.approx(
+        9 * sphere_grads["sdf", "theorem1"], rel=1e-12
+    )
 
 
 @pytest.mark.parametrize("scale", [1.0, 2.5])
@@ -67,8 +83,16 @@ def test_uniform_shift_moves_vertices_along_the_rule(scale):
 
     v0 = np.asarray(voxax.isosurface_fn(fn, 0.0, grid).vertices)
     n = v0 / np.linalg.norm(v0, axis=1, keepdims=True)  # analytic unit normal
-    for rule, expected in (("meshsdf", -n), ("level_set", -n / scale), ("theorem1", -n * scale)):
-        _, dv = jax.jvp(lambda c: voxax.isosurface_fn(fn, c, grid, rule=rule).vertices, (0.0,), (1.0,))
+    for rule, expected in (
+        ("meshsdf", -n),
+        ("level_set", -n / scale),
+        ("theorem1", -n * scale),
+    ):
+        _, dv = jax.jvp(
+            lambda c, rule=rule: voxax.isosurface_fn(fn, c, grid, rule=rule).vertices,
+            (0.0,),
+            (1.0,),
+        )
         np.testing.assert_allclose(np.asarray(dv), expected, rtol=0, atol=1e-12)
 
 
@@ -79,7 +103,9 @@ def test_forward_values_are_the_marching_cubes_vertices():
     for rule in ("meshsdf", "interpolation"):
         iso = voxax.isosurface_fn(sphere, 0.5, grid, rule=rule)
         assert np.array_equal(np.asarray(iso.faces), np.asarray(ref.faces))
-        np.testing.assert_allclose(np.asarray(iso.vertices), np.asarray(ref.vertices), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(
+            np.asarray(iso.vertices), np.asarray(ref.vertices), rtol=0, atol=1e-15
+        )
 
 
 def test_jit_and_vmap_over_latents():
@@ -87,13 +113,20 @@ def test_jit_and_vmap_over_latents():
 
     def loss(r):
         iso = voxax.isosurface_fn(sphere, r, grid, capacity=1500)
-        w = (jnp.arange(iso.vertices.shape[0]) < iso.n_vertices).astype(iso.vertices.dtype)
+        w = (jnp.arange(iso.vertices.shape[0]) < iso.n_vertices).astype(
+            iso.vertices.dtype
+        )
         return jnp.sum(w * jnp.sum(iso.vertices**2, -1)) / iso.n_vertices
 
     radii = jnp.array([0.4, 0.5, 0.6])
     grads = jax.jit(jax.vmap(jax.grad(loss)))(radii)
     np.testing.assert_allclose(np.asarray(grads), 2 * np.asarray(radii), rtol=2e-2)
-    eager = [float(jax.grad(lambda r: mean_sq(voxax.isosurface_fn(sphere, r, grid)))(float(r))) for r in radii]
+    eager = [
+        float(
+            jax.grad(lambda r: mean_sq(voxax.isosurface_fn(sphere, r, grid)))(float(r))
+        )
+        for r in radii
+    ]
     np.testing.assert_allclose(np.asarray(grads), eager, rtol=1e-12)
 
 
@@ -108,7 +141,9 @@ def test_lipschitz_path_equals_dense_and_evaluates_less():
     fast3 = voxax.isosurface_fn(scaled_sphere, 0.6, grid, lipschitz=3.0)
     assert np.array_equal(np.asarray(fast3.faces), np.asarray(dense.faces))
     # two components, one small
-    two = lambda p, x: jnp.minimum(jnp.linalg.norm(x - 0.5, axis=-1) - 0.3, jnp.linalg.norm(x + 0.6, axis=-1) - p)
+    two = lambda p, x: jnp.minimum(
+        jnp.linalg.norm(x - 0.5, axis=-1) - 0.3, jnp.linalg.norm(x + 0.6, axis=-1) - p
+    )
     d2 = voxax.isosurface_fn(two, 0.06, grid)
     f2 = voxax.isosurface_fn(two, 0.06, grid, lipschitz=1.0)
     assert np.array_equal(np.asarray(f2.faces), np.asarray(d2.faces))
@@ -143,4 +178,10 @@ def test_bad_input():
     with pytest.raises(ValueError, match="band"):
         voxax.isosurface_fn(sphere, 0.5, grid, band=np.zeros((4, 4, 4)))
     with pytest.raises(TypeError, match="eager"):
-        jax.jit(lambda r: voxax.isosurface_fn(sphere, r, grid, lipschitz=1.0, capacity=100).vertices)(0.5)
+        jax.jit(
+            lambda r: (
+                voxax.isosurface_fn(
+                    sphere, r, grid, lipschitz=1.0, capacity=100
+                ).vertices
+            )
+        )(0.5)

@@ -14,7 +14,13 @@ import numpy as np
 from . import _ffi
 from ._grid import Grid
 
-__all__ = ["IsoMesh", "isosurface", "isosurface_fn", "isosurface_topology", "isosurface_vertices"]
+__all__ = [
+    "IsoMesh",
+    "isosurface",
+    "isosurface_fn",
+    "isosurface_topology",
+    "isosurface_vertices",
+]
 
 _INT32_MAX = np.iinfo(np.int32).max
 
@@ -52,7 +58,7 @@ class IsoMesh:
     n_faces: jax.Array
     min_gap: jax.Array
     samples: object = None
-    n_evaluated: object = dataclasses.field(default=None, metadata=dict(static=True))
+    n_evaluated: object = dataclasses.field(default=None, metadata={"static": True})
 
     def __iter__(self):
         yield self.vertices
@@ -91,8 +97,15 @@ def host_topology(values: np.ndarray, level: float, threads: int | None = None):
     err = ctypes.create_string_buffer(512)
     lib.voxax_mc_count.restype = ctypes.c_int
     lib.voxax_mc_count.argtypes = [
-        ctypes.c_void_p, ctypes.c_int, ctypes.c_int, ctypes.POINTER(ctypes.c_int64), ctypes.c_double,
-        ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int64), ctypes.c_char_p,
+        ctypes.c_void_p,
+        ctypes.c_int,
+        ctypes.c_int,
+        ctypes.POINTER(ctypes.c_int64),
+        ctypes.c_double,
+        ctypes.c_int,
+        ctypes.POINTER(ctypes.c_void_p),
+        ctypes.POINTER(ctypes.c_int64),
+        ctypes.c_char_p,
         ctypes.c_int64,
     ]
     lib.voxax_mc_fill.restype = ctypes.c_int
@@ -100,7 +113,16 @@ def host_topology(values: np.ndarray, level: float, threads: int | None = None):
     lib.voxax_mc_release.restype = None
     lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
     rc = lib.voxax_mc_count(
-        values.ctypes.data, dtype, dim, shape, float(level), threads or _threads(), ctypes.byref(ctx), counts, err, 512
+        values.ctypes.data,
+        dtype,
+        dim,
+        shape,
+        float(level),
+        threads or _threads(),
+        ctypes.byref(ctx),
+        counts,
+        err,
+        512,
     )
     if rc != 0:
         msg = err.value.decode(errors="replace")
@@ -143,28 +165,44 @@ def _concrete(x):
 
 def _check_values(values, grid: Grid, name: str):
     if not isinstance(grid, Grid):
-        raise TypeError(f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(
+            f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
+        )
     if not hasattr(values, "dtype"):
         values = np.asarray(values)
     dtype = np.dtype(values.dtype)
     if dtype.kind in "iub":
-        values = jnp.asarray(values, dtype=jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+        values = np.asarray(
+            values, dtype=np.float64 if jax.config.jax_enable_x64 else np.float32
+        )
     elif dtype not in (np.float32, np.float64):
-        raise TypeError(f"{name}: `values` must be a real float array, got dtype {dtype}")
+        raise TypeError(
+            f"{name}: `values` must be a real float array, got dtype {dtype}"
+        )
     d = grid.dim
     if values.ndim < d or tuple(values.shape[values.ndim - d :]) != grid.shape:
         raise ValueError(
             f"{name}: `values` must have shape (..., {', '.join(map(str, grid.shape))}) to match the grid, "
             f"got {tuple(values.shape)}"
         )
-    return jnp.asarray(values) if not isinstance(values, jax.Array) else values
+    if isinstance(values, (jax.Array, np.ndarray)):
+        if (
+            isinstance(values, np.ndarray)
+            and values.dtype == np.float64
+            and not jax.config.jax_enable_x64
+        ):
+            values = values.astype(np.float32)
+        return values  # NumPy input stays NumPy on the eager path (no device copies)
+    return jnp.asarray(values)
 
 
 def _check_level(level, name):
     try:
         level = float(level)
     except (TypeError, jax.errors.ConcretizationTypeError):
-        raise TypeError(f"{name}: `level` must be a Python number (it is static under jit), got {level!r}") from None
+        raise TypeError(
+            f"{name}: `level` must be a Python number (it is static under jit), got {level!r}"
+        ) from None
     if not np.isfinite(level):
         raise ValueError(f"{name}: `level` must be finite, got {level}")
     return level
@@ -185,9 +223,13 @@ def _capacities(capacity, name):
         try:
             vcap, fcap = (int(c) for c in capacity)
         except (TypeError, ValueError):
-            raise TypeError(f"{name}: `capacity` must be an int or a (vertices, faces) pair, got {capacity!r}") from None
+            raise TypeError(
+                f"{name}: `capacity` must be an int or a (vertices, faces) pair, got {capacity!r}"
+            ) from None
     if not (1 <= vcap <= _INT32_MAX and 1 <= fcap <= _INT32_MAX):
-        raise ValueError(f"{name}: capacities must lie in [1, 2^31 - 1], got {(vcap, fcap)}")
+        raise ValueError(
+            f"{name}: capacities must lie in [1, 2^31 - 1], got {(vcap, fcap)}"
+        )
     return vcap, fcap
 
 
@@ -204,18 +246,49 @@ def _pad(values, grid: Grid, level: float, inside: str, close):
     """Pads the field with one layer of an outside value; returns (values, grid)."""
     d = grid.dim
     outward = 1.0 if inside == "below" else -1.0
+    if isinstance(values, np.ndarray):
+        if close is True:
+            span = np.max(
+                np.abs(values.astype(np.float64) - level),
+                axis=tuple(range(values.ndim - d, values.ndim)),
+            )
+            pad = level + outward * np.where(span > 0, span, 1.0)
+        else:
+            pad = float(close)
+            ok = pad > level if inside == "below" else pad < level
+            if not np.isfinite(pad) or not ok:
+                side = "above" if inside == "below" else "below"
+                raise ValueError(
+                    f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+                )
+        pad = np.broadcast_to(
+            np.asarray(pad, values.dtype), values.shape[: values.ndim - d]
+        )
+        out = np.empty(
+            values.shape[: values.ndim - d] + tuple(n + 2 for n in grid.shape),
+            values.dtype,
+        )
+        out[...] = pad.reshape(pad.shape + (1,) * d)
+        out[(Ellipsis,) + (slice(1, -1),) * d] = values
+        return out, _padded(grid)
     if close is True:
         g = jax.lax.stop_gradient(values) - level
-        span = jnp.max(jnp.abs(g), axis=tuple(range(values.ndim - d, values.ndim)), keepdims=True)
+        span = jnp.max(
+            jnp.abs(g), axis=tuple(range(values.ndim - d, values.ndim)), keepdims=True
+        )
         pad = level + outward * jnp.where(span > 0, span, 1.0)
     else:
         pad = float(close)
         ok = pad > level if inside == "below" else pad < level
         if not np.isfinite(pad) or not ok:
             side = "above" if inside == "below" else "below"
-            raise ValueError(f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}")
+            raise ValueError(
+                f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+            )
         pad = jnp.full((1,) * values.ndim, pad, values.dtype)
-    pad = jnp.broadcast_to(pad.astype(values.dtype), values.shape[: values.ndim - d] + (1,) * d)
+    pad = jnp.broadcast_to(
+        pad.astype(values.dtype), values.shape[: values.ndim - d] + (1,) * d
+    )
     widths = [(0, 0)] * (values.ndim - d) + [(1, 1)] * d
     # Pad with zeros, then fill the border with the pad value (traced values are allowed).
     out = jnp.pad(values, widths)
@@ -243,10 +316,16 @@ def _cell_points(idx, grid: Grid):
 def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
     """Vertex positions and the conditioning figure; differentiable in `values`."""
     ft = _float()
-    flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,)).astype(ft)
+    if isinstance(values, np.ndarray) and not isinstance(edges, jax.core.Tracer):
+        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))  # a view
+        e = np.asarray(edges)
+        fa = jnp.asarray(np.take_along_axis(flat, e[..., 0], axis=-1), ft)
+        fb = jnp.asarray(np.take_along_axis(flat, e[..., 1], axis=-1), ft)
+    else:
+        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))
+        fa = jnp.take_along_axis(flat, edges[..., 0], axis=-1).astype(ft)
+        fb = jnp.take_along_axis(flat, edges[..., 1], axis=-1).astype(ft)
     ia, ib = edges[..., 0], edges[..., 1]
-    fa = jnp.take_along_axis(flat, ia, axis=-1)
-    fb = jnp.take_along_axis(flat, ib, axis=-1)
     valid = jnp.arange(edges.shape[-2]) < n_vertices[..., None]
     gap = fb - fa
     safe = jnp.where(valid, gap, 1.0)
@@ -254,11 +333,23 @@ def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
     pa, pb = _cell_points(ia, grid), _cell_points(ib, grid)
     v = pa + t[..., None] * (pb - pa)
     v = jnp.where(valid[..., None], v, 0.0)
-    min_gap = jnp.min(jnp.where(valid, jnp.abs(jax.lax.stop_gradient(gap)), jnp.inf), axis=-1, initial=jnp.inf)
+    min_gap = jnp.min(
+        jnp.where(valid, jnp.abs(jax.lax.stop_gradient(gap)), jnp.inf),
+        axis=-1,
+        initial=jnp.inf,
+    )
     return v, min_gap
 
 
-def isosurface_vertices(values, topology: IsoMesh, grid: Grid, level: float = 0.0, *, close=False, inside="below"):
+def isosurface_vertices(
+    values,
+    topology: IsoMesh,
+    grid: Grid,
+    level: float = 0.0,
+    *,
+    close=False,
+    inside="below",
+):
     """Vertex positions of a fixed topology, differentiable in the samples `values`.
 
     The exact adjoint of marching cubes' edge interpolation: vertex
@@ -287,17 +378,39 @@ def isosurface_vertices(values, topology: IsoMesh, grid: Grid, level: float = 0.
     return v
 
 
-def isosurface_topology(values, grid: Grid, level: float = 0.0, *, inside: str = "below", close=False, capacity=None):
+def isosurface_topology(
+    values,
+    grid: Grid,
+    level: float = 0.0,
+    *,
+    inside: str = "below",
+    close=False,
+    capacity=None,
+):
     """The combinatorial part of [`isosurface`][voxax.isosurface] (no gradient flows through it).
 
     Same arguments as `isosurface`; returns an `IsoMesh` whose vertices are computed from the
     samples, with `jax.lax.stop_gradient` applied to them.
     """
-    return isosurface(jax.lax.stop_gradient(_check_values(values, grid, "isosurface_topology")), grid, level,
-                      inside=inside, close=close, capacity=capacity)
+    return isosurface(
+        jax.lax.stop_gradient(_check_values(values, grid, "isosurface_topology")),
+        grid,
+        level,
+        inside=inside,
+        close=close,
+        capacity=capacity,
+    )
 
 
-def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below", close=False, capacity=None) -> IsoMesh:
+def isosurface(
+    values,
+    grid: Grid,
+    level: float = 0.0,
+    *,
+    inside: str = "below",
+    close=False,
+    capacity=None,
+) -> IsoMesh:
     """Extracts the iso-surface `f = level` of a sampled field by marching cubes (squares in 2D).
 
     The field is sampled at the cell centres of `grid` (`values[i, j, k]` at
@@ -380,7 +493,9 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
             raise ValueError(
                 "isosurface: batched values need a static `capacity=` (results of different sizes are padded)"
             )
-        edges, faces = host_topology(flat[0] if flat.shape[0] else np.zeros(grid.shape), level)
+        edges, faces = host_topology(
+            flat[0] if flat.shape[0] else np.zeros(grid.shape), level
+        )
         if len(faces) == 0:
             warnings.warn(
                 f"isosurface: the field does not cross level {level} (values in "
@@ -388,7 +503,7 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
                 RuntimeWarning,
                 stacklevel=2,
             )
-        edges = jnp.asarray(edges.reshape(batch + edges.shape))
+        edges = edges.reshape(batch + edges.shape)
         faces = jnp.asarray(faces.reshape(batch + faces.shape))
         nv = jnp.full(batch, edges.shape[-2], jnp.int32)
         nf = jnp.full(batch, faces.shape[-2], jnp.int32)
@@ -396,7 +511,9 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
         import equinox as eqx
 
         vcap, fcap = caps
-        edges, faces, counts = _ffi_topology(jax.lax.stop_gradient(values), level, d, vcap, fcap)
+        edges, faces, counts = _ffi_topology(
+            jax.lax.stop_gradient(values), level, d, vcap, fcap
+        )
         nv, nf = counts[..., 0], counts[..., 1]
         over = jnp.any(nv > vcap) | jnp.any(nf > fcap)
         msg = (
@@ -409,7 +526,7 @@ def isosurface(values, grid: Grid, level: float = 0.0, *, inside: str = "below",
     if inside == "above":
         faces = faces[..., ::-1] if d == 2 else faces[..., jnp.array([0, 2, 1])]
     vertices, min_gap = _interpolate(values, edges, nv, grid, level)
-    return IsoMesh(vertices, faces, edges, nv, nf, min_gap)
+    return IsoMesh(vertices, faces, jnp.asarray(edges), nv, nf, min_gap)
 
 
 # -- fields given as functions (MeshSDF) -----------------------------------------------------
@@ -421,7 +538,9 @@ def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
     """`fn(params, points)` in chunks, as a float64 NumPy array (no gradient)."""
     out = np.empty(points.shape[0], np.float64)
     for s in range(0, points.shape[0], chunk):
-        out[s : s + chunk] = np.asarray(fn(params, jnp.asarray(points[s : s + chunk])), np.float64).reshape(-1)
+        out[s : s + chunk] = np.asarray(
+            fn(params, jnp.asarray(points[s : s + chunk])), np.float64
+        ).reshape(-1)
     return out
 
 
@@ -457,7 +576,9 @@ def _dilate(mask: np.ndarray, width: int) -> np.ndarray:
     return maximum_filter(mask, size=2 * width + 1, mode="constant", cval=False)
 
 
-def _lipschitz_samples(fn, params, grid: Grid, level: float, lipschitz: float, pad, chunk: int):
+def _lipschitz_samples(
+    fn, params, grid: Grid, level: float, lipschitz: float, pad, chunk: int
+):
     """Coarse-to-fine samples: exact where marching cubes reads them, sign-exact elsewhere."""
     n = np.array(grid.shape)
     h = np.array(grid.spacing)
@@ -483,7 +604,9 @@ def _lipschitz_samples(fn, params, grid: Grid, level: float, lipschitz: float, p
             exact[idx] = True
             break
         decided = np.abs(g) > lipschitz * radius
-        for o, c, gv, r in zip(origins[decided], count[decided], g[decided], radius[decided]):
+        for o, c, gv, r in zip(
+            origins[decided], count[decided], g[decided], radius[decided]
+        ):
             sl = tuple(slice(a, a + b) for a, b in zip(o, c))
             values[sl] = level + np.sign(gv) * (abs(gv) - lipschitz * r)
         size //= 2
@@ -499,11 +622,15 @@ def _lipschitz_samples(fn, params, grid: Grid, level: float, lipschitz: float, p
     return values, evaluated
 
 
-def _band_samples(fn, params, grid: Grid, level: float, previous: np.ndarray, pad, chunk: int):
+def _band_samples(
+    fn, params, grid: Grid, level: float, previous: np.ndarray, pad, chunk: int
+):
     """Re-evaluates the field near the previous surface, widening the band until it holds it."""
     previous = np.asarray(previous, np.float64)
     if previous.shape != grid.shape:
-        raise ValueError(f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}")
+        raise ValueError(
+            f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}"
+        )
     core = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
     centers = grid.centers()
     values = previous.copy()
@@ -607,15 +734,21 @@ def isosurface_fn(
     """
     name = "isosurface_fn"
     if not callable(fn):
-        raise TypeError(f"{name}: `fn` must be callable as fn(params, x), got {type(fn).__name__}")
+        raise TypeError(
+            f"{name}: `fn` must be callable as fn(params, x), got {type(fn).__name__}"
+        )
     if rule not in _RULES:
         raise ValueError(f"{name}: `rule` must be one of {_RULES}, got {rule!r}")
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     if not isinstance(grid, Grid):
-        raise TypeError(f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(
+            f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
+        )
     if lipschitz is not None and not (np.isfinite(lipschitz) and lipschitz > 0):
-        raise ValueError(f"{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}")
+        raise ValueError(
+            f"{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}"
+        )
     outward = 1.0 if inside == "below" else -1.0
     pad = None
     if close is True:
@@ -627,22 +760,39 @@ def isosurface_fn(
     fast = band is not None or lipschitz is not None
     if fast:
         if capacity is not None or _concrete_tree(p0) is None:
-            raise TypeError(f"{name}: `band` and `lipschitz` work on eager calls only (no jit, no capacity)")
+            raise TypeError(
+                f"{name}: `band` and `lipschitz` work on eager calls only (no jit, no capacity)"
+            )
         p0 = _concrete_tree(p0)
         if band is not None:
             samples, evaluated = _band_samples(fn, p0, grid, level, band, pad, chunk)
         else:
-            samples, evaluated = _lipschitz_samples(fn, p0, grid, level, float(lipschitz), pad, chunk)
+            samples, evaluated = _lipschitz_samples(
+                fn, p0, grid, level, float(lipschitz), pad, chunk
+            )
         samples = jnp.asarray(samples, _float())
     else:
         pts = grid.centers().reshape(-1, grid.dim)
         concrete = _concrete_tree(p0)
         if capacity is None and concrete is not None:
-            samples = jnp.asarray(_evaluate_np(fn, concrete, pts, chunk).reshape(grid.shape), _float())
+            samples = jnp.asarray(
+                _evaluate_np(fn, concrete, pts, chunk).reshape(grid.shape), _float()
+            )
             evaluated = grid.size
         else:
-            samples = jnp.asarray(fn(p0, jnp.asarray(pts, _float()))).astype(_float()).reshape(grid.shape)
-    iso = isosurface(samples, grid, level, inside=inside, close=False if pad is None else pad, capacity=capacity)
+            samples = (
+                jnp.asarray(fn(p0, jnp.asarray(pts, _float())))
+                .astype(_float())
+                .reshape(grid.shape)
+            )
+    iso = isosurface(
+        samples,
+        grid,
+        level,
+        inside=inside,
+        close=False if pad is None else pad,
+        capacity=capacity,
+    )
     v0 = jax.lax.stop_gradient(iso.vertices)
     valid = (jnp.arange(v0.shape[-2]) < iso.n_vertices[..., None])[..., None]
     if rule == "interpolation":
