@@ -177,6 +177,7 @@ def test_jit_grad_vmap():
         fields.chebyshev,
         fields.blob,
     ):
+
         def everything(q, fn=fn):
             # jit, vmap, grad and central differences, compiled once per field
             g = jax.grad(lambda x: jnp.sum(fn(x)))(q)
