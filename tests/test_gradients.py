@@ -459,7 +459,7 @@ def _run_all(inputs):
             (dv,) = vjp(jnp.asarray(c.astype(dt)))
             corners = voxax.voxelize_corner_gradients(x, jnp.asarray(f), g, jnp.asarray(c.astype(dt)))
             tangent = jnp.asarray(np.cos(np.arange(v.size)).reshape(v.shape).astype(dt))
-            _, dW = jax.jvp(lambda y: voxax.voxelize(y, f, g), (x,), (tangent,))
+            _, dW = jax.jvp(lambda y, f=f, g=g: voxax.voxelize(y, f, g), (x,), (tangent,))
             key = f"{i}_{np.dtype(dt).name}"
             out["jvp_" + key] = np.asarray(dW)
             out["W_" + key] = np.asarray(W)

@@ -62,7 +62,7 @@ inline void face_corners(int f, int q[4]) {
   const int a = f / 2, s = f % 2, u = (a + 1) % 3, w = (a + 2) % 3;
   static const int ccw[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
   for (int k = 0; k < 4; ++k) {
-    const int kk = s ? k : (4 - k) % 4; // reversed order on the lower side
+    const int kk = s ? k : (4 - k) % 4;  // reversed order on the lower side
     q[k] = (s << a) | (ccw[kk][0] << u) | (ccw[kk][1] << w);
   }
 }
@@ -72,8 +72,8 @@ inline void face_corners(int f, int q[4]) {
 // face, whether the positive corners are joined through the face centre.
 // `edge_of(k)` gives the id of the edge between q[k] and q[k + 1].
 template <typename EdgeOf>
-inline void face_segments(const int q[4], const bool p[4], bool connected,
-                          EdgeOf edge_of, int *next) {
+inline void face_segments(const int q[4], const bool p[4], bool connected, EdgeOf edge_of,
+                          int* next) {
   // Crossings in cyclic order: type A goes negative -> positive, type B the
   // reverse.
   int edge[4], type_a[4], m = 0;
@@ -86,18 +86,15 @@ inline void face_segments(const int q[4], const bool p[4], bool connected,
     }
   }
   (void)q;
-  if (m == 0)
-    return;
+  if (m == 0) return;
   // Segments run from a B crossing to an A crossing. Cutting off the positive
   // runs pairs each A with the following B; cutting off the negative runs
   // pairs each B with the following A.
   const bool cut_positive = (m == 2) ? true : !connected;
   for (int i = 0; i < m; ++i) {
     const int j = (i + 1) % m;
-    if (cut_positive && type_a[i])
-      next[edge[j]] = edge[i];
-    if (!cut_positive && !type_a[i])
-      next[edge[i]] = edge[j];
+    if (cut_positive && type_a[i]) next[edge[j]] = edge[i];
+    if (!cut_positive && !type_a[i]) next[edge[i]] = edge[j];
   }
 }
 
@@ -108,58 +105,48 @@ struct CubeTable {
   static constexpr int kMaxTriangles = 12;
   uint8_t count[kEntries];
   uint8_t tri[kEntries][kMaxTriangles][3];
-  uint8_t ambiguous[256]; // bit f: face f is ambiguous for this config
-  int face_q[6][4]; // corners of each face, counter-clockwise from outside
-  int failures = 0; // loops without a valid triangulation (none expected)
+  uint8_t ambiguous[256];  // bit f: face f is ambiguous for this config
+  int face_q[6][4];        // corners of each face, counter-clockwise from outside
+  int failures = 0;        // loops without a valid triangulation (none expected)
 
   CubeTable() {
-    for (int f = 0; f < 6; ++f)
-      face_corners(f, face_q[f]);
+    for (int f = 0; f < 6; ++f) face_corners(f, face_q[f]);
     for (int cfg = 0; cfg < 256; ++cfg) {
       uint8_t amb = 0;
       for (int f = 0; f < 6; ++f) {
         bool p[4];
-        for (int k = 0; k < 4; ++k)
-          p[k] = (cfg >> face_q[f][k]) & 1;
-        if (p[0] == p[2] && p[1] == p[3] && p[0] != p[1])
-          amb |= uint8_t(1 << f);
+        for (int k = 0; k < 4; ++k) p[k] = (cfg >> face_q[f][k]) & 1;
+        if (p[0] == p[2] && p[1] == p[3] && p[0] != p[1]) amb |= uint8_t(1 << f);
       }
       ambiguous[cfg] = amb;
-      for (int dec = 0; dec < 64; ++dec)
-        build(cfg, dec);
+      for (int dec = 0; dec < 64; ++dec) build(cfg, dec);
     }
   }
 
   void build(int cfg, int dec) {
     const int idx = cfg | (dec << 8);
     int next[12];
-    for (int e = 0; e < 12; ++e)
-      next[e] = -1;
+    for (int e = 0; e < 12; ++e) next[e] = -1;
     for (int f = 0; f < 6; ++f) {
-      const int *q = face_q[f];
+      const int* q = face_q[f];
       bool p[4];
-      for (int k = 0; k < 4; ++k)
-        p[k] = (cfg >> q[k]) & 1;
+      for (int k = 0; k < 4; ++k) p[k] = (cfg >> q[k]) & 1;
       face_segments(
-          q, p, (dec >> f) & 1,
-          [&](int k) { return edge_between(q[k], q[(k + 1) % 4]); }, next);
+          q, p, (dec >> f) & 1, [&](int k) { return edge_between(q[k], q[(k + 1) % 4]); }, next);
     }
     int n = 0;
     bool seen[12] = {false};
     for (int e0 = 0; e0 < 12; ++e0) {
-      if (next[e0] < 0 || seen[e0])
-        continue;
+      if (next[e0] < 0 || seen[e0]) continue;
       int loop[12], len = 0;
       for (int e = e0; !seen[e]; e = next[e]) {
         seen[e] = true;
         loop[len++] = e;
       }
       int out[kMaxTriangles][3], m = 0;
-      if (!triangulate(loop, len, next, forbidden_faces(cfg), out, &m))
-        ++failures;
+      if (!triangulate(loop, len, next, forbidden_faces(cfg), out, &m)) ++failures;
       for (int t = 0; t < m; ++t, ++n)
-        for (int v = 0; v < 3; ++v)
-          tri[idx][n][v] = uint8_t(out[t][v]);
+        for (int v = 0; v < 3; ++v) tri[idx][n][v] = uint8_t(out[t][v]);
     }
     count[idx] = uint8_t(n);
   }
@@ -175,8 +162,7 @@ struct CubeTable {
   int forbidden_faces(int cfg) const {
     int mask = 0;
     for (int f = 0; f < 6; ++f) {
-      if (!((ambiguous[cfg] >> f) & 1))
-        continue;
+      if (!((ambiguous[cfg] >> f) & 1)) continue;
       mask |= (f % 2) ? 1 << f : 1 << (6 + f);
     }
     return mask;
@@ -187,8 +173,7 @@ struct CubeTable {
     const int a = edge_axis(e), base = edge_base(e);
     int mask = 0;
     for (int u = 0; u < 3; ++u)
-      if (u != a)
-        mask |= 1 << (2 * u + ((base >> u) & 1));
+      if (u != a) mask |= 1 << (2 * u + ((base >> u) & 1));
     return mask;
   }
 
@@ -197,34 +182,29 @@ struct CubeTable {
   // this cube is allowed (see forbidden_faces). An in-face diagonal (only
   // possible on an ambiguous face) used by both cubes sharing the face would
   // be a triangle side shared by four triangles.
-  static bool side_ok(int x, int y, const int *next, int forbid) {
-    if (next[x] == y || next[y] == x)
-      return true;
+  static bool side_ok(int x, int y, const int* next, int forbid) {
+    if (next[x] == y || next[y] == x) return true;
     const int shared = faces_of_edge(x) & faces_of_edge(y);
     // Crossings on edges of different axes are neighbours on the face; on edges
     // of the same axis they sit on opposite sides of it.
-    const int mask =
-        edge_axis(x) != edge_axis(y) ? (forbid & 63) : (forbid >> 6);
+    const int mask = edge_axis(x) != edge_axis(y) ? (forbid & 63) : (forbid >> 6);
     return !(shared & mask);
   }
-  static bool tri_ok(int a, int b, int c, const int *next, int forbid) {
+  static bool tri_ok(int a, int b, int c, const int* next, int forbid) {
     return side_ok(a, b, next, forbid) && side_ok(b, c, next, forbid) &&
            side_ok(c, a, next, forbid);
   }
 
   // Triangulates a loop with only allowed sides; tries each fan apex first,
   // then any triangulation. Returns false when none exists.
-  static bool triangulate(const int *loop, int len, const int *next, int forbid,
-                          int out[][3], int *m) {
+  static bool triangulate(const int* loop, int len, const int* next, int forbid, int out[][3],
+                          int* m) {
     for (int apex = 0; apex < len; ++apex) {
       int rot[12];
-      for (int i = 0; i < len; ++i)
-        rot[i] = loop[(apex + i) % len];
+      for (int i = 0; i < len; ++i) rot[i] = loop[(apex + i) % len];
       bool ok = true;
-      for (int i = 1; i + 1 < len && ok; ++i)
-        ok = tri_ok(rot[0], rot[i], rot[i + 1], next, forbid);
-      if (!ok)
-        continue;
+      for (int i = 1; i + 1 < len && ok; ++i) ok = tri_ok(rot[0], rot[i], rot[i + 1], next, forbid);
+      if (!ok) continue;
       for (int i = 1; i + 1 < len; ++i) {
         out[*m][0] = rot[0];
         out[*m][1] = rot[i];
@@ -236,27 +216,21 @@ struct CubeTable {
     return split(loop, len, next, forbid, out, m);
   }
 
-  static bool split(const int *poly, int len, const int *next, int forbid,
-                    int out[][3], int *m) {
-    if (len < 3)
-      return true;
+  static bool split(const int* poly, int len, const int* next, int forbid, int out[][3], int* m) {
+    if (len < 3) return true;
     const int start = *m;
     for (int k = 2; k < len; ++k) {
-      if (!tri_ok(poly[0], poly[1], poly[k], next, forbid))
-        continue;
+      if (!tri_ok(poly[0], poly[1], poly[k], next, forbid)) continue;
       *m = start;
       out[*m][0] = poly[0];
       out[*m][1] = poly[1];
       out[*m][2] = poly[k];
       ++*m;
       int left[12], right[12], nl = 0, nr = 0;
-      for (int i = 1; i <= k; ++i)
-        left[nl++] = poly[i];
-      for (int i = k; i < len; ++i)
-        right[nr++] = poly[i];
+      for (int i = 1; i <= k; ++i) left[nl++] = poly[i];
+      for (int i = k; i < len; ++i) right[nr++] = poly[i];
       right[nr++] = poly[0];
-      if (split(left, nl, next, forbid, out, m) &&
-          split(right, nr, next, forbid, out, m))
+      if (split(left, nl, next, forbid, out, m) && split(right, nr, next, forbid, out, m))
         return true;
     }
     *m = start;
@@ -264,8 +238,8 @@ struct CubeTable {
   }
 };
 
-inline const CubeTable &cube_table() {
-  static const CubeTable *table = new CubeTable(); // built once, thread-safe
+inline const CubeTable& cube_table() {
+  static const CubeTable* table = new CubeTable();  // built once, thread-safe
   return *table;
 }
 
@@ -275,19 +249,17 @@ struct SquareTable {
   uint8_t count[32];
   uint8_t seg[32][2][2];
   SquareTable() {
-    const int q[4] = {0, 1, 3, 2}; // counter-clockwise
+    const int q[4] = {0, 1, 3, 2};  // counter-clockwise
     for (int cfg = 0; cfg < 16; ++cfg)
       for (int dec = 0; dec < 2; ++dec) {
         const int idx = cfg | (dec << 4);
         int next[4] = {-1, -1, -1, -1};
         bool p[4];
-        for (int k = 0; k < 4; ++k)
-          p[k] = (cfg >> q[k]) & 1;
+        for (int k = 0; k < 4; ++k) p[k] = (cfg >> q[k]) & 1;
         face_segments(
             q, p, dec,
             [&](int k) {
-              const int c1 = q[k], c2 = q[(k + 1) % 4], diff = c1 ^ c2,
-                        base = c1 & ~diff;
+              const int c1 = q[k], c2 = q[(k + 1) % 4], diff = c1 ^ c2, base = c1 & ~diff;
               return diff == 1 ? (base >> 1) : 2 + (base & 1);
             },
             next);
@@ -305,8 +277,8 @@ struct SquareTable {
   }
 };
 
-inline const SquareTable &square_table() {
-  static const SquareTable *table = new SquareTable();
+inline const SquareTable& square_table() {
+  static const SquareTable* table = new SquareTable();
   return *table;
 }
 
@@ -330,18 +302,19 @@ struct Shape {
 };
 
 // Whether the grid has at least one cube (square): 2 cells on every axis.
-inline bool has_cells(const Shape &s) {
+inline bool has_cells(const Shape& s) {
   return s.n[0] > 1 && s.n[1] > 1 && (s.dim == 2 || s.n[2] > 1);
 }
 
 // Fixed chunking of the x slices: independent of the number of threads.
-inline int64_t chunk_slices(const Shape &s) {
-  const int64_t target = int64_t{1} << 20; // cells per chunk, roughly
+inline int64_t chunk_slices(const Shape& s) {
+  const int64_t target = int64_t{1} << 20;  // cells per chunk, roughly
   return std::max<int64_t>(1, target / std::max<int64_t>(1, s.slice()));
 }
 
-template <typename T> struct Sampler {
-  const T *v;
+template <typename T>
+struct Sampler {
+  const T* v;
   double level;
   double g(int64_t idx) const { return static_cast<double>(v[idx]) - level; }
 };
@@ -349,9 +322,9 @@ template <typename T> struct Sampler {
 // Per x slice i: the crossed edges whose lower cell lies in slice i, and the
 // faces of the cubes (squares) between slices i and i + 1.
 struct Counts {
-  std::vector<int64_t> vertices;   // per slice
-  std::vector<int64_t> faces;      // per slice
-  std::vector<int64_t> voff, foff; // exclusive prefix sums, size n[0] + 1
+  std::vector<int64_t> vertices;    // per slice
+  std::vector<int64_t> faces;       // per slice
+  std::vector<int64_t> voff, foff;  // exclusive prefix sums, size n[0] + 1
   int64_t total_vertices() const { return voff.back(); }
   int64_t total_faces() const { return foff.back(); }
   void finish() {
@@ -367,42 +340,35 @@ struct Counts {
 
 // Signs of one slice: 1 where g >= 0.
 template <typename T>
-inline void slice_signs(const Sampler<T> &s, const Shape &sh, int64_t i,
-                        uint8_t *out) {
+inline void slice_signs(const Sampler<T>& s, const Shape& sh, int64_t i, uint8_t* out) {
   const int64_t m = sh.slice(), base = i * m;
-  const T *v = s.v + base;
+  const T* v = s.v + base;
   // (double)v - level >= 0 exactly when (double)v >= level; when the level is a
   // value of T the comparison can stay in T.
   const T lt = static_cast<T>(s.level);
   if (static_cast<double>(lt) == s.level) {
-    for (int64_t c = 0; c < m; ++c)
-      out[c] = v[c] >= lt;
+    for (int64_t c = 0; c < m; ++c) out[c] = v[c] >= lt;
   } else {
     const double level = s.level;
-    for (int64_t c = 0; c < m; ++c)
-      out[c] = static_cast<double>(v[c]) >= level;
+    for (int64_t c = 0; c < m; ++c) out[c] = static_cast<double>(v[c]) >= level;
   }
 }
 
 // The table index of cube (i, j, k) given the signs of slices i and i + 1.
 template <typename T>
-inline int cube_index(const Sampler<T> &s, const Shape &sh, const CubeTable &tb,
-                      int64_t i, int64_t j, int64_t k, const uint8_t *s0,
-                      const uint8_t *s1) {
+inline int cube_index(const Sampler<T>& s, const Shape& sh, const CubeTable& tb, int64_t i,
+                      int64_t j, int64_t k, const uint8_t* s0, const uint8_t* s1) {
   const int64_t nz = sh.n[2];
   const int64_t r0 = j * nz + k, r1 = r0 + nz;
-  const int cfg = s0[r0] | (s1[r0] << 1) | (s0[r1] << 2) | (s1[r1] << 3) |
-                  (s0[r0 + 1] << 4) | (s1[r0 + 1] << 5) | (s0[r1 + 1] << 6) |
-                  (s1[r1 + 1] << 7);
+  const int cfg = s0[r0] | (s1[r0] << 1) | (s0[r1] << 2) | (s1[r1] << 3) | (s0[r0 + 1] << 4) |
+                  (s1[r0 + 1] << 5) | (s0[r1 + 1] << 6) | (s1[r1 + 1] << 7);
   const int amb = tb.ambiguous[cfg];
-  if (!amb)
-    return cfg;
+  if (!amb) return cfg;
   int dec = 0;
   const int64_t m = sh.slice(), base = i * m + r0;
   for (int f = 0; f < 6; ++f) {
-    if (!((amb >> f) & 1))
-      continue;
-    const int *q = tb.face_q[f];
+    if (!((amb >> f) & 1)) continue;
+    const int* q = tb.face_q[f];
     double g[4];
     for (int t = 0; t < 4; ++t) {
       const int c = q[t];
@@ -412,43 +378,36 @@ inline int cube_index(const Sampler<T> &s, const Shape &sh, const CubeTable &tb,
     const bool even_positive = g[0] >= 0.0;
     const bool conn = even_positive ? face_connected(g[0], g[2], g[1], g[3])
                                     : face_connected(g[1], g[3], g[0], g[2]);
-    if (conn)
-      dec |= 1 << f;
+    if (conn) dec |= 1 << f;
   }
   return cfg | (dec << 8);
 }
 
 template <typename T>
-inline int square_index(const Sampler<T> &s, const Shape &sh, int64_t i,
-                        int64_t j, const uint8_t *s0, const uint8_t *s1) {
+inline int square_index(const Sampler<T>& s, const Shape& sh, int64_t i, int64_t j,
+                        const uint8_t* s0, const uint8_t* s1) {
   const int cfg = s0[j] | (s1[j] << 1) | (s0[j + 1] << 2) | (s1[j + 1] << 3);
-  if (cfg != 6 && cfg != 9)
-    return cfg;
+  if (cfg != 6 && cfg != 9) return cfg;
   const int64_t ny = sh.n[1], a = i * ny + j;
-  const double g00 = s.g(a), g10 = s.g(a + ny), g01 = s.g(a + 1),
-               g11 = s.g(a + ny + 1);
+  const double g00 = s.g(a), g10 = s.g(a + ny), g01 = s.g(a + 1), g11 = s.g(a + ny + 1);
   // cfg 9: corners 0 and 3 ((0,0), (1,1)) positive; cfg 6: corners 1 and 2.
-  const bool conn = cfg == 9 ? face_connected(g00, g11, g10, g01)
-                             : face_connected(g10, g01, g00, g11);
+  const bool conn =
+      cfg == 9 ? face_connected(g00, g11, g10, g01) : face_connected(g10, g01, g00, g11);
   return cfg | (conn ? 16 : 0);
 }
 
 // Whether any edge of a row of cells differs in sign: along the row (r0[k] vs
 // r0[k + 1]) and to the rows given (null: none). Written for vectorization.
-inline bool row_varies(const uint8_t *r0, int64_t len, const uint8_t *a,
-                       const uint8_t *b, const uint8_t *c) {
+inline bool row_varies(const uint8_t* r0, int64_t len, const uint8_t* a, const uint8_t* b,
+                       const uint8_t* c) {
   unsigned acc = 0;
-  for (int64_t k = 0; k + 1 < len; ++k)
-    acc |= unsigned(r0[k] ^ r0[k + 1]);
+  for (int64_t k = 0; k + 1 < len; ++k) acc |= unsigned(r0[k] ^ r0[k + 1]);
   if (a)
-    for (int64_t k = 0; k < len; ++k)
-      acc |= unsigned(r0[k] ^ a[k]);
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ a[k]);
   if (b)
-    for (int64_t k = 0; k < len; ++k)
-      acc |= unsigned(r0[k] ^ b[k]);
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ b[k]);
   if (c)
-    for (int64_t k = 0; k < len; ++k)
-      acc |= unsigned(r0[k] ^ c[k]);
+    for (int64_t k = 0; k < len; ++k) acc |= unsigned(r0[k] ^ c[k]);
   return acc != 0;
 }
 
@@ -457,9 +416,9 @@ inline bool row_varies(const uint8_t *r0, int64_t len, const uint8_t *a,
 // receives the vertex id of every crossed edge; other entries are not written.
 // When `edges` is given, the crossed edges' cell pairs are written there too
 // (ids below `vcap` only).
-inline int64_t slice_edges(const Shape &sh, int64_t i, const uint8_t *s0,
-                           const uint8_t *s1, int64_t first, int32_t *map,
-                           int32_t *edges = nullptr, int64_t vcap = 0) {
+inline int64_t slice_edges(const Shape& sh, int64_t i, const uint8_t* s0, const uint8_t* s1,
+                           int64_t first, int32_t* map, int32_t* edges = nullptr,
+                           int64_t vcap = 0) {
   const bool has_next = i + 1 < sh.n[0];
   int64_t id = first;
   const int64_t m = sh.slice(), base = i * m;
@@ -473,42 +432,35 @@ inline int64_t slice_edges(const Shape &sh, int64_t i, const uint8_t *s0,
     const int64_t ny = sh.n[1], nz = sh.n[2];
     for (int64_t j = 0; j < ny; ++j) {
       const int64_t c0 = j * nz;
-      const uint8_t *r = s0 + c0;
-      const uint8_t *rx = has_next ? s1 + c0 : nullptr;
-      const uint8_t *ry = j + 1 < ny ? r + nz : nullptr;
-      if (!row_varies(r, nz, rx, ry, nullptr))
-        continue;
+      const uint8_t* r = s0 + c0;
+      const uint8_t* rx = has_next ? s1 + c0 : nullptr;
+      const uint8_t* ry = j + 1 < ny ? r + nz : nullptr;
+      if (!row_varies(r, nz, rx, ry, nullptr)) continue;
       for (int64_t k = 0; k < nz; ++k) {
         const uint8_t a = r[k];
         const bool cx = rx && rx[k] != a;
         const bool cy = ry && ry[k] != a;
         const bool cz = k + 1 < nz && r[k + 1] != a;
         if (map && (cx | cy | cz)) {
-          int32_t *mp = map + 3 * (c0 + k);
+          int32_t* mp = map + 3 * (c0 + k);
           const int64_t cell = base + c0 + k;
-          if (cx)
-            mp[0] = int32_t(id), put(id, cell, m);
-          if (cy)
-            mp[1] = int32_t(id + cx), put(id + cx, cell, nz);
-          if (cz)
-            mp[2] = int32_t(id + cx + cy), put(id + cx + cy, cell, 1);
+          if (cx) mp[0] = int32_t(id), put(id, cell, m);
+          if (cy) mp[1] = int32_t(id + cx), put(id + cx, cell, nz);
+          if (cz) mp[2] = int32_t(id + cx + cy), put(id + cx + cy, cell, 1);
         }
         id += cx + cy + cz;
       }
     }
   } else {
     const int64_t ny = sh.n[1];
-    if (!row_varies(s0, ny, has_next ? s1 : nullptr, nullptr, nullptr))
-      return 0;
+    if (!row_varies(s0, ny, has_next ? s1 : nullptr, nullptr, nullptr)) return 0;
     for (int64_t j = 0; j < ny; ++j) {
       const uint8_t a = s0[j];
       const bool cx = has_next && s1[j] != a;
       const bool cy = j + 1 < ny && s0[j + 1] != a;
       if (map) {
-        if (cx)
-          map[2 * j] = int32_t(id), put(id, base + j, m);
-        if (cy)
-          map[2 * j + 1] = int32_t(id + cx), put(id + cx, base + j, 1);
+        if (cx) map[2 * j] = int32_t(id), put(id, base + j, m);
+        if (cy) map[2 * j + 1] = int32_t(id + cx), put(id + cx, base + j, 1);
       }
       id += cx + cy;
     }
@@ -518,37 +470,34 @@ inline int64_t slice_edges(const Shape &sh, int64_t i, const uint8_t *s0,
 
 // Faces of the cubes between slices i and i + 1 (counted only).
 template <typename T>
-inline int64_t slab_face_count(const Sampler<T> &s, const Shape &sh, int64_t i,
-                               const uint8_t *s0, const uint8_t *s1) {
+inline int64_t slab_face_count(const Sampler<T>& s, const Shape& sh, int64_t i, const uint8_t* s0,
+                               const uint8_t* s1) {
   int64_t n = 0;
   if (sh.dim == 3) {
-    const CubeTable &tb = cube_table();
+    const CubeTable& tb = cube_table();
     const int64_t ny = sh.n[1], nz = sh.n[2];
     for (int64_t j = 0; j + 1 < ny; ++j) {
-      const uint8_t *a0 = s0 + j * nz;
-      const uint8_t *a1 = s1 + j * nz;
-      if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz))
-        continue;
+      const uint8_t* a0 = s0 + j * nz;
+      const uint8_t* a1 = s1 + j * nz;
+      if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
       for (int64_t k = 0; k + 1 < nz; ++k) {
         // Skip uniform cubes cheaply.
-        const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] +
-                        a1[k + 1] + a0[k + nz + 1] + a1[k + nz + 1];
-        if (sum == 0 || sum == 8)
-          continue;
+        const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
+                        a0[k + nz + 1] + a1[k + nz + 1];
+        if (sum == 0 || sum == 8) continue;
         n += tb.count[cube_index(s, sh, tb, i, j, k, s0, s1)];
       }
     }
   } else {
-    const SquareTable &tb = square_table();
-    for (int64_t j = 0; j + 1 < sh.n[1]; ++j)
-      n += tb.count[square_index(s, sh, i, j, s0, s1)];
+    const SquareTable& tb = square_table();
+    for (int64_t j = 0; j + 1 < sh.n[1]; ++j) n += tb.count[square_index(s, sh, i, j, s0, s1)];
   }
   return n;
 }
 
 // Pass 1: per-slice counts. `run(n, body)` runs body(c) for c in [0, n).
 template <typename T, typename Run>
-bool count_pass(const Sampler<T> &s, const Shape &sh, Run &&run, Counts *out) {
+bool count_pass(const Sampler<T>& s, const Shape& sh, Run&& run, Counts* out) {
   const int64_t nx = sh.n[0], m = sh.slice(), cs = chunk_slices(sh);
   const int64_t chunks = (nx + cs - 1) / cs;
   out->vertices.assign(nx, 0);
@@ -563,50 +512,41 @@ bool count_pass(const Sampler<T> &s, const Shape &sh, Run &&run, Counts *out) {
     slice_signs(s, sh, i0, a.data());
     for (int64_t i = i0; i < i1; ++i) {
       const bool has_next = i + 1 < nx;
-      if (has_next)
-        slice_signs(s, sh, i + 1, b.data());
+      if (has_next) slice_signs(s, sh, i + 1, b.data());
       out->vertices[i] = slice_edges(sh, i, a.data(), b.data(), 0, nullptr);
-      if (has_next)
-        out->faces[i] = slab_face_count(s, sh, i, a.data(), b.data());
+      if (has_next) out->faces[i] = slab_face_count(s, sh, i, a.data(), b.data());
       a.swap(b);
     }
   });
-  if (ok)
-    out->finish();
+  if (ok) out->finish();
   return ok;
 }
 
 // Pass 2: writes the vertices' cell pairs (edges, (V, 2)) and the faces
 // ((F, dim)). Entries at or beyond the capacities are not written.
 template <typename T, typename Run>
-bool fill_pass(const Sampler<T> &s, const Shape &sh, const Counts &cnt,
-               Run &&run, int32_t *edges, int64_t vcap, int32_t *faces,
-               int64_t fcap) {
+bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& run, int32_t* edges,
+               int64_t vcap, int32_t* faces, int64_t fcap) {
   const int64_t nx = sh.n[0], m = sh.slice(), cs = chunk_slices(sh);
   const int64_t chunks = (nx + cs - 1) / cs;
   const int d = sh.dim;
-  if (!has_cells(sh))
-    return true;
+  if (!has_cells(sh)) return true;
   return run(chunks, [&](int64_t c) {
     const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
     std::vector<uint8_t> sa(m), sb(m), sc(m);
     // Map entries are written before they are read (crossed edges only).
-    std::unique_ptr<int32_t[]> map_a(new int32_t[d * m]),
-        map_b(new int32_t[d * m]);
-    int32_t *ma = map_a.get();
-    int32_t *mb = map_b.get();
+    std::unique_ptr<int32_t[]> map_a(new int32_t[d * m]), map_b(new int32_t[d * m]);
+    int32_t* ma = map_a.get();
+    int32_t* mb = map_b.get();
     // Slice i's map needs the signs of slices i and i + 1.
     slice_signs(s, sh, i0, sa.data());
-    if (i0 + 1 < nx)
-      slice_signs(s, sh, i0 + 1, sb.data());
+    if (i0 + 1 < nx) slice_signs(s, sh, i0 + 1, sb.data());
     slice_edges(sh, i0, sa.data(), sb.data(), cnt.voff[i0], ma, edges, vcap);
     for (int64_t i = i0; i < i1; ++i) {
       const bool has_next = i + 1 < nx;
-      if (!has_next)
-        break;
+      if (!has_next) break;
       // Map of slice i + 1 (needs the signs of slice i + 2).
-      if (i + 2 < nx)
-        slice_signs(s, sh, i + 2, sc.data());
+      if (i + 2 < nx) slice_signs(s, sh, i + 2, sc.data());
       // Slice i + 1's vertices are written by the chunk that owns the slice.
       slice_edges(sh, i + 1, sb.data(), sc.data(), cnt.voff[i + 1], mb,
                   i + 1 < i1 ? edges : nullptr, vcap);
@@ -614,51 +554,44 @@ bool fill_pass(const Sampler<T> &s, const Shape &sh, const Counts &cnt,
       int64_t fid = cnt.foff[i];
       {
         if (d == 3) {
-          const CubeTable &tb = cube_table();
+          const CubeTable& tb = cube_table();
           const int64_t ny = sh.n[1], nz = sh.n[2];
           for (int64_t j = 0; j + 1 < ny; ++j) {
-            const uint8_t *a0 = sa.data() + j * nz;
-            const uint8_t *a1 = sb.data() + j * nz;
-            if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz))
-              continue;
+            const uint8_t* a0 = sa.data() + j * nz;
+            const uint8_t* a1 = sb.data() + j * nz;
+            if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
             for (int64_t k = 0; k + 1 < nz; ++k) {
-              const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] +
-                              a0[k + 1] + a1[k + 1] + a0[k + nz + 1] +
-                              a1[k + nz + 1];
-              if (sum == 0 || sum == 8)
-                continue;
-              const int idx =
-                  cube_index(s, sh, tb, i, j, k, sa.data(), sb.data());
+              const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
+                              a0[k + nz + 1] + a1[k + nz + 1];
+              if (sum == 0 || sum == 8) continue;
+              const int idx = cube_index(s, sh, tb, i, j, k, sa.data(), sb.data());
               const int nt = tb.count[idx];
               for (int t = 0; t < nt; ++t, ++fid) {
-                if (fid >= fcap)
-                  continue;
+                if (fid >= fcap) continue;
                 for (int v = 0; v < 3; ++v) {
                   const int e = tb.tri[idx][t][v];
                   const int base = edge_base(e), axis = edge_axis(e);
-                  const int64_t cell =
-                      (j + ((base >> 1) & 1)) * nz + k + ((base >> 2) & 1);
-                  const int32_t *mp = (base & 1) ? mb : ma;
+                  const int64_t cell = (j + ((base >> 1) & 1)) * nz + k + ((base >> 2) & 1);
+                  const int32_t* mp = (base & 1) ? mb : ma;
                   faces[3 * fid + v] = mp[3 * cell + axis];
                 }
               }
             }
           }
         } else {
-          const SquareTable &tb = square_table();
+          const SquareTable& tb = square_table();
           for (int64_t j = 0; j + 1 < sh.n[1]; ++j) {
             const int idx = square_index(s, sh, i, j, sa.data(), sb.data());
             const int ns = tb.count[idx];
             for (int t = 0; t < ns; ++t, ++fid) {
-              if (fid >= fcap)
-                continue;
+              if (fid >= fcap) continue;
               for (int v = 0; v < 2; ++v) {
                 const int e = tb.seg[idx][t][v];
                 // Edges 0, 1: along x at y = e; edges 2, 3: along y at x = e
                 // - 2.
                 const int axis = e < 2 ? 0 : 1;
                 const int dx = e < 2 ? 0 : e - 2, dy = e < 2 ? e : 0;
-                const int32_t *mp = dx ? mb : ma;
+                const int32_t* mp = dx ? mb : ma;
                 faces[2 * fid + v] = mp[2 * (j + dy) + axis];
               }
             }
@@ -672,5 +605,5 @@ bool fill_pass(const Sampler<T> &s, const Shape &sh, const Counts &cnt,
   });
 }
 
-} // namespace contour
-} // namespace voxax
+}  // namespace contour
+}  // namespace voxax

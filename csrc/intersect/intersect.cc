@@ -57,7 +57,8 @@ std::string check(const Mesh& m, const char* name) {
   for (int64_t i = 0; i < 3 * m.nv; ++i) {
     const double x = m.v[i];
     if (!std::isfinite(x))
-      return std::string(name) + ": vertex " + std::to_string(i / 3) + " has a NaN or Inf coordinate";
+      return std::string(name) + ": vertex " + std::to_string(i / 3) +
+             " has a NaN or Inf coordinate";
     const double a = std::fabs(x);
     if (a != 0.0 && (a < kMinAbs || a > kMaxAbs))
       return std::string(name) + ": vertex " + std::to_string(i / 3) +
@@ -209,14 +210,15 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
     mean_extent += std::max({b.hi[0] - b.lo[0], b.hi[1] - b.lo[1], b.hi[2] - b.lo[2]}) / n;
   const double span = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
   double h = std::max(2.0 * mean_extent, span / 1048576.0);  // fastest in tests: 2x
-  if (!(h > 0.0)) h = 1.0;  // every face is one point
+  if (!(h > 0.0)) h = 1.0;                                   // every face is one point
   int64_t dims[3];
   double inv[3];
   std::vector<int64_t> cmin(3 * n), cmax(3 * n);
   std::vector<std::pair<int64_t, int32_t>> entries;
   for (;;) {
     for (int k = 0; k < 3; ++k) {
-      dims[k] = std::max<int64_t>(1, static_cast<int64_t>(std::min((hi[k] - lo[k]) / h, 1048575.0)) + 1);
+      dims[k] =
+          std::max<int64_t>(1, static_cast<int64_t>(std::min((hi[k] - lo[k]) / h, 1048575.0)) + 1);
       inv[k] = hi[k] > lo[k] ? dims[k] / (hi[k] - lo[k]) : 0.0;
     }
     auto cell = [&](double x, int k) {
@@ -247,7 +249,8 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
   radix_sort(&entries, dims[0] * dims[1] * dims[2]);
   std::vector<int64_t> start;  // first entry of every occupied cell, then the end
   for (size_t e = 0; e < entries.size(); ++e)
-    if (e == 0 || entries[e].first != entries[e - 1].first) start.push_back(static_cast<int64_t>(e));
+    if (e == 0 || entries[e].first != entries[e - 1].first)
+      start.push_back(static_cast<int64_t>(e));
   const int64_t ncells = static_cast<int64_t>(start.size());
   start.push_back(static_cast<int64_t>(entries.size()));
 
@@ -262,11 +265,13 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
       for (int64_t t = self ? s + 1 : b0; t < b1; ++t) {
         const int64_t j = entries[t].second;
         if (!self && j < na) continue;
-        if (std::max(cmin[3 * i], cmin[3 * j]) != x || std::max(cmin[3 * i + 1], cmin[3 * j + 1]) != y ||
+        if (std::max(cmin[3 * i], cmin[3 * j]) != x ||
+            std::max(cmin[3 * i + 1], cmin[3 * j + 1]) != y ||
             std::max(cmin[3 * i + 2], cmin[3 * j + 2]) != z)
           continue;
         if (!boxes_overlap(boxes[i], boxes[j])) continue;
-        const bool hit = self ? self_pair(faces[i], faces[j]) : tritri::triangles(faces[i].p, faces[j].p);
+        const bool hit =
+            self ? self_pair(faces[i], faces[j]) : tritri::triangles(faces[i].p, faces[j].p);
         if (hit) {
           found->push_back(i);  // entries of a cell are in increasing face order: i < j
           found->push_back(self ? j : j - na);
@@ -285,7 +290,8 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
       for (;;) {
         const int64_t k = next.fetch_add(1);
         if (k >= nchunks || failed.load()) return;
-        for (int64_t c = k * chunk; c < std::min(ncells, (k + 1) * chunk); ++c) examine_cell(c, &found[k]);
+        for (int64_t c = k * chunk; c < std::min(ncells, (k + 1) * chunk); ++c)
+          examine_cell(c, &found[k]);
       }
     } catch (...) {
       failed.store(true);
@@ -344,7 +350,8 @@ __attribute__((visibility("default"))) int64_t voxax_intersections(
     }
     Result* r = new Result();
     try {
-      run(a, two ? &b : nullptr, static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(threads, 256))), r);
+      run(a, two ? &b : nullptr,
+          static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(threads, 256))), r);
     } catch (...) {
       delete r;
       throw;

@@ -71,8 +71,8 @@ inline bool point_in_triangle_2d(const double* a, const double* b, const double*
 
 // Closed segment [a, b] (possibly a point) against the closed non-degenerate triangle
 // (p, q, r), all in 3D.
-inline bool segment_triangle(const double* a, const double* b, const double* p,
-                             const double* q, const double* r) {
+inline bool segment_triangle(const double* a, const double* b, const double* p, const double* q,
+                             const double* r) {
   const int oa = orient3d(p, q, r, a), ob = orient3d(p, q, r, b);
   if (oa * ob > 0) return false;
   if (oa == 0 && ob == 0) {
@@ -167,8 +167,7 @@ inline bool triangles(const double* const a[3], const double* const b[3]) {
 // Two non-degenerate triangles (u, v, a) and (u, v, b) share the edge u-v: do they overlap
 // beyond it (fold through each other)? Only when coplanar with a and b on the same side of
 // the line u-v.
-inline bool fold_across_edge(const double* u, const double* v, const double* a,
-                             const double* b) {
+inline bool fold_across_edge(const double* u, const double* v, const double* a, const double* b) {
   if (orient3d(u, v, a, b) != 0) return false;
   const int axis = good_axis(u, v, a);
   const P2 pu = project(u, axis), pv = project(v, axis), pa = project(a, axis),
@@ -178,8 +177,7 @@ inline bool fold_across_edge(const double* u, const double* v, const double* a,
 
 // Does the segment from s (a corner of the non-degenerate triangle (s, p, q)) towards x
 // run into that triangle beyond s?
-inline bool ray_into_corner(const double* s, const double* p, const double* q,
-                            const double* x) {
+inline bool ray_into_corner(const double* s, const double* p, const double* q, const double* x) {
   if (orient3d(s, p, q, x) != 0) return false;
   const int axis = good_axis(s, p, q);
   const P2 ps = project(s, axis), pp = project(p, axis), pq = project(q, axis),

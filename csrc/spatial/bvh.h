@@ -39,7 +39,8 @@ namespace spatial {
 struct Box3 {
   double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
                   std::numeric_limits<double>::infinity()};
-  double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+  double hi[3] = {-std::numeric_limits<double>::infinity(),
+                  -std::numeric_limits<double>::infinity(),
                   -std::numeric_limits<double>::infinity()};
   void grow(const double* p) {
     for (int a = 0; a < 3; ++a) {
@@ -64,8 +65,10 @@ struct Box3 {
     double s = 0.0;
     for (int a = 0; a < 3; ++a) {
       double d = 0.0;
-      if (p[a] < lo[a]) d = lo[a] - p[a];
-      else if (p[a] > hi[a]) d = p[a] - hi[a];
+      if (p[a] < lo[a])
+        d = lo[a] - p[a];
+      else if (p[a] > hi[a])
+        d = p[a] - hi[a];
       s += d * d;
     }
     return s;
@@ -137,14 +140,14 @@ inline bool triangle_degenerate(const double* a, const double* b, const double* 
   return !(n2 > 1e-24 * emax * emax);
 }
 
-inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
-                                  double* bary, double* q, bool degenerate);
-inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
-                                  double* bary, double* q) {
+inline double closest_on_triangle(const double* p, const double* a, const double* b,
+                                  const double* c, double* bary, double* q, bool degenerate);
+inline double closest_on_triangle(const double* p, const double* a, const double* b,
+                                  const double* c, double* bary, double* q) {
   return closest_on_triangle(p, a, b, c, bary, q, triangle_degenerate(a, b, c));
 }
-inline double closest_on_triangle(const double* p, const double* a, const double* b, const double* c,
-                                  double* bary, double* q, bool degenerate) {
+inline double closest_on_triangle(const double* p, const double* a, const double* b,
+                                  const double* c, double* bary, double* q, bool degenerate) {
   double ab[3], ac[3], ap[3];
   for (int i = 0; i < 3; ++i) {
     ab[i] = b[i] - a[i];
@@ -170,7 +173,9 @@ inline double closest_on_triangle(const double* p, const double* a, const double
     }
     return best;
   }
-  auto dot = [](const double* u, const double* v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; };
+  auto dot = [](const double* u, const double* v) {
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+  };
   auto finish = [&](double wa, double wb, double wc) {
     bary[0] = wa;
     bary[1] = wb;
@@ -254,7 +259,8 @@ inline Ray make_ray(const double* o, const double* d, double tmin, double tmax) 
 // Robust slab test: the entry distance, or +inf when the box is missed within
 // [tmin, tfar].
 inline double ray_box(const Ray& r, const Box3& b, double tfar) {
-  constexpr double kGrow = 1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
+  constexpr double kGrow =
+      1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
   double t0 = r.tmin, t1 = tfar;
   for (int a = 0; a < 3; ++a) {
     if (r.flat[a]) {
@@ -315,7 +321,8 @@ inline bool ray_triangle(const Ray& r, const double* tri, double tmax, RayHit* h
     ab[i] = B[i] - A[i];
     ac[i] = C[i] - A[i];
   }
-  const double nd = (ab[1] * ac[2] - ab[2] * ac[1]) * r.dir[0] + (ab[2] * ac[0] - ab[0] * ac[2]) * r.dir[1] +
+  const double nd = (ab[1] * ac[2] - ab[2] * ac[1]) * r.dir[0] +
+                    (ab[2] * ac[0] - ab[0] * ac[2]) * r.dir[1] +
                     (ab[0] * ac[1] - ab[1] * ac[0]) * r.dir[2];
   hit->sign = nd < 0.0 ? -1 : (nd > 0.0 ? 1 : 0);
   return true;
@@ -339,7 +346,8 @@ class Bvh {
     std::vector<int32_t> order(n);
     for (int32_t f = 0; f < n; ++f) {
       order[f] = f;
-      for (int k = 0; k < 3; ++k) boxes[f].grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
+      for (int k = 0; k < 3; ++k)
+        boxes[f].grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
       for (int a = 0; a < 3; ++a) cent[f][a] = 0.5 * (boxes[f].lo[a] + boxes[f].hi[a]);
     }
     if (n == 0) return;
@@ -379,7 +387,8 @@ class Bvh {
       ids_[i] = f;
       for (int k = 0; k < 3; ++k)
         for (int a = 0; a < 3; ++a)
-          tris_[9 * static_cast<size_t>(i) + 3 * k + a] = V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
+          tris_[9 * static_cast<size_t>(i) + 3 * k + a] =
+              V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
       const double* t = &tris_[9 * static_cast<size_t>(i)];
       degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
       tri_boxes_[i] = boxes[f];
@@ -454,7 +463,8 @@ class Bvh {
     if (nodes_.empty()) return false;
     int32_t stack[128];
     int sp = 0;
-    if (ray_box(ray, nodes_[0].box, ray.tmax) == std::numeric_limits<double>::infinity()) return false;
+    if (ray_box(ray, nodes_[0].box, ray.tmax) == std::numeric_limits<double>::infinity())
+      return false;
     stack[sp++] = 0;
     RayHit h;
     while (sp > 0) {
@@ -578,7 +588,8 @@ class Bvh {
 
   // Binned SAH split of order[begin, end). Returns the split position, or -1 for a leaf.
   int32_t split(const std::vector<Box3>& boxes, const std::vector<std::array<double, 3>>& cent,
-                std::vector<int32_t>& order, int32_t begin, int32_t end, const Box3& nb, const Box3& cb) {
+                std::vector<int32_t>& order, int32_t begin, int32_t end, const Box3& nb,
+                const Box3& cb) {
     const int32_t count = end - begin;
     double best_cost = std::numeric_limits<double>::infinity();
     int best_axis = -1, best_bin = -1;

@@ -29,34 +29,38 @@ constexpr int64_t kQueryChunk = 256;
 ffi::Error check_rows3(const ffi::Buffer<ffi::F64>& x, const char* what, int64_t* rows) {
   auto d = x.dimensions();
   if (d.size() != 2 || d[1] != 3)
-    return ffi::Error::InvalidArgument(std::string("voxax: ") + what + " must have shape (N, 3), got " +
-                                       dims_str(d));
+    return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
+                                       " must have shape (N, 3), got " + dims_str(d));
   *rows = d[0];
   const double* p = x.typed_data();
   for (int64_t i = 0; i < 3 * d[0]; ++i) {
     if (!std::isfinite(p[i]))
-      return ffi::Error::InvalidArgument(std::string("voxax: ") + what + " contain NaN or Inf (row " +
-                                         std::to_string(i / 3) + ")");
+      return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
+                                         " contain NaN or Inf (row " + std::to_string(i / 3) + ")");
     if (std::fabs(p[i]) > kMaxAbsCoordinate)
       return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
-                                         " coordinate magnitude exceeds 1e75 (row " + std::to_string(i / 3) + ")");
+                                         " coordinate magnitude exceeds 1e75 (row " +
+                                         std::to_string(i / 3) + ")");
   }
   return ffi::Error::Success();
 }
 
-ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S32>& faces, spatial::Bvh* bvh) {
+ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S32>& faces,
+                 spatial::Bvh* bvh) {
   int64_t nv = 0;
   ffi::Error err = check_rows3(vertices, "vertices", &nv);
   if (err.failure()) return err;
   auto fd = faces.dimensions();
   if (fd.size() != 2 || fd[1] != 3)
     return ffi::Error::InvalidArgument("voxax: faces must have shape (F, 3), got " + dims_str(fd));
-  if (fd[0] > (int64_t{1} << 30)) return ffi::Error::InvalidArgument("voxax: the BVH takes at most 2^30 faces");
+  if (fd[0] > (int64_t{1} << 30))
+    return ffi::Error::InvalidArgument("voxax: the BVH takes at most 2^30 faces");
   const int32_t* F = faces.typed_data();
   for (int64_t i = 0; i < 3 * fd[0]; ++i)
     if (F[i] < 0 || F[i] >= nv)
-      return ffi::Error::InvalidArgument("voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
-                                         std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")");
+      return ffi::Error::InvalidArgument("voxax: face index " + std::to_string(F[i]) +
+                                         " is out of range [0, " + std::to_string(nv) + ") (face " +
+                                         std::to_string(i / 3) + ")");
   bvh->build(vertices.typed_data(), F, fd[0]);
   return ffi::Error::Success();
 }
@@ -72,16 +76,18 @@ ffi::Error guarded(Body&& body) {
   }
 }
 
-ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::Buffer<ffi::S32> faces,
-                         ffi::Buffer<ffi::F64> points, ffi::ResultBuffer<ffi::F64> dist,
-                         ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
-                         ffi::ResultBuffer<ffi::F64> point) {
+ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
+                         ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::F64> points,
+                         ffi::ResultBuffer<ffi::F64> dist, ffi::ResultBuffer<ffi::S32> face,
+                         ffi::ResultBuffer<ffi::F64> bary, ffi::ResultBuffer<ffi::F64> point) {
   return guarded([&]() -> ffi::Error {
     int64_t n = 0;
     ffi::Error err = check_rows3(points, "points", &n);
     if (err.failure()) return err;
-    if (dist->element_count() != static_cast<size_t>(n) || face->element_count() != static_cast<size_t>(n) ||
-        bary->element_count() != static_cast<size_t>(3 * n) || point->element_count() != static_cast<size_t>(3 * n))
+    if (dist->element_count() != static_cast<size_t>(n) ||
+        face->element_count() != static_cast<size_t>(n) ||
+        bary->element_count() != static_cast<size_t>(3 * n) ||
+        point->element_count() != static_cast<size_t>(3 * n))
       return ffi::Error::InvalidArgument("voxax: closest-point outputs do not match the points");
     spatial::Bvh bvh;
     err = build(vertices, faces, &bvh);
@@ -109,8 +115,9 @@ ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, f
   });
 }
 
-ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::Buffer<ffi::S32> faces,
-                     ffi::Buffer<ffi::F64> origins, ffi::Buffer<ffi::F64> directions, ffi::ResultBuffer<ffi::F64> t,
+ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
+                     ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::F64> origins,
+                     ffi::Buffer<ffi::F64> directions, ffi::ResultBuffer<ffi::F64> t,
                      ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
                      ffi::ResultBuffer<ffi::S32> sign, double t_min, double t_max) {
   return guarded([&]() -> ffi::Error {
@@ -119,16 +126,20 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices, ffi::
     if (err.failure()) return err;
     err = check_rows3(directions, "ray directions", &nd);
     if (err.failure()) return err;
-    if (nd != n) return ffi::Error::InvalidArgument("voxax: ray origins and directions differ in length");
+    if (nd != n)
+      return ffi::Error::InvalidArgument("voxax: ray origins and directions differ in length");
     if (std::isnan(t_min) || std::isnan(t_max) || !(t_min <= t_max))
       return ffi::Error::InvalidArgument("voxax: the ray interval needs t_min <= t_max (no NaN)");
     const double* O = origins.typed_data();
     const double* Dd = directions.typed_data();
     for (int64_t i = 0; i < n; ++i)
       if (Dd[3 * i] == 0.0 && Dd[3 * i + 1] == 0.0 && Dd[3 * i + 2] == 0.0)
-        return ffi::Error::InvalidArgument("voxax: ray direction " + std::to_string(i) + " is zero");
-    if (t->element_count() != static_cast<size_t>(n) || face->element_count() != static_cast<size_t>(n) ||
-        bary->element_count() != static_cast<size_t>(3 * n) || sign->element_count() != static_cast<size_t>(n))
+        return ffi::Error::InvalidArgument("voxax: ray direction " + std::to_string(i) +
+                                           " is zero");
+    if (t->element_count() != static_cast<size_t>(n) ||
+        face->element_count() != static_cast<size_t>(n) ||
+        bary->element_count() != static_cast<size_t>(3 * n) ||
+        sign->element_count() != static_cast<size_t>(n))
       return ffi::Error::InvalidArgument("voxax: ray-hit outputs do not match the rays");
     spatial::Bvh bvh;
     err = build(vertices, faces, &bvh);

@@ -5,18 +5,18 @@
 //   voxax_bvh_build(V (nv, 3) f64, nv, F (nf, 3) i32, nf, &handle, err, errlen)
 //   voxax_bvh_free(handle)
 //   voxax_bvh_stats(handle, out[2]): node count, face count
-//   voxax_bvh_closest(handle, P (n, 3), n, threads, dist, face, bary (n, 3), point (n, 3), err, errlen)
-//   voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
+//   voxax_bvh_closest(handle, P (n, 3), n, threads, dist, face, bary (n, 3), point (n, 3), err,
+//   errlen) voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
 //                       t, face, bary (n, 3), sign, err, errlen)
 //   voxax_bvh_all_hits(handle, O, D, n, tmin, tmax, threads, counts (n,), &hits, err, errlen)
 //   voxax_hits_copy(hits, t, face, bary, sign); voxax_hits_free(hits)
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <limits>
 #include <new>
 #include <string>
 #include <vector>
@@ -46,7 +46,8 @@ int fail(char* err, int64_t errlen, const std::string& msg) {
 bool check_coords(const double* x, int64_t count, const char* what, std::string* msg) {
   for (int64_t i = 0; i < count; ++i) {
     if (!std::isfinite(x[i])) {
-      *msg = std::string("voxax: ") + what + " contain NaN or Inf (row " + std::to_string(i / 3) + ")";
+      *msg =
+          std::string("voxax: ") + what + " contain NaN or Inf (row " + std::to_string(i / 3) + ")";
       return false;
     }
     if (std::fabs(x[i]) > kMaxAbs) {
@@ -91,9 +92,8 @@ std::vector<int64_t> spatial_order(const double* X, int64_t n) {
     }
     key[i] = k;
   }
-  std::sort(order.begin(), order.end(), [&](int64_t x, int64_t y) {
-    return key[x] < key[y] || (key[x] == key[y] && x < y);
-  });
+  std::sort(order.begin(), order.end(),
+            [&](int64_t x, int64_t y) { return key[x] < key[y] || (key[x] == key[y] && x < y); });
   return order;
 }
 
@@ -116,7 +116,8 @@ int guarded(char* err, int64_t errlen, Body&& body) {
   }
 }
 
-bool check_rays(const double* O, const double* D, int64_t n, double tmin, double tmax, std::string* msg) {
+bool check_rays(const double* O, const double* D, int64_t n, double tmin, double tmax,
+                std::string* msg) {
   if (!check_coords(O, 3 * n, "ray origins", msg)) return false;
   if (!check_coords(D, 3 * n, "ray directions", msg)) return false;
   for (int64_t i = 0; i < n; ++i) {
@@ -135,8 +136,8 @@ bool check_rays(const double* O, const double* D, int64_t n, double tmin, double
 
 }  // namespace
 
-VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, int64_t nf, void** handle,
-                                 char* err, int64_t errlen) {
+VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                                 void** handle, char* err, int64_t errlen) {
   *handle = nullptr;
   return guarded(err, errlen, [&](std::string* msg) {
     if (nv < 0 || nf < 0 || nf > INT32_MAX / 2) {
@@ -146,8 +147,8 @@ VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, 
     if (!check_coords(V, 3 * nv, "vertices", msg)) return false;
     for (int64_t i = 0; i < 3 * nf; ++i) {
       if (F[i] < 0 || F[i] >= nv) {
-        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " + std::to_string(nv) +
-               ") (face " + std::to_string(i / 3) + ")";
+        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
+               std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
         return false;
       }
     }
@@ -171,8 +172,9 @@ VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
   out[1] = bvh ? bvh->face_count() : 0;
 }
 
-VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int32_t threads, double* dist,
-                                   int32_t* face, double* bary, double* point, char* err, int64_t errlen) {
+VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int32_t threads,
+                                   double* dist, int32_t* face, double* bary, double* point,
+                                   char* err, int64_t errlen) {
   return guarded(err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
@@ -199,9 +201,10 @@ VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int
   });
 }
 
-VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double* D, int64_t n, double tmin,
-                                     double tmax, int32_t any, int32_t threads, double* t, int32_t* face,
-                                     double* bary, int8_t* sign, char* err, int64_t errlen) {
+VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double* D, int64_t n,
+                                     double tmin, double tmax, int32_t any, int32_t threads,
+                                     double* t, int32_t* face, double* bary, int8_t* sign,
+                                     char* err, int64_t errlen) {
   return guarded(err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
@@ -232,9 +235,9 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
   });
 }
 
-VOXAX_EXPORT int voxax_bvh_all_hits(void* handle, const double* O, const double* D, int64_t n, double tmin,
-                                    double tmax, int32_t threads, int64_t* counts, void** out, char* err,
-                                    int64_t errlen) {
+VOXAX_EXPORT int voxax_bvh_all_hits(void* handle, const double* O, const double* D, int64_t n,
+                                    double tmin, double tmax, int32_t threads, int64_t* counts,
+                                    void** out, char* err, int64_t errlen) {
   *out = nullptr;
   return guarded(err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
@@ -275,7 +278,8 @@ VOXAX_EXPORT int64_t voxax_hits_size(void* hits) {
   return hits ? static_cast<int64_t>(static_cast<Hits*>(hits)->hits.size()) : 0;
 }
 
-VOXAX_EXPORT void voxax_hits_copy(void* hits, double* t, int32_t* face, double* bary, int8_t* sign) {
+VOXAX_EXPORT void voxax_hits_copy(void* hits, double* t, int32_t* face, double* bary,
+                                  int8_t* sign) {
   if (!hits) return;
   const auto& h = static_cast<Hits*>(hits)->hits;
   for (size_t i = 0; i < h.size(); ++i) {

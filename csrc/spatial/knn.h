@@ -57,7 +57,8 @@ class PointGrid {
     for (int attempt = 0; attempt < 200; ++attempt) {
       total = 1;
       for (int a = 0; a < 3; ++a) {
-        dim_[a] = std::max<int64_t>(1, std::min<int64_t>(1024, static_cast<int64_t>(std::ceil(ext[a] / h))));
+        dim_[a] = std::max<int64_t>(
+            1, std::min<int64_t>(1024, static_cast<int64_t>(std::ceil(ext[a] / h))));
         h_[a] = ext[a] > 0.0 ? ext[a] / static_cast<double>(dim_[a]) : 1.0;
         total *= dim_[a];
       }
@@ -93,8 +94,8 @@ class PointGrid {
       for (int a = 0; a < 3; ++a) c[a] = coord(q, a);
       const int64_t rmax = std::max(dim_[0], std::max(dim_[1], dim_[2]));
       // Rounding allowance of the cell boxes (binning rounds differently).
-      const double tol =
-          1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) + std::fabs(q[1]) + std::fabs(q[2]));
+      const double tol = 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) +
+                                 std::fabs(q[1]) + std::fabs(q[2]));
       for (int64_t r = 0; r <= rmax; ++r) {
         for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
           if (i < 0 || i >= dim_[0]) continue;
@@ -179,7 +180,9 @@ class PointGrid {
     const double top = static_cast<double>(dim_[a] - 1);
     return static_cast<int64_t>(std::min(std::floor(u), top));
   }
-  int64_t cell_of(const double* p) const { return (coord(p, 0) * dim_[1] + coord(p, 1)) * dim_[2] + coord(p, 2); }
+  int64_t cell_of(const double* p) const {
+    return (coord(p, 0) * dim_[1] + coord(p, 1)) * dim_[2] + coord(p, 2);
+  }
 };
 
 }  // namespace spatial

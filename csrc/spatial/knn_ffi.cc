@@ -37,10 +37,12 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
                ffi::ResultBuffer<ffi::S32> idx, ffi::ResultBuffer<ffi::F64> dist) {
   try {
     auto pd = points.dimensions(), qd = queries.dimensions(), od = idx->dimensions();
-    if (pd.size() != 2 || pd[1] != 3) return ffi::Error::InvalidArgument("voxax: points must have shape (N, 3)");
-    if (qd.size() != 2 || qd[1] != 3) return ffi::Error::InvalidArgument("voxax: queries must have shape (M, 3)");
-    if (od.size() != 2 || od[0] != qd[0] || dist->dimensions().size() != 2 || dist->dimensions()[0] != qd[0] ||
-        dist->dimensions()[1] != od[1])
+    if (pd.size() != 2 || pd[1] != 3)
+      return ffi::Error::InvalidArgument("voxax: points must have shape (N, 3)");
+    if (qd.size() != 2 || qd[1] != 3)
+      return ffi::Error::InvalidArgument("voxax: queries must have shape (M, 3)");
+    if (od.size() != 2 || od[0] != qd[0] || dist->dimensions().size() != 2 ||
+        dist->dimensions()[0] != qd[0] || dist->dimensions()[1] != od[1])
       return ffi::Error::InvalidArgument("voxax: kNN outputs must have shape (M, k)");
     const int64_t k = od[1];
     if (k < 1 || k > spatial::kMaxNeighbours)
@@ -72,10 +74,11 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
 }  // namespace
 }  // namespace voxax
 
-extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const double* S, int64_t n, const double* Q,
-                                                                     int64_t m, int32_t k, int32_t threads,
-                                                                     int32_t* idx, double* dist, char* err,
-                                                                     int64_t errlen) {
+extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const double* S, int64_t n,
+                                                                     const double* Q, int64_t m,
+                                                                     int32_t k, int32_t threads,
+                                                                     int32_t* idx, double* dist,
+                                                                     char* err, int64_t errlen) {
   auto fail = [&](const std::string& msg) {
     if (err && errlen > 0) {
       const size_t len = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
@@ -88,13 +91,16 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
     if (k < 1 || k > voxax::spatial::kMaxNeighbours) return fail("voxax: k must lie in [1, 32]");
     if (n < 0 || n > INT32_MAX || m < 0) return fail("voxax: at most 2^31 - 1 points");
     std::string msg;
-    if (!voxax::finite_rows(S, 3 * n, "points", &msg) || !voxax::finite_rows(Q, 3 * m, "queries", &msg))
+    if (!voxax::finite_rows(S, 3 * n, "points", &msg) ||
+        !voxax::finite_rows(Q, 3 * m, "queries", &msg))
       return fail(msg);
     voxax::spatial::PointGrid grid;
     grid.build(S, n);
-    voxax::spatial::parallel_chunks(m, voxax::kKnnChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i) grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
-    });
+    voxax::spatial::parallel_chunks(
+        m, voxax::kKnnChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+          for (int64_t i = b; i < e; ++i)
+            grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
+        });
     return 0;
   } catch (const std::bad_alloc&) {
     return fail("voxax: out of memory in the kNN kernel");

@@ -19,14 +19,14 @@
 #include <cmath>
 #include <vector>
 
-#include "voxelize/backward.h"
-#include "voxelize/clip.h"
 #include "common/batch.h"
 #include "common/constants.h"
 #include "common/errors.h"
 #include "common/grid.h"
 #include "common/parallel.h"
 #include "common/validate.h"
+#include "voxelize/backward.h"
+#include "voxelize/clip.h"
 #include "voxelize/forward.h"
 
 namespace voxax {
@@ -36,26 +36,29 @@ namespace voxax {
 template <typename T>
 void bin_tangent_faces(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, int dim,
                        const T* V, const int32_t* F, int64_t nf, Bins* bins) {
-  bin_faces(pool, tl, nf, [&](int64_t f, int32_t* r) {
-    const int32_t* idx = F + dim * f;
-    double mn[3] = {0, 0, 0}, mx[3] = {0, 0, 0};
-    for (int a = 0; a < dim; ++a) {
-      mn[a] = mx[a] = static_cast<double>(V[dim * int64_t(idx[0]) + a]);
-      for (int c = 1; c < dim; ++c) {
-        const double x = static_cast<double>(V[dim * int64_t(idx[c]) + a]);
-        mn[a] = std::min(mn[a], x);
-        mx[a] = std::max(mx[a], x);
-      }
-    }
-    int64_t c0[3] = {0, 0, 0}, c1[3] = {0, 0, 0};
-    for (int a = 0; a < dim; ++a)
-      if (!g.span(a, mn[a], mx[a], &c0[a], &c1[a])) return false;
-    r[0] = static_cast<int32_t>(c0[0] / tl.tx);
-    r[1] = static_cast<int32_t>(c1[0] / tl.tx);
-    r[2] = dim == 3 ? static_cast<int32_t>(c0[1] / tl.ty) : 0;
-    r[3] = dim == 3 ? static_cast<int32_t>(c1[1] / tl.ty) : 0;
-    return true;
-  }, bins);
+  bin_faces(
+      pool, tl, nf,
+      [&](int64_t f, int32_t* r) {
+        const int32_t* idx = F + dim * f;
+        double mn[3] = {0, 0, 0}, mx[3] = {0, 0, 0};
+        for (int a = 0; a < dim; ++a) {
+          mn[a] = mx[a] = static_cast<double>(V[dim * int64_t(idx[0]) + a]);
+          for (int c = 1; c < dim; ++c) {
+            const double x = static_cast<double>(V[dim * int64_t(idx[c]) + a]);
+            mn[a] = std::min(mn[a], x);
+            mx[a] = std::max(mx[a], x);
+          }
+        }
+        int64_t c0[3] = {0, 0, 0}, c1[3] = {0, 0, 0};
+        for (int a = 0; a < dim; ++a)
+          if (!g.span(a, mn[a], mx[a], &c0[a], &c1[a])) return false;
+        r[0] = static_cast<int32_t>(c0[0] / tl.tx);
+        r[1] = static_cast<int32_t>(c1[0] / tl.tx);
+        r[2] = dim == 3 ? static_cast<int32_t>(c0[1] / tl.ty) : 0;
+        r[3] = dim == 3 ? static_cast<int32_t>(c1[1] / tl.ty) : 0;
+        return true;
+      },
+      bins);
 }
 
 // Adds the tangent of the triangles binned to one tile into `acc`, the tile's
@@ -95,9 +98,11 @@ void tangent_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
              nh[2] * static_cast<double>(tc[3 * m + 2]);
     if (c[0] == 0.0 && c[1] == 0.0 && c[2] == 0.0) continue;
     const double inv_nn = 1.0 / (len * len);
-    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn, (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
+    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn,
+                          (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
                           (e2[0] * N[1] - e2[1] * N[0]) * inv_nn};
-    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn, (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
+    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn,
+                          (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
                           (N[0] * e1[1] - N[1] * e1[0]) * inv_nn};
     const double* a0 = p[0];
     P.count = 3;
@@ -132,9 +137,9 @@ void tangent_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
               u[a] = q1[a] - q0[a];
               w[a] = q2[a] - q0[a];
             }
-            const double area = 0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) +
-                                       nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                                       nh[2] * (u[0] * w[1] - u[1] * w[0]));
+            const double area =
+                0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+                       nh[2] * (u[0] * w[1] - u[1] * w[0]));
             A += area;
             for (int a = 0; a < 3; ++a)
               M[a] += area * ((q0[a] - a0[a]) + (q1[a] - a0[a]) + (q2[a] - a0[a])) * (1.0 / 3.0);

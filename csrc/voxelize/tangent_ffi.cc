@@ -42,8 +42,8 @@ ffi::Error tangent_impl(ffi::ThreadPool* pool, const GridSpec& g, const Batch& b
     auto it = which.find(key);
     if (it == which.end()) {
       bins.emplace_back();
-      bin_tangent_faces(pool, g, tl, dim, V + key.first * vstride, F + key.second * fstride,
-                             nf, &bins.back());
+      bin_tangent_faces(pool, g, tl, dim, V + key.first * vstride, F + key.second * fstride, nf,
+                        &bins.back());
       it = which.emplace(key, bins.size() - 1).first;
     }
     bin_of[b] = it->second;
@@ -56,8 +56,10 @@ ffi::Error tangent_impl(ffi::ThreadPool* pool, const GridSpec& g, const Batch& b
     const int32_t* Fb = F + batch.fsrc(b) * fstride;
     const T* Tb = TC + Batch::source(batch.out, tdim, b) * tstride;
     double* acc = scratch.zeroed(tl.tx * tl.ty * g.column_length());
-    if (dim == 3) tangent_tile_3d(g, tl, tile, Vb, Fb, Tb, bins[bin_of[b]], acc);
-    else tangent_tile_2d(g, tl, tile, Vb, Fb, Tb, bins[bin_of[b]], acc);
+    if (dim == 3)
+      tangent_tile_3d(g, tl, tile, Vb, Fb, Tb, bins[bin_of[b]], acc);
+    else
+      tangent_tile_2d(g, tl, tile, Vb, Fb, Tb, bins[bin_of[b]], acc);
     store_tile(g, tl, tile, acc, out + b * g.cell_count());
   });
   return ffi::Error::Success();
@@ -73,20 +75,21 @@ ffi::Error check_tangents(const T* TC, int64_t count) {
 }
 
 ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer faces,
-                   ffi::AnyBuffer tangents, ffi::Result<ffi::AnyBuffer> out, double x0,
-                   double x1, int64_t nx, double y0, double y1, int64_t ny, double z0,
-                   double z1, int64_t nz) {
+                   ffi::AnyBuffer tangents, ffi::Result<ffi::AnyBuffer> out, double x0, double x1,
+                   int64_t nx, double y0, double y1, int64_t ny, double z0, double z1, int64_t nz) {
   try {
     const auto vd = vertices.dimensions();
     const auto fd = faces.dimensions();
     const auto td = tangents.dimensions();
     const auto od = out->dimensions();
-    if (vd.size() < 2) return ffi::Error::InvalidArgument("voxax: vertices must have shape (..., V, d)");
-    if (fd.size() < 2) return ffi::Error::InvalidArgument("voxax: faces must have shape (..., F, d)");
+    if (vd.size() < 2)
+      return ffi::Error::InvalidArgument("voxax: vertices must have shape (..., V, d)");
+    if (fd.size() < 2)
+      return ffi::Error::InvalidArgument("voxax: faces must have shape (..., F, d)");
     const int64_t d = vd[vd.size() - 1];
     if (d != 2 && d != 3)
-      return ffi::Error::InvalidArgument("voxax: vertices must have 2 or 3 coordinates, got shape " +
-                                         dims_str(vd));
+      return ffi::Error::InvalidArgument(
+          "voxax: vertices must have 2 or 3 coordinates, got shape " + dims_str(vd));
     const int dim = static_cast<int>(d);
     if (fd[fd.size() - 1] != d)
       return ffi::Error::InvalidArgument("voxax: faces " + dims_str(fd) + " must have " +
@@ -98,10 +101,12 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
     if (faces.element_type() != ffi::DataType::S32)
       return ffi::Error::InvalidArgument("voxax: faces must be int32");
     if (tangents.element_type() != vt || out->element_type() != vt)
-      return ffi::Error::InvalidArgument("voxax: tangent and output dtypes must match the vertices");
+      return ffi::Error::InvalidArgument(
+          "voxax: tangent and output dtypes must match the vertices");
     const int64_t nv = vd[vd.size() - 2], nf = fd[fd.size() - 2];
     if (nv > INT32_MAX || nf > INT32_MAX)
-      return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 vertices and faces are supported");
+      return ffi::Error::InvalidArgument(
+          "voxax: at most 2^31 - 1 vertices and faces are supported");
     GridSpec g;
     ffi::Error err = check_grid(dim, x0, x1, nx, y0, y1, ny, z0, z1, nz, &g);
     if (err.failure()) return err;
@@ -115,9 +120,9 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
         return ffi::Error::InvalidArgument("voxax: output shape " + dims_str(od) +
                                            " does not match the grid");
     if (td.size() != nb + 3 || td[nb] != nf || td[nb + 1] != d || td[nb + 2] != d)
-      return ffi::Error::InvalidArgument("voxax: corner tangents must have shape (..., F, d, d) = (..., " +
-                                         std::to_string(nf) + ", " + std::to_string(d) + ", " +
-                                         std::to_string(d) + "), got " + dims_str(td));
+      return ffi::Error::InvalidArgument(
+          "voxax: corner tangents must have shape (..., F, d, d) = (..., " + std::to_string(nf) +
+          ", " + std::to_string(d) + ", " + std::to_string(d) + "), got " + dims_str(td));
     std::vector<int64_t> tdim(td.begin(), td.begin() + nb);
     int64_t tcount = 1;
     for (size_t a = 0; a < nb; ++a) {
@@ -149,9 +154,11 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
                                 faces.typed_data<int32_t>(), tangents.typed_data<double>(),
                                 out->typed_data<double>());
   } catch (const std::bad_alloc&) {
-    return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the tangent kernel");
+    return ffi::Error(ffi::ErrorCode::kResourceExhausted,
+                      "voxax: out of memory in the tangent kernel");
   } catch (const std::exception& e) {
-    return ffi::Error(ffi::ErrorCode::kInternal, std::string("voxax: tangent kernel failed: ") + e.what());
+    return ffi::Error(ffi::ErrorCode::kInternal,
+                      std::string("voxax: tangent kernel failed: ") + e.what());
   } catch (...) {
     return ffi::Error(ffi::ErrorCode::kInternal, "voxax: tangent kernel failed");
   }

@@ -77,7 +77,7 @@ class Grid:
             raise ValueError(f"Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
         if any(not math.isfinite((u - lo) / n) or (u - lo) / n <= 0 for lo, u, n in zip(lower, upper, shape)):
             raise ValueError("Grid: the cell size underflows or overflows on some axis")
-        volume = math.prod((u - l) / n for l, u, n in zip(lower, upper, shape))
+        volume = math.prod((u - lo) / n for lo, u, n in zip(lower, upper, shape))
         if not (MIN_CELL_VOLUME <= volume <= MAX_CELL_VOLUME):
             raise ValueError(
                 f"Grid: the cell volume {volume:.3g} is outside [{MIN_CELL_VOLUME:g}, {MAX_CELL_VOLUME:g}]; rescale the problem "
