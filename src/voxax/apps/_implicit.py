@@ -11,11 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import energies, metrics
 from .._grid import Grid
 from .._isosurface import isosurface_fn
 from .._voxelize import voxelize
-from .. import energies
-from .. import metrics
 from ._common import as_mesh
 
 _RULES = ("meshsdf", "theorem1", "level_set")
