@@ -48,7 +48,7 @@ def analytic(grid, steps, torus):
     return report
 
 
-def train_deepsdf(n_points, iterations, seed=0):
+def train_deepsdf(n_points, iterations, seed=0, learning_rate=5e-3):
     key = jax.random.key(seed)
     k_model, k_pts = jax.random.split(key)
     model = voxax.fields.DeepSDF(n_shapes=2, latent_size=4, width=64, depth=4, skip=2, key=k_model)
@@ -56,12 +56,12 @@ def train_deepsdf(n_points, iterations, seed=0):
     pts = jnp.concatenate([near, jax.random.uniform(k_pts, (2, n_points // 4, 3), minval=-1, maxval=1)], 1)
     sdf = jnp.stack([sphere_sdf(pts[0]), torus_sdf(pts[1])])
     index = jnp.broadcast_to(jnp.arange(2)[:, None], sdf.shape)
-    opt = optax.adam(1e-3)
+    opt = optax.adam(learning_rate)
     state = opt.init(model)
 
     @jax.jit
     def step(model, state):
-        loss, g = jax.value_and_grad(voxax.fields.deepsdf_loss)(model, pts, sdf, index, code_sigma=1.0)
+        loss, g = jax.value_and_grad(voxax.fields.deepsdf_loss)(model, pts, sdf, index, clamp=0.2, code_sigma=1.0)
         updates, state = opt.update(g, state, model)
         return optax.apply_updates(model, updates), state, loss
 
