@@ -55,12 +55,6 @@ def _bucket(n: int) -> int:
     return max(256, 1 << int(np.ceil(np.log2(max(n, 1)))))
 
 
-def _padded(x: np.ndarray, rows: int) -> np.ndarray:
-    out = np.zeros((rows,) + x.shape[1:], x.dtype)
-    out[: len(x)] = x
-    return out
-
-
 def _target_silhouettes(target, grid: Grid, w: float):
     if isinstance(target, (tuple, list)) and len(target) == 3 and all(np.ndim(t) == 2 for t in target):
         sil = tuple(jnp.asarray(t) for t in target)
@@ -98,8 +92,9 @@ def optimize_implicit(
     reaches `params` through the vertices by the MeshSDF rule (see
     [`isosurface_fn`][voxax.isosurface_fn]), so the mesh may change topology from one step
     to the next. Parameters are updated with Adam (optax). The mesh size changes every step,
-    so the loop is eager; the loss and its gradient are compiled once per power-of-two bucket
-    of vertex and face counts.
+    so each step runs [`isosurface_fn`][voxax.isosurface_fn] with a static `capacity` (padded
+    vertex and face counts, twice the first mesh's, doubled when a mesh outgrows them) inside
+    one compiled function.
 
     **Arguments:**
 
@@ -137,23 +132,17 @@ def optimize_implicit(
     if not (np.isfinite(learning_rate) and learning_rate > 0):
         raise ValueError(f"{name}: `learning_rate` must be positive, got {learning_rate!r}")
     sil = _target_silhouettes(target, grid, w)
-    params = jax.tree_util.tree_map(jnp.asarray, params)
+    # Strong (not weakly typed) float leaves, so that the compiled step is not retraced.
+    params = jax.tree_util.tree_map(
+        lambda a: jnp.array(a, dtype=jnp.result_type(a) if jnp.issubdtype(jnp.result_type(a), jnp.floating)
+                            else jnp.result_type(float)), params)
 
-    @jax.jit
-    def loss_and_grad(p, v0, faces):
-        grad_x = jax.vmap(jax.grad(lambda x: fn(p, x[None])[0]))(v0)
-        norm2 = jnp.sum(grad_x * grad_x, -1, keepdims=True)
-        safe2 = jnp.where(norm2 > 0, norm2, 1.0)
-        d = {"meshsdf": grad_x / jnp.sqrt(safe2), "theorem1": grad_x, "level_set": grad_x / safe2}[rule]
-        d = jax.lax.stop_gradient(jnp.where(norm2 > 0, d, 0.0))
+    def loss(p, capacity):
+        iso = isosurface_fn(fn, p, grid, level, rule=rule, close=True, capacity=capacity)
+        S = energies.silhouettes(voxelize(iso.vertices, iso.faces, grid), w)
+        return sum(jnp.mean((a - b) ** 2) for a, b in zip(S, sil)), jax.lax.stop_gradient(iso)
 
-        def loss(q):
-            f = fn(q, v0)
-            v = v0 - d * (f - jax.lax.stop_gradient(f))[:, None]
-            S = energies.silhouettes(voxelize(v, faces, grid), w)
-            return sum(jnp.mean((a - b) ** 2) for a, b in zip(S, sil))
-
-        return jax.value_and_grad(loss)(p)
+    loss_and_grad = jax.jit(jax.value_and_grad(loss, has_aux=True), static_argnums=1)
 
     opt = optax.adam(learning_rate)
     state = opt.init(params)
@@ -162,14 +151,20 @@ def optimize_implicit(
     reason = "max_steps"
     start = time.perf_counter()
     for step in range(steps):
-        iso = isosurface_fn(fn, params, grid, level, rule=rule, close=True)
+        if step == 0:
+            first = isosurface_fn(fn, params, grid, level, rule=rule, close=True).to_mesh()
+            capacity = (_bucket(2 * first.n_vertices), _bucket(2 * first.n_faces))
+        while True:
+            try:
+                (value, iso), grads = loss_and_grad(params, capacity)
+                break
+            except RuntimeError as err:  # the mesh outgrew the capacity
+                if "capacity" not in str(err):
+                    raise
+                capacity = (2 * capacity[0], 2 * capacity[1])
         mesh = iso.to_mesh()
         if mesh.n_faces == 0:
             raise ValueError(f"{name}: the iso-surface is empty at step {step}; start from parameters with a surface")
-        nv, nf = _bucket(mesh.n_vertices), _bucket(mesh.n_faces)
-        v0 = jnp.asarray(_padded(np.asarray(mesh.vertices), nv), jnp.result_type(float))
-        faces = jnp.asarray(_padded(np.asarray(mesh.faces), nf))
-        value, grads = loss_and_grad(params, v0, faces)
         value = float(value)
         chi = metrics.euler_characteristic(mesh)
         losses.append(value)
