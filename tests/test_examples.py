@@ -51,3 +51,9 @@ def test_tiling(tmp_path, meshes):
     assert _load("tiling").main(argv) == 0
     for name in ("tiling.ply", "tiled_2x2x2.ply", "cell.png", "history.png", "report.json"):
         assert (tmp_path / name).exists(), name
+
+
+def test_meshsdf_topology(capsys):
+    assert _load("meshsdf_topology").main(["--small", "--skip-deepsdf"]) == 0
+    out = capsys.readouterr().out
+    assert "Euler characteristic 2@0 -> 0@" in out and "(target_euler)" in out
