@@ -37,3 +37,15 @@ def test_bad_input():
         voxax.apps.optimize_implicit(_mix, 0.0, (np.zeros((4, 8)),) * 3, grid)
     with pytest.raises(TypeError, match="callable"):
         voxax.apps.optimize_implicit(1.0, 0.0, (np.zeros((8, 8)),) * 3, grid)
+
+
+def test_a_growing_surface_outgrows_the_first_capacity():
+    # A small sphere (r = 0.2) fitted to the silhouettes of a large one (r = 0.8): the face
+    # count grows ~16x, past the starting capacity (twice the first mesh).
+    grid = voxax.Grid.cube(16)
+    big = voxax.isosurface(voxax.fields.sphere(jnp.asarray(grid.centers()), 0.8), grid, close=True).to_mesh()
+    r, report = voxax.apps.optimize_implicit(lambda r, x: voxax.fields.sphere(x, r), 0.2, big, grid,
+                                             steps=60, learning_rate=0.05)
+    assert report.faces_history.max() > 4 * report.faces_history[0]
+    assert abs(float(r) - 0.8) < 0.05  # one cell is 0.125
+    assert set(report.euler_history.tolist()) == {2}

@@ -156,9 +156,9 @@ def optimize_implicit(
             capacity = (_bucket(2 * first.n_vertices), _bucket(2 * first.n_faces))
         while True:
             try:
-                (value, iso), grads = loss_and_grad(params, capacity)
+                (value, iso), grads = jax.block_until_ready(loss_and_grad(params, capacity))
                 break
-            except RuntimeError as err:  # the mesh outgrew the capacity
+            except (RuntimeError, ValueError) as err:  # the mesh outgrew the capacity
                 if "capacity" not in str(err):
                     raise
                 capacity = (2 * capacity[0], 2 * capacity[1])
