@@ -60,3 +60,9 @@ def test_bounded_minimize(tmp_path, capsys, solver):
     out = capsys.readouterr().out
     assert "every vertex inside the build volume: True" in out
     assert (tmp_path / "inflated.ply").exists()
+
+
+def test_meshsdf_topology(capsys):
+    assert _load("meshsdf_topology").main(["--small", "--skip-deepsdf"]) == 0
+    out = capsys.readouterr().out
+    assert "Euler characteristic 2@0 -> 0@" in out and "(target_euler)" in out

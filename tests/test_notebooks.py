@@ -27,6 +27,7 @@ SMALL = {
     "04_bandsaw": {"RESOLUTION": 24, "MAX_STEPS": 15},
     "05_tiling": {"RESOLUTION": 24, "MAX_STEPS": 10},
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},
+    "07_meshsdf": {"RESOLUTION": 16},
 }
 
 

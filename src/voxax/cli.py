@@ -493,6 +493,76 @@ def _tile(args) -> int:
     return 0
 
 
+# -- voxax mesh -------------------------------------------------------------------------------
+
+_SDFS = ("sphere", "torus", "box", "gyroid", "chebyshev", "blob")
+
+
+def _mesh_arguments(p) -> None:
+    p.add_argument("grid", nargs="?", metavar="W.npz",
+                   help="a grid written by 'voxax voxelize' (arrays W, lower, upper, shape); its 0.5 "
+                   "level set (inside where W > 0.5) is extracted")
+    p.add_argument("--sdf", choices=_SDFS, metavar="NAME",
+                   help=f"instead of a grid file, mesh a built-in field on [-1, 1]^3: {', '.join(_SDFS)}")
+    p.add_argument("--resolution", "-r", type=_resolution(least=2), default=64, metavar="N",
+                   help="cells per axis for --sdf (default 64)")
+    p.add_argument("--level", type=_number, default=None, metavar="X",
+                   help="the iso-level (default 0.5 for a grid file, 0 for --sdf)")
+    p.add_argument("--output", "-o", default="mesh.ply", metavar="FILE",
+                   help="output mesh file, any format trimesh writes (.ply, .obj, .stl, ...; default mesh.ply)")
+
+
+def _read_grid(path: str):
+    import numpy as np
+
+    import voxax
+
+    if os.path.isdir(path):
+        raise UsageError(f"{path!r} is a folder, not a .npz grid")
+    if not os.path.exists(path):
+        raise UsageError(f"no such grid file: {path!r}")
+    try:
+        data = np.load(path)
+    except (OSError, ValueError) as err:
+        raise UsageError(f"cannot read {path!r} as a .npz grid: {err}") from None
+    if not hasattr(data, "files") or not {"W", "lower", "upper", "shape"} <= set(data.files):
+        raise UsageError(f"{path!r} must be a .npz with arrays W, lower, upper, shape (as 'voxax voxelize' writes)")
+    W = np.asarray(data["W"])
+    if W.ndim != 3 or tuple(int(n) for n in data["shape"]) != W.shape:
+        raise UsageError(f"{path!r}: W must be a 3D grid matching 'shape', got W {W.shape}")
+    grid = voxax.Grid(lower=tuple(data["lower"].tolist()), upper=tuple(data["upper"].tolist()), shape=W.shape)
+    return W, grid
+
+
+def _mesh(args) -> int:
+    if (args.grid is None) == (args.sdf is None):
+        raise UsageError("give either a grid file W.npz or --sdf NAME (exactly one)")
+    _check_output(args.output)
+    _setup_jax(False)
+    import numpy as np
+
+    import voxax
+
+    if args.sdf is None:
+        W, grid = _read_grid(args.grid)
+        if not np.all(np.isfinite(W)):
+            raise UsageError(f"{args.grid!r}: W has NaN or Inf values")
+        level = 0.5 if args.level is None else args.level
+        iso = voxax.isosurface(W, grid, level, inside="above", close=True)
+    else:
+        grid = voxax.Grid.cube(args.resolution)
+        level = 0.0 if args.level is None else args.level
+        values = getattr(voxax.fields, args.sdf)(grid.centers())
+        iso = voxax.isosurface(np.asarray(values), grid, level, close=True)
+    mesh = iso.to_mesh()
+    if mesh.n_faces == 0:
+        raise UsageError(f"the level {level} does not cross the field: the mesh is empty")
+    voxax.io.save(mesh, args.output)
+    print(f"wrote {args.output}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, "
+          f"Euler characteristic {voxax.metrics.euler_characteristic(mesh)}, grid {grid}")
+    return 0
+
+
 # -- the table of subcommands -----------------------------------------------------------------
 
 COMMANDS: list[Command] = [
@@ -507,6 +577,10 @@ COMMANDS: list[Command] = [
     Command("bandsaw", "deform a mesh for bandsaw cutting and write templates (paper 4.3)",
             _bandsaw_arguments, _bandsaw),
     Command("tile", "pack copies of meshes into a periodic space-filling cell (paper 4.4)", _tile_arguments, _tile),
+    Command("mesh", "extract a mesh from a voxelized grid (.npz) or a built-in field", _mesh_arguments, _mesh,
+            "Extract a closed triangle mesh by marching cubes: the 0.5 level set of a grid written by "
+            "'voxax voxelize' (inside where W > 0.5), or the zero level set of a built-in field (--sdf) "
+            "sampled on [-1, 1]^3."),
 ]
 
 

@@ -6,6 +6,9 @@
   cutting its three axis silhouettes with a bandsaw wastes less material (section 4.3).
 - [`optimize_tiling`][voxax.apps.optimize_tiling]: place and deform copies of one or more
   meshes so that they fill space periodically (section 4.4).
+- [`optimize_implicit`][voxax.apps.optimize_implicit]: optimize the parameters (a latent
+  code) of an implicit field so that its extracted iso-surface casts target silhouettes;
+  the surface may change topology on the way (MeshSDF, Fig. 3).
 
 Each takes a voxax `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair, composes
 `voxax.voxelize`, `voxax.energies` and `voxax.minimize` with the paper's defaults,
@@ -18,6 +21,7 @@ For turning a shape into bandsaw templates and an exact cut solid, see `voxax.fa
 
 from ._bandsaw import BandsawReport, optimize_for_bandsaw
 from ._common import Report
+from ._implicit import ImplicitReport, optimize_implicit
 from ._self_intersection import SelfIntersectionReport, resolve_self_intersections
 from ._tiling import COVERAGE_TOLERANCE, TilingReport, optimize_tiling, rotation_matrices
 
@@ -25,6 +29,8 @@ __all__ = [
     "resolve_self_intersections",
     "optimize_for_bandsaw",
     "optimize_tiling",
+    "optimize_implicit",
+    "ImplicitReport",
     "rotation_matrices",
     "Report",
     "SelfIntersectionReport",
