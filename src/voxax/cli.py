@@ -363,6 +363,17 @@ def _resolve_arguments(p) -> None:
     p.add_argument("--eps", type=_non_negative, default=1e-3,
                    help="voxels above 1 + EPS count as overlapping (default 0.001)")
     p.add_argument("--no-normalize", action="store_true", help="use the mesh as is (it must lie in [-1, 1]^3)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="stop after the voxel stage: no exact check-and-refine rounds (faster; the result may "
+                        "keep thin intersections below the voxel size)")
+    p.add_argument("--max-rounds", type=_at_least(0), default=20,
+                   help="refinement rounds on fine local grids at most (default 20)")
+    p.add_argument("--round-steps", type=_at_least(1), default=200,
+                   help="optimizer steps per refinement round (default 200)")
+    p.add_argument("--time-budget", type=_positive, default=None, metavar="SECONDS",
+                   help="stop refining after this many seconds (default: no limit)")
+    p.add_argument("--no-keep-volume", action="store_true",
+                   help="drop the volume term that keeps the enclosed volume close to the input's")
 
 
 def _resolve(args) -> int:
@@ -374,7 +385,9 @@ def _resolve(args) -> int:
     mesh = _load_mesh(args.mesh)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.resolve_self_intersections(
-            mesh, eps=args.eps, normalize=not args.no_normalize, **_optimization_options(args)
+            mesh, eps=args.eps, normalize=not args.no_normalize, refine=not args.no_refine,
+            max_rounds=args.max_rounds, round_steps=args.round_steps, time_budget=args.time_budget,
+            keep_volume=not args.no_keep_volume, **_optimization_options(args)
         )
     print(report.summary())
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
