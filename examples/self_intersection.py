@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     os.makedirs(args.out, exist_ok=True)
     voxax.io.save(mesh, os.path.join(args.out, "input.ply"))
     voxax.io.save(resolved, os.path.join(args.out, "resolved.ply"))
-    plot_overlaps(voxax.data.Mesh(work(mesh), mesh.faces), voxax.data.Mesh(work(resolved), resolved.faces),
+    plot_overlaps(voxax.Mesh(work(mesh), mesh.faces), voxax.Mesh(work(resolved), resolved.faces),
                   voxax.Grid.cube(args.resolution), os.path.join(args.out, "overlaps.png"))
     import matplotlib.pyplot as plt
 

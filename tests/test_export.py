@@ -60,7 +60,10 @@ def _functions():
 def test_safety_checks_cover_every_target():
     checks = voxax.export_safety_checks()
     assert len(checks) == len(_ffi.TARGETS) == len(set(_ffi.TARGETS))
-    assert set(voxax.ffi_targets()) == {"voxax_forward", "voxax_backward", "voxax_tangent"}
+    assert {"voxax_forward", "voxax_backward", "voxax_tangent", "voxax_marching_cubes"} <= set(voxax.ffi_targets())
+    # Every registered target is a symbol of the kernel library.
+    lib = voxax._ffi.library()
+    assert all(hasattr(lib, name) for name in voxax.ffi_targets())
     # Every registered target is an exported symbol of the library.
     import ctypes
 

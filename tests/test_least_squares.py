@@ -59,4 +59,4 @@ def test_example_runs(capsys):
     spec.loader.exec_module(ex)
     assert ex.main(["-n", "8", "--subdivisions", "1", "--lm-steps", "10", "--adam-steps", "50"]) == 0
     out = capsys.readouterr().out
-    assert "Levenberg-Marquardt: loss" in out and "Adam (lr" in out
+    assert "Levenberg-Marquardt (" in out and "loss" in out and "Adam (lr" in out

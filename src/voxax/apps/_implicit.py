@@ -59,7 +59,7 @@ def _target_silhouettes(target, grid: Grid, w: float):
     if isinstance(target, (tuple, list)) and len(target) == 3 and all(np.ndim(t) == 2 for t in target):
         sil = tuple(jnp.asarray(t) for t in target)
     else:
-        m = as_mesh(target)
+        m = as_mesh("optimize_implicit", target)
         W = voxelize(jnp.asarray(m.vertices, jnp.result_type(float)), jnp.asarray(m.faces), grid)
         sil = energies.silhouettes(W, w)
     want = ((grid.shape[1], grid.shape[2]), (grid.shape[0], grid.shape[2]), (grid.shape[0], grid.shape[1]))

@@ -179,10 +179,14 @@ def resolve_self_intersections(
     **Example:**
 
     ```python
+    The voxel stage alone (`refine=False`) removes every overlapping voxel of its grid but
+    can leave intersections thinner than a voxel; the report says so:
+
     >>> import voxax, voxax.apps
-    >>> mesh, report = voxax.apps.resolve_self_intersections(voxax.data.bent_bar(), resolution=32, progress=False)
-    >>> report.intersections_initial > 0, report.resolved, report.intersections_final
-    (True, True, 0)
+    >>> mesh, report = voxax.apps.resolve_self_intersections(
+    ...     voxax.data.bent_bar(), resolution=32, refine=False, progress=False)
+    >>> report.voxel_resolved, report.intersections_final > 0, report.resolved
+    (True, True, False)
 
     ```
     """
