@@ -18,7 +18,7 @@ import pytest
 SANITIZE = Path(__file__).resolve().parent / "sanitize"
 RUNNER = SANITIZE / "run_sanitized.py"
 REPORT = re.compile(r"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer|UndefinedBehaviorSanitizer")
-MIN_INPUTS = 800
+MIN_INPUTS = 450
 
 
 def _runner_module():
@@ -41,7 +41,7 @@ def _run(*args, timeout=1200):
 @pytest.fixture(scope="module")
 def fuzz_run():
     _require_tools()
-    return _run("--inputs", "500", "--seed", "0")
+    return _run("--inputs", "300", "--seed", "0")
 
 
 def _tail(proc, n=6000):
