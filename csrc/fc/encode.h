@@ -1,0 +1,403 @@
+// Faithful Contouring encoder: the surface pieces of every active cell and
+// one QEF anchor per cell (or per connected component of its pieces).
+//
+// Every triangle is clipped into the cells it meets with the voxelizer's exact
+// sweep (`clip.h`: x, then y, then z; half-open cells, the last one closed), so
+// the pieces of a triangle partition it. For each piece the encoder records
+// its area A, its area centroid and the triangle's unit normal. A cell's anchor
+// minimizes, in cell-local coordinates u = (x - centre) / h (per axis),
+//
+//   sum_i w_i [lambda_n (n_i' . (u - u_i))^2 + lambda_d |u - u_i|^2],
+//   w_i = A_i^p / sum A^p,
+//
+// where n_i' is the normal of the piece's plane in local coordinates
+// (normalize(n_i * h)). The normal equations (lambda_d I + lambda_n sum w n'n'^T) u
+// = lambda_d sum w u_i + lambda_n sum w n'n'^T u_i are solved by Cholesky
+// (lambda_d > 0 keeps the matrix positive definite). When the solution leaves
+// the cell it is clamped to the cell and moved to the closest point of the
+// cell's own pieces (which lie in the closed cell). The token normal is
+// normalize(sum w_i n_i) in world coordinates.
+//
+// Work is split into slabs of whole x-columns, processed independently: the
+// triangles are binned to slabs in ascending order, each slab's pieces are
+// sorted by (cell, face), and the slabs' outputs are concatenated in slab
+// order, so the output is sorted by the C-order cell index and does not depend
+// on the thread count.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <numeric>
+#include <vector>
+
+#include "common/grid.h"
+#include "spatial/bvh.h"
+#include "voxelize/clip.h"
+#include "voxelize/forward.h"
+
+namespace voxax {
+namespace fc {
+
+struct Params {
+  double lambda_n = 1.0;
+  double lambda_d = 1e-3;
+  double power = 1.0;
+  bool clamp = true;
+  bool components = false;  // one anchor per connected component of a cell's pieces
+  bool faces = false;       // record each row's faces
+};
+
+// One piece of a triangle in a cell: d is the area centroid relative to the
+// cell centre (world units), n the triangle's unit normal.
+struct Piece {
+  int64_t cell;
+  int32_t face;
+  double area;
+  double d[3];
+  double n[3];
+};
+
+// Rows of a slab (or of the whole result after concatenation).
+struct Rows {
+  std::vector<int64_t> index;      // C-order cell index
+  std::vector<int32_t> component;  // component within the cell (0 with one anchor per cell)
+  std::vector<double> offset;      // (K, 3) anchor in cell units, within [-0.5, 0.5]
+  std::vector<double> normal;      // (K, 3)
+  std::vector<double> area;        // (K,) total piece area
+  std::vector<int32_t> clamped;    // (K,) whether the anchor was clamped and projected
+  std::vector<int64_t> face_count;  // (K,) faces of each row (when Params::faces)
+  std::vector<int32_t> faces;
+  // Pieces (for the partition checks).
+  std::vector<int64_t> p_cell;
+  std::vector<int32_t> p_face;
+  std::vector<double> p_area, p_centroid;
+
+  size_t size() const { return index.size(); }
+};
+
+inline void load_tri(const double* V, const int32_t* F, int64_t t, double p[3][3]) {
+  for (int c = 0; c < 3; ++c)
+    for (int a = 0; a < 3; ++a) p[c][a] = V[3 * int64_t(F[3 * t + c]) + a];
+}
+
+// Unit normal of a triangle; false when degenerate.
+inline bool unit_normal(const double p[3][3], double nh[3]) {
+  double e1[3], e2[3];
+  for (int a = 0; a < 3; ++a) {
+    e1[a] = p[1][a] - p[0][a];
+    e2[a] = p[2][a] - p[0][a];
+  }
+  const double N[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
+  const double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
+  if (!(len > 0) || !std::isfinite(len)) return false;
+  for (int a = 0; a < 3; ++a) nh[a] = N[a] / len;
+  return true;
+}
+
+inline double cell_centre(const GridSpec& g, int a, int64_t i) {
+  return g.lo[a] + (static_cast<double>(i) + 0.5) * g.h[a];
+}
+
+// Calls visit(i, j, k, piece) for every piece of triangle p in the cells with
+// i in [ia, ib) (the sweep of the voxelizer's backward kernel).
+template <typename Visit>
+inline void clip_triangle(const GridSpec& g, const double p[3][3], int64_t ia, int64_t ib,
+                          Visit&& visit) {
+  Poly<3> P;
+  P.count = 3;
+  for (int c = 0; c < 3; ++c)
+    for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
+  int64_t i0, i1, j0, j1, k0, k1;
+  if (!g.span(0, P.min(0), P.max(0), &i0, &i1) || !g.span(1, P.min(1), P.max(1), &j0, &j1) ||
+      !g.span(2, P.min(2), P.max(2), &k0, &k1))
+    return;
+  i0 = std::max(i0, ia);
+  i1 = std::min(i1, ib - 1);
+  if (i0 > i1) return;
+  sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
+    int64_t ja, jb;
+    if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
+    sweep<3>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<3>& Pxy) {
+      int64_t ka, kb;
+      if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
+      sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) { visit(i, j, k, Q); });
+    });
+  });
+}
+
+// Area and centroid offset (from `centre`) of a convex piece in the plane of
+// unit normal nh, by a fan from its first vertex.
+inline double piece_moments(const Poly<3>& Q, const double nh[3], const double centre[3],
+                            double d[3]) {
+  double A = 0, M[3] = {0, 0, 0};
+  const double* q0 = Q.v[0];
+  for (int m = 1; m + 1 < Q.count; ++m) {
+    const double* q1 = Q.v[m];
+    const double* q2 = Q.v[m + 1];
+    double u[3], w[3];
+    for (int a = 0; a < 3; ++a) {
+      u[a] = q1[a] - q0[a];
+      w[a] = q2[a] - q0[a];
+    }
+    const double area =
+        0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+               nh[2] * (u[0] * w[1] - u[1] * w[0]));
+    A += area;
+    for (int a = 0; a < 3; ++a) M[a] += area * (u[a] + w[a]) * (1.0 / 3.0);
+  }
+  if (A > 0)
+    for (int a = 0; a < 3; ++a) d[a] = (q0[a] - centre[a]) + M[a] / A;
+  return A;
+}
+
+// Closest point to x on triangle t clipped to the closed cell (i, j, k);
+// returns the squared distance (infinity when the clipped piece is empty).
+inline double closest_on_piece(const GridSpec& g, const double* V, const int32_t* F, int32_t t,
+                               const int64_t cell[3], const double x[3], double q[3]) {
+  Poly<3> P, below, above;
+  P.count = 3;
+  double p[3][3];
+  load_tri(V, F, t, p);
+  for (int c = 0; c < 3; ++c)
+    for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
+  for (int a = 0; a < 3 && P.count >= 3; ++a) {
+    split<3>(P, a, g.plane(a, cell[a]), &below, &above);
+    P = above;
+    if (P.count < 3) break;
+    split<3>(P, a, g.plane(a, cell[a] + 1), &below, &above);
+    P = below;
+  }
+  double best = INFINITY;
+  if (P.count < 3) return best;
+  for (int m = 1; m + 1 < P.count; ++m) {
+    double bary[3], r[3];
+    const double d2 = spatial::closest_on_triangle(x, P.v[0], P.v[m], P.v[m + 1], bary, r);
+    if (d2 < best) {
+      best = d2;
+      for (int a = 0; a < 3; ++a) q[a] = r[a];
+    }
+  }
+  return best;
+}
+
+// Solves the 3x3 symmetric positive definite system M u = b (M as xx, xy, xz,
+// yy, yz, zz) by Cholesky; false when M is not numerically positive definite.
+inline bool cholesky3(const double M[6], const double b[3], double u[3]) {
+  const double l00 = std::sqrt(M[0]);
+  if (!(l00 > 0)) return false;
+  const double l10 = M[1] / l00, l20 = M[2] / l00;
+  const double s11 = M[3] - l10 * l10;
+  if (!(s11 > 0)) return false;
+  const double l11 = std::sqrt(s11);
+  const double l21 = (M[4] - l20 * l10) / l11;
+  const double s22 = M[5] - l20 * l20 - l21 * l21;
+  if (!(s22 > 0)) return false;
+  const double l22 = std::sqrt(s22);
+  const double y0 = b[0] / l00;
+  const double y1 = (b[1] - l10 * y0) / l11;
+  const double y2 = (b[2] - l20 * y0 - l21 * y1) / l22;
+  u[2] = y2 / l22;
+  u[1] = (y1 - l21 * u[2]) / l11;
+  u[0] = (y0 - l10 * u[1] - l20 * u[2]) / l00;
+  return std::isfinite(u[0]) && std::isfinite(u[1]) && std::isfinite(u[2]);
+}
+
+// Solves one anchor from pieces `ids` (indices into `pieces`, all of one cell)
+// and appends its row.
+inline void solve_row(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
+                      const std::vector<Piece>& pieces, const std::vector<int32_t>& ids,
+                      int32_t component, Rows* out) {
+  const int64_t cell = pieces[ids[0]].cell;
+  const int64_t ny = g.n[1], nz = g.n[2];
+  const int64_t ijk[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
+  double S0 = 0, Snn[6] = {0, 0, 0, 0, 0, 0}, Sc[3] = {0, 0, 0}, Snnc[3] = {0, 0, 0},
+         Sn[3] = {0, 0, 0}, area = 0;
+  auto weight = [&](double A) {
+    if (prm.power == 1.0) return A;
+    if (prm.power == 0.0) return 1.0;
+    return std::pow(A, prm.power);
+  };
+  double wsum = 0;
+  for (int32_t id : ids) wsum += weight(pieces[id].area);
+  const bool uniform = !(wsum > 0) || !std::isfinite(wsum);
+  for (int32_t id : ids) {
+    const Piece& pc = pieces[id];
+    const double w = uniform ? 1.0 : weight(pc.area);
+    area += pc.area;
+    double nl[3], u[3], len = 0;
+    for (int a = 0; a < 3; ++a) {
+      nl[a] = pc.n[a] * g.h[a];
+      len += nl[a] * nl[a];
+      u[a] = pc.d[a] * g.inv_h[a];
+    }
+    len = std::sqrt(len);
+    for (int a = 0; a < 3; ++a) nl[a] /= len;
+    const double nu = nl[0] * u[0] + nl[1] * u[1] + nl[2] * u[2];
+    S0 += w;
+    Snn[0] += w * nl[0] * nl[0];
+    Snn[1] += w * nl[0] * nl[1];
+    Snn[2] += w * nl[0] * nl[2];
+    Snn[3] += w * nl[1] * nl[1];
+    Snn[4] += w * nl[1] * nl[2];
+    Snn[5] += w * nl[2] * nl[2];
+    for (int a = 0; a < 3; ++a) {
+      Sc[a] += w * u[a];
+      Snnc[a] += w * nl[a] * nu;
+      Sn[a] += w * pc.n[a];
+    }
+  }
+  const double M[6] = {prm.lambda_d * S0 + prm.lambda_n * Snn[0], prm.lambda_n * Snn[1],
+                       prm.lambda_n * Snn[2], prm.lambda_d * S0 + prm.lambda_n * Snn[3],
+                       prm.lambda_n * Snn[4], prm.lambda_d * S0 + prm.lambda_n * Snn[5]};
+  const double b[3] = {prm.lambda_d * Sc[0] + prm.lambda_n * Snnc[0],
+                       prm.lambda_d * Sc[1] + prm.lambda_n * Snnc[1],
+                       prm.lambda_d * Sc[2] + prm.lambda_n * Snnc[2]};
+  double u[3];
+  if (!cholesky3(M, b, u))
+    for (int a = 0; a < 3; ++a) u[a] = Sc[a] / S0;  // the mean centroid
+  bool moved = false;
+  for (int a = 0; a < 3; ++a) {
+    if (!(u[a] >= -0.5)) {
+      u[a] = -0.5;
+      moved = true;
+    } else if (u[a] > 0.5) {
+      u[a] = 0.5;
+      moved = true;
+    }
+  }
+  if (moved && prm.clamp) {
+    double x[3], centre[3], best = INFINITY, q[3], bq[3] = {0, 0, 0};
+    for (int a = 0; a < 3; ++a) {
+      centre[a] = cell_centre(g, a, ijk[a]);
+      x[a] = centre[a] + u[a] * g.h[a];
+    }
+    for (int32_t id : ids) {
+      const double d2 = closest_on_piece(g, V, F, pieces[id].face, ijk, x, q);
+      if (d2 < best) {
+        best = d2;
+        for (int a = 0; a < 3; ++a) bq[a] = q[a];
+      }
+    }
+    if (best < INFINITY)
+      for (int a = 0; a < 3; ++a)
+        u[a] = std::min(0.5, std::max(-0.5, (bq[a] - centre[a]) * g.inv_h[a]));
+  }
+  double nn = std::sqrt(Sn[0] * Sn[0] + Sn[1] * Sn[1] + Sn[2] * Sn[2]);
+  double nrm[3];
+  if (nn > 0 && std::isfinite(nn)) {
+    for (int a = 0; a < 3; ++a) nrm[a] = Sn[a] / nn;
+  } else {  // opposite normals cancel: take the largest piece's
+    int32_t big = ids[0];
+    for (int32_t id : ids)
+      if (pieces[id].area > pieces[big].area) big = id;
+    for (int a = 0; a < 3; ++a) nrm[a] = pieces[big].n[a];
+  }
+  out->index.push_back(cell);
+  out->component.push_back(component);
+  for (int a = 0; a < 3; ++a) {
+    out->offset.push_back(u[a]);
+    out->normal.push_back(nrm[a]);
+  }
+  out->area.push_back(area);
+  out->clamped.push_back(moved ? 1 : 0);
+  if (prm.faces) {
+    out->face_count.push_back(static_cast<int64_t>(ids.size()));
+    for (int32_t id : ids) out->faces.push_back(pieces[id].face);
+  }
+}
+
+// Whether faces s and t share an edge (two vertex indices).
+inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
+  int common = 0;
+  for (int c = 0; c < 3; ++c)
+    for (int e = 0; e < 3; ++e)
+      if (F[3 * int64_t(s) + c] == F[3 * int64_t(t) + e]) {
+        ++common;
+        break;
+      }
+  return common >= 2;
+}
+
+// The rows of the cells of one slab [ia, ib). With `pieces_only`, records the
+// pieces instead.
+inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
+                        const Bins& bins, int64_t slab, int64_t ia, int64_t ib, bool pieces_only,
+                        Rows* out) {
+  std::vector<Piece> pieces;
+  const int64_t ny = g.n[1], nz = g.n[2];
+  for (int64_t e = bins.start[slab]; e < bins.start[slab + 1]; ++e) {
+    const int32_t t = bins.items[e];
+    double p[3][3], nh[3];
+    load_tri(V, F, t, p);
+    if (!unit_normal(p, nh)) continue;
+    clip_triangle(g, p, ia, ib, [&](int64_t i, int64_t j, int64_t k, const Poly<3>& Q) {
+      const double centre[3] = {cell_centre(g, 0, i), cell_centre(g, 1, j), cell_centre(g, 2, k)};
+      Piece pc;
+      pc.area = piece_moments(Q, nh, centre, pc.d);
+      if (!(pc.area > 0) || !std::isfinite(pc.area)) return;
+      pc.cell = (i * ny + j) * nz + k;
+      pc.face = t;
+      for (int a = 0; a < 3; ++a) pc.n[a] = nh[a];
+      pieces.push_back(pc);
+    });
+  }
+  std::sort(pieces.begin(), pieces.end(), [](const Piece& a, const Piece& b) {
+    return a.cell < b.cell || (a.cell == b.cell && a.face < b.face);
+  });
+  if (pieces_only) {
+    for (const Piece& pc : pieces) {
+      const int64_t ijk[3] = {pc.cell / (ny * nz), (pc.cell / nz) % ny, pc.cell % nz};
+      out->p_cell.push_back(pc.cell);
+      out->p_face.push_back(pc.face);
+      out->p_area.push_back(pc.area);
+      for (int a = 0; a < 3; ++a) {
+        const double c = cell_centre(g, a, ijk[a]) + pc.d[a];
+        out->p_centroid.push_back(
+            std::min(g.plane(a, ijk[a] + 1), std::max(g.plane(a, ijk[a]), c)));
+      }
+    }
+    return;
+  }
+  std::vector<int32_t> ids, parent;
+  std::vector<std::vector<int32_t>> groups;
+  size_t s = 0;
+  while (s < pieces.size()) {
+    size_t e = s;
+    while (e < pieces.size() && pieces[e].cell == pieces[s].cell) ++e;
+    const int32_t m = static_cast<int32_t>(e - s);
+    if (!prm.components || m == 1) {
+      ids.resize(m);
+      for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(s) + r;
+      solve_row(g, prm, V, F, pieces, ids, 0, out);
+    } else {
+      // Union-find over pieces whose faces share a mesh edge; components are
+      // numbered by their lowest face.
+      parent.resize(m);
+      std::iota(parent.begin(), parent.end(), 0);
+      auto find = [&](int32_t x) {
+        while (parent[x] != x) x = parent[x] = parent[parent[x]];
+        return x;
+      };
+      for (int32_t a = 0; a < m; ++a)
+        for (int32_t b = a + 1; b < m; ++b)
+          if (share_edge(F, pieces[s + a].face, pieces[s + b].face)) {
+            const int32_t ra = find(a), rb = find(b);
+            if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
+          }
+      int32_t comp = 0;
+      for (int32_t a = 0; a < m; ++a) {
+        if (find(a) != a) continue;
+        ids.clear();
+        for (int32_t b = a; b < m; ++b)
+          if (find(b) == a) ids.push_back(static_cast<int32_t>(s) + b);
+        solve_row(g, prm, V, F, pieces, ids, comp++, out);
+      }
+    }
+    s = e;
+  }
+}
+
+}  // namespace fc
+}  // namespace voxax

@@ -1,0 +1,190 @@
+// Eager host entry points of the Faithful Contouring encoder, a plain C ABI for
+// ctypes (which releases the GIL while they run). Every function validates its
+// input, catches every exception and reports failures as a non-zero status with
+// a message in `err`.
+//
+//   voxax_fc_encode(V (nv, 3) f64, nv, F (nf, 3) i32, nf, box[6] (lower, upper), shape[3],
+//                   params[3] (lambda_n, lambda_d, weight_power), flags, threads,
+//                   &handle, sizes[3] (rows, faces, pieces), err, errlen)
+//       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only
+//   voxax_fc_rows(handle, index (K,) i64, component (K,) i32, offset (K, 3), normal (K, 3),
+//                 area (K,), clamped (K,) i32, face_count (K,) i64, faces (sum,) i32)
+//   voxax_fc_pieces(handle, cell (P,) i64, face (P,) i32, area (P,), centroid (P, 3))
+//   voxax_fc_free(handle)
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <exception>
+#include <new>
+#include <string>
+#include <vector>
+
+#include "common/constants.h"
+#include "common/grid.h"
+#include "fc/encode.h"
+#include "spatial/host_pool.h"
+
+#define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
+
+namespace {
+
+using voxax::fc::Rows;
+
+int fail(char* err, int64_t errlen, const std::string& msg) {
+  if (err && errlen > 0) {
+    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
+    std::memcpy(err, msg.data(), n);
+    err[n] = '\0';
+  }
+  return 1;
+}
+
+template <typename T>
+void append(std::vector<T>* dst, const std::vector<T>& src) {
+  dst->insert(dst->end(), src.begin(), src.end());
+}
+
+}  // namespace
+
+VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                                 const double* box, const int64_t* shape, const double* params,
+                                 int32_t flags, int32_t threads, void** handle, int64_t* sizes,
+                                 char* err, int64_t errlen) {
+  if (handle) *handle = nullptr;
+  try {
+    if (!handle || !sizes || !box || !shape || !params)
+      return fail(err, errlen, "voxax: fc.encode got a null argument");
+    if (nv < 0 || nf < 0 || nv > INT32_MAX || nf > INT32_MAX)
+      return fail(err, errlen, "voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
+    if ((nv > 0 && !V) || (nf > 0 && !F))
+      return fail(err, errlen, "voxax: fc.encode got a null mesh array");
+    for (int64_t i = 0; i < 3 * nv; ++i)
+      if (!std::isfinite(V[i]) || std::fabs(V[i]) > voxax::kMaxAbsCoordinate)
+        return fail(err, errlen,
+                    "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
+                    "(row " +
+                        std::to_string(i / 3) + ")");
+    for (int64_t i = 0; i < 3 * nf; ++i)
+      if (F[i] < 0 || F[i] >= nv)
+        return fail(err, errlen,
+                    "voxax: fc.encode: face index " + std::to_string(F[i]) +
+                        " is out of range [0, " + std::to_string(nv) + ") (face " +
+                        std::to_string(i / 3) + ")");
+    voxax::GridSpec g;
+    const voxax::ffi::Error ge = voxax::check_grid(3, box[0], box[3], shape[0], box[1], box[4],
+                                                   shape[1], box[2], box[5], shape[2], &g);
+    if (ge.failure()) return fail(err, errlen, ge.message());
+    voxax::fc::Params prm;
+    prm.lambda_n = params[0];
+    prm.lambda_d = params[1];
+    prm.power = params[2];
+    if (!(prm.lambda_n >= 0) || !std::isfinite(prm.lambda_n))
+      return fail(err, errlen, "voxax: fc.encode: lambda_n must be >= 0 and finite");
+    if (!(prm.lambda_d > 0) || !std::isfinite(prm.lambda_d))
+      return fail(err, errlen, "voxax: fc.encode: lambda_d must be > 0 and finite");
+    if (!(prm.power >= 0) || !(prm.power <= 16))
+      return fail(err, errlen, "voxax: fc.encode: weight_power must lie in [0, 16]");
+    if (flags < 0 || flags > 15) return fail(err, errlen, "voxax: fc.encode: bad flags");
+    prm.clamp = (flags & 1) != 0;
+    prm.components = (flags & 2) != 0;
+    prm.faces = (flags & 4) != 0;
+    const bool pieces_only = (flags & 8) != 0;
+    g.build_planes();
+
+    // Slabs of whole x-columns; their width depends on the grid only.
+    voxax::Tiling tl;
+    tl.tx = std::max<int64_t>(1, (g.n[0] + 127) / 128);
+    tl.ty = g.n[1];
+    tl.ntx = (g.n[0] + tl.tx - 1) / tl.tx;
+    tl.nty = 1;
+    voxax::Bins bins;
+    voxax::bin_faces(
+        nullptr, tl, nf,
+        [&](int64_t t, int32_t* r) {
+          double p[3][3];
+          voxax::fc::load_tri(V, F, t, p);
+          double lo = p[0][0], hi = p[0][0];
+          for (int c = 1; c < 3; ++c) {
+            lo = std::min(lo, p[c][0]);
+            hi = std::max(hi, p[c][0]);
+          }
+          int64_t i0, i1;
+          if (!g.span(0, lo, hi, &i0, &i1)) return false;
+          r[0] = static_cast<int32_t>(i0 / tl.tx);
+          r[1] = static_cast<int32_t>(i1 / tl.tx);
+          r[2] = 0;
+          r[3] = 0;
+          return true;
+        },
+        &bins);
+    const int64_t slabs = tl.ntx;
+    std::vector<Rows> parts(slabs);
+    voxax::spatial::parallel_chunks(slabs, 1, threads, [&](int64_t s, int64_t, int64_t) {
+      const int64_t ia = s * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
+      voxax::fc::encode_slab(g, prm, V, F, bins, s, ia, ib, pieces_only, &parts[s]);
+    });
+    Rows* rows = new Rows();
+    try {
+      for (auto& p : parts) {
+        append(&rows->index, p.index);
+        append(&rows->component, p.component);
+        append(&rows->offset, p.offset);
+        append(&rows->normal, p.normal);
+        append(&rows->area, p.area);
+        append(&rows->clamped, p.clamped);
+        append(&rows->face_count, p.face_count);
+        append(&rows->faces, p.faces);
+        append(&rows->p_cell, p.p_cell);
+        append(&rows->p_face, p.p_face);
+        append(&rows->p_area, p.p_area);
+        append(&rows->p_centroid, p.p_centroid);
+        p = Rows();
+      }
+    } catch (...) {
+      delete rows;
+      throw;
+    }
+    sizes[0] = static_cast<int64_t>(rows->index.size());
+    sizes[1] = static_cast<int64_t>(rows->faces.size());
+    sizes[2] = static_cast<int64_t>(rows->p_cell.size());
+    *handle = rows;
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return fail(err, errlen, "voxax: out of memory in fc.encode");
+  } catch (const std::exception& e) {
+    return fail(err, errlen, std::string("voxax: fc.encode error: ") + e.what());
+  } catch (...) {
+    return fail(err, errlen, "voxax: unknown error in fc.encode");
+  }
+}
+
+VOXAX_EXPORT void voxax_fc_rows(void* handle, int64_t* index, int32_t* component, double* offset,
+                                double* normal, double* area, int32_t* clamped,
+                                int64_t* face_count, int32_t* faces) {
+  const Rows* r = static_cast<const Rows*>(handle);
+  if (!r) return;
+  const size_t k = r->index.size();
+  if (index) std::copy(r->index.begin(), r->index.end(), index);
+  if (component) std::copy(r->component.begin(), r->component.end(), component);
+  if (offset) std::copy(r->offset.begin(), r->offset.end(), offset);
+  if (normal) std::copy(r->normal.begin(), r->normal.end(), normal);
+  if (area) std::copy(r->area.begin(), r->area.end(), area);
+  if (clamped) std::copy(r->clamped.begin(), r->clamped.end(), clamped);
+  if (face_count && r->face_count.size() == k)
+    std::copy(r->face_count.begin(), r->face_count.end(), face_count);
+  if (faces) std::copy(r->faces.begin(), r->faces.end(), faces);
+}
+
+VOXAX_EXPORT void voxax_fc_pieces(void* handle, int64_t* cell, int32_t* face, double* area,
+                                  double* centroid) {
+  const Rows* r = static_cast<const Rows*>(handle);
+  if (!r) return;
+  if (cell) std::copy(r->p_cell.begin(), r->p_cell.end(), cell);
+  if (face) std::copy(r->p_face.begin(), r->p_face.end(), face);
+  if (area) std::copy(r->p_area.begin(), r->p_area.end(), area);
+  if (centroid) std::copy(r->p_centroid.begin(), r->p_centroid.end(), centroid);
+}
+
+VOXAX_EXPORT void voxax_fc_free(void* handle) { delete static_cast<Rows*>(handle); }
