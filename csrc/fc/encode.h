@@ -60,12 +60,12 @@ struct Piece {
 
 // Rows of a slab (or of the whole result after concatenation).
 struct Rows {
-  std::vector<int64_t> index;      // C-order cell index
-  std::vector<int32_t> component;  // component within the cell (0 with one anchor per cell)
-  std::vector<double> offset;      // (K, 3) anchor in cell units, within [-0.5, 0.5]
-  std::vector<double> normal;      // (K, 3)
-  std::vector<double> area;        // (K,) total piece area
-  std::vector<int32_t> clamped;    // (K,) whether the anchor was clamped and projected
+  std::vector<int64_t> index;       // C-order cell index
+  std::vector<int32_t> component;   // component within the cell (0 with one anchor per cell)
+  std::vector<double> offset;       // (K, 3) anchor in cell units, within [-0.5, 0.5]
+  std::vector<double> normal;       // (K, 3)
+  std::vector<double> area;         // (K,) total piece area
+  std::vector<int32_t> clamped;     // (K,) whether the anchor was clamped and projected
   std::vector<int64_t> face_count;  // (K,) faces of each row (when Params::faces)
   std::vector<int32_t> faces;
   // Pieces (for the partition checks).
@@ -248,9 +248,12 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
       Sn[a] += w * pc.n[a];
     }
   }
-  const double M[6] = {prm.lambda_d * S0 + prm.lambda_n * Snn[0], prm.lambda_n * Snn[1],
-                       prm.lambda_n * Snn[2], prm.lambda_d * S0 + prm.lambda_n * Snn[3],
-                       prm.lambda_n * Snn[4], prm.lambda_d * S0 + prm.lambda_n * Snn[5]};
+  const double M[6] = {prm.lambda_d * S0 + prm.lambda_n * Snn[0],
+                       prm.lambda_n * Snn[1],
+                       prm.lambda_n * Snn[2],
+                       prm.lambda_d * S0 + prm.lambda_n * Snn[3],
+                       prm.lambda_n * Snn[4],
+                       prm.lambda_d * S0 + prm.lambda_n * Snn[5]};
   const double b[3] = {prm.lambda_d * Sc[0] + prm.lambda_n * Snnc[0],
                        prm.lambda_d * Sc[1] + prm.lambda_n * Snnc[1],
                        prm.lambda_d * Sc[2] + prm.lambda_n * Snnc[2]};

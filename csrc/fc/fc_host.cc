@@ -161,8 +161,8 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
 }
 
 VOXAX_EXPORT void voxax_fc_rows(void* handle, int64_t* index, int32_t* component, double* offset,
-                                double* normal, double* area, int32_t* clamped,
-                                int64_t* face_count, int32_t* faces) {
+                                double* normal, double* area, int32_t* clamped, int64_t* face_count,
+                                int32_t* faces) {
   const Rows* r = static_cast<const Rows*>(handle);
   if (!r) return;
   const size_t k = r->index.size();
