@@ -46,6 +46,9 @@ struct Params {
   bool clamp = true;
   bool components = false;  // one anchor per connected component of a cell's pieces
   bool faces = false;       // record each row's faces
+  // Per face, bit k set when its edge k (corners k, k + 1) is an open boundary of the mesh
+  // (used by this face alone), or null.
+  const uint8_t* open = nullptr;
 };
 
 // One piece of a triangle in a cell: d is the area centroid relative to the
@@ -204,6 +207,55 @@ inline bool cholesky3(const double M[6], const double b[3], double u[3]) {
   return std::isfinite(u[0]) && std::isfinite(u[1]) && std::isfinite(u[2]);
 }
 
+// Adds the open boundary edges of face t inside the closed cell ijk to the line terms
+// B = sum L (I - d d^T) and Bm = sum L (I - d d^T) m (cell-local coordinates; L the
+// clipped length, d its direction, m its midpoint).
+inline void add_boundary(const GridSpec& g, const double* V, const int32_t* F, int32_t t,
+                         uint8_t bits, const int64_t ijk[3], const double centre[3], double B[6],
+                         double Bm[3], double* Ltot) {
+  double p[3][3];
+  load_tri(V, F, t, p);
+  for (int k = 0; k < 3; ++k) {
+    if (!(bits & (1u << k))) continue;
+    const double* a = p[k];
+    const double* b = p[(k + 1) % 3];
+    double t0 = 0, t1 = 1;
+    bool empty = false;
+    for (int ax = 0; ax < 3 && !empty; ++ax) {
+      const double lo = g.plane(ax, ijk[ax]), hi = g.plane(ax, ijk[ax] + 1);
+      const double d = b[ax] - a[ax];
+      if (d == 0) {
+        empty = a[ax] < lo || a[ax] > hi;
+      } else {
+        double s0 = (lo - a[ax]) / d, s1 = (hi - a[ax]) / d;
+        if (s0 > s1) std::swap(s0, s1);
+        t0 = std::max(t0, s0);
+        t1 = std::min(t1, s1);
+        empty = !(t0 < t1);
+      }
+    }
+    if (empty) continue;
+    double u0[3], u1[3], dir[3], len = 0;
+    for (int ax = 0; ax < 3; ++ax) {
+      u0[ax] = (a[ax] + t0 * (b[ax] - a[ax]) - centre[ax]) * g.inv_h[ax];
+      u1[ax] = (a[ax] + t1 * (b[ax] - a[ax]) - centre[ax]) * g.inv_h[ax];
+      dir[ax] = u1[ax] - u0[ax];
+      len += dir[ax] * dir[ax];
+    }
+    len = std::sqrt(len);
+    if (!(len > 0) || !std::isfinite(len)) continue;
+    for (int ax = 0; ax < 3; ++ax) dir[ax] /= len;
+    const double P[6] = {1 - dir[0] * dir[0], -dir[0] * dir[1], -dir[0] * dir[2],
+                         1 - dir[1] * dir[1], -dir[1] * dir[2], 1 - dir[2] * dir[2]};
+    const double m[3] = {0.5 * (u0[0] + u1[0]), 0.5 * (u0[1] + u1[1]), 0.5 * (u0[2] + u1[2])};
+    for (int e = 0; e < 6; ++e) B[e] += len * P[e];
+    Bm[0] += len * (P[0] * m[0] + P[1] * m[1] + P[2] * m[2]);
+    Bm[1] += len * (P[1] * m[0] + P[3] * m[1] + P[4] * m[2]);
+    Bm[2] += len * (P[2] * m[0] + P[4] * m[1] + P[5] * m[2]);
+    *Ltot += len;
+  }
+}
+
 // Solves one anchor from pieces `ids` (indices into `pieces`, all of one cell)
 // and appends its row.
 inline void solve_row(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
@@ -248,15 +300,31 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
       Sn[a] += w * pc.n[a];
     }
   }
-  const double M[6] = {prm.lambda_d * S0 + prm.lambda_n * Snn[0],
-                       prm.lambda_n * Snn[1],
-                       prm.lambda_n * Snn[2],
-                       prm.lambda_d * S0 + prm.lambda_n * Snn[3],
-                       prm.lambda_n * Snn[4],
-                       prm.lambda_d * S0 + prm.lambda_n * Snn[5]};
-  const double b[3] = {prm.lambda_d * Sc[0] + prm.lambda_n * Snnc[0],
-                       prm.lambda_d * Sc[1] + prm.lambda_n * Snnc[1],
-                       prm.lambda_d * Sc[2] + prm.lambda_n * Snnc[2]};
+  double M[6] = {prm.lambda_d * S0 + prm.lambda_n * Snn[0],
+                 prm.lambda_n * Snn[1],
+                 prm.lambda_n * Snn[2],
+                 prm.lambda_d * S0 + prm.lambda_n * Snn[3],
+                 prm.lambda_n * Snn[4],
+                 prm.lambda_d * S0 + prm.lambda_n * Snn[5]};
+  double b[3] = {prm.lambda_d * Sc[0] + prm.lambda_n * Snnc[0],
+                 prm.lambda_d * Sc[1] + prm.lambda_n * Snnc[1],
+                 prm.lambda_d * Sc[2] + prm.lambda_n * Snnc[2]};
+  if (prm.open) {
+    // Open boundaries in the cell: lines the anchor should lie on, with the weight of
+    // the tangent planes (lambda_n, normalized by the total boundary length).
+    double B[6] = {0, 0, 0, 0, 0, 0}, Bm[3] = {0, 0, 0}, L = 0;
+    const double centre[3] = {cell_centre(g, 0, ijk[0]), cell_centre(g, 1, ijk[1]),
+                              cell_centre(g, 2, ijk[2])};
+    for (int32_t id : ids) {
+      const uint8_t bits = prm.open[pieces[id].face];
+      if (bits) add_boundary(g, V, F, pieces[id].face, bits, ijk, centre, B, Bm, &L);
+    }
+    if (L > 0) {
+      const double s = prm.lambda_n * S0 / L;
+      for (int e = 0; e < 6; ++e) M[e] += s * B[e];
+      for (int a = 0; a < 3; ++a) b[a] += s * Bm[a];
+    }
+  }
   double u[3];
   if (!cholesky3(M, b, u))
     for (int a = 0; a < 3; ++a) u[a] = Sc[a] / S0;  // the mean centroid

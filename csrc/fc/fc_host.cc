@@ -3,7 +3,8 @@
 // input, catches every exception and reports failures as a non-zero status with
 // a message in `err`.
 //
-//   voxax_fc_encode(V (nv, 3) f64, nv, F (nf, 3) i32, nf, box[6] (lower, upper), shape[3],
+//   voxax_fc_encode(V (nv, 3) f64, nv, F (nf, 3) i32, nf, open (nf,) u8 or null (bit k: edge k
+//                   of the face is an open boundary), box[6] (lower, upper), shape[3],
 //                   params[3] (lambda_n, lambda_d, weight_power), flags, threads,
 //                   &handle, sizes[3] (rows, faces, pieces), err, errlen)
 //       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only
@@ -49,9 +50,9 @@ void append(std::vector<T>* dst, const std::vector<T>& src) {
 }  // namespace
 
 VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, int64_t nf,
-                                 const double* box, const int64_t* shape, const double* params,
-                                 int32_t flags, int32_t threads, void** handle, int64_t* sizes,
-                                 char* err, int64_t errlen) {
+                                 const uint8_t* open, const double* box, const int64_t* shape,
+                                 const double* params, int32_t flags, int32_t threads,
+                                 void** handle, int64_t* sizes, char* err, int64_t errlen) {
   if (handle) *handle = nullptr;
   try {
     if (!handle || !sizes || !box || !shape || !params)
@@ -90,6 +91,7 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     prm.clamp = (flags & 1) != 0;
     prm.components = (flags & 2) != 0;
     prm.faces = (flags & 4) != 0;
+    prm.open = open;
     const bool pieces_only = (flags & 8) != 0;
     g.build_planes();
 

@@ -21,8 +21,9 @@ sheets are no longer merged into one vertex.
 Edge signs are the net flux of the surface through each lattice edge: the sum over the
 crossings of the edge (exact, from [`voxax.raster.line_crossings`][voxax.raster.line_crossings]
 through the grid nodes) of +1 where the surface normal points along the edge's axis and -1
-where it points against it, clipped to {-1, 0, +1}. For a closed outward-oriented mesh it
-is the winding number at the edge's lower end minus the one at its upper end.
+where it points against it (int8, clipped to [-127, 127]; the decoder uses its sign). For
+a closed mesh it is the winding number at the edge's lower end minus the one at its upper
+end (the lines' tie rule decides for nodes on the surface, consistently for all three axes).
 
 Edge order in a token: edges 0-3 run along x through the cell's corners at (y, z) offsets
 (0, 0), (1, 0), (1, 1), (0, 1); edges 4-7 along y at (x, z) offsets in the same order;
@@ -65,8 +66,22 @@ _D, _I32, _I64, _VP = _host.D, _host.I32, _host.I64, _host.VP
 _SIGNATURES = {
     "voxax_fc_encode": (
         ctypes.c_int,
-        [_D, ctypes.c_int64, _I32, ctypes.c_int64, _D, _I64, _D, ctypes.c_int32, ctypes.c_int32,
-         ctypes.POINTER(_VP), _I64, ctypes.c_char_p, ctypes.c_int64],
+        [
+            _D,
+            ctypes.c_int64,
+            _I32,
+            ctypes.c_int64,
+            ctypes.POINTER(ctypes.c_uint8),
+            _D,
+            _I64,
+            _D,
+            ctypes.c_int32,
+            ctypes.c_int32,
+            ctypes.POINTER(_VP),
+            _I64,
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
     ),
     "voxax_fc_rows": (None, [_VP, _I64, _I32, _D, _D, _D, _I32, _I64, _I32]),
     "voxax_fc_pieces": (None, [_VP, _I64, _I32, _D, _D]),
@@ -96,20 +111,45 @@ def _threads(threads) -> int:
     return _host.threads(threads)
 
 
-def _call_encode(where, V, F, grid, params, flags, threads):
+def _open_edges(F) -> np.ndarray:
+    """`(F,)` uint8: bit k set where edge k of the face (corners k, k + 1) is used by no
+    other face (an open boundary of the mesh)."""
+    if len(F) == 0:
+        return np.zeros(0, np.uint8)
+    e = np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2).astype(np.int64)
+    e.sort(axis=1)
+    key = e[:, 0] * (int(F.max()) + 1) + e[:, 1]
+    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    lone = (cnt[inv] == 1).reshape(-1, 3)
+    return (lone[:, 0] * 1 + lone[:, 1] * 2 + lone[:, 2] * 4).astype(np.uint8)
+
+
+def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int32)
     box = np.ascontiguousarray(np.concatenate([grid.lower, grid.upper]), dtype=np.float64)
     shape = np.ascontiguousarray(grid.shape, dtype=np.int64)
     prm = np.ascontiguousarray(params, dtype=np.float64)
+    open_edges = np.ascontiguousarray(_open_edges(F)) if open_boundaries else None
     handle = _VP()
     sizes = np.zeros(3, np.int64)
     err = _host.error_buffer()
     status = lib.voxax_fc_encode(
-        V.ctypes.data_as(_D), len(V), F.ctypes.data_as(_I32), len(F), box.ctypes.data_as(_D),
-        shape.ctypes.data_as(_I64), prm.ctypes.data_as(_D), int(flags), _threads(threads),
-        ctypes.byref(handle), sizes.ctypes.data_as(_I64), err, _host.ERRLEN,
+        V.ctypes.data_as(_D),
+        len(V),
+        F.ctypes.data_as(_I32),
+        len(F),
+        None if open_edges is None else open_edges.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
+        box.ctypes.data_as(_D),
+        shape.ctypes.data_as(_I64),
+        prm.ctypes.data_as(_D),
+        int(flags),
+        _threads(threads),
+        ctypes.byref(handle),
+        sizes.ctypes.data_as(_I64),
+        err,
+        _host.ERRLEN,
     )
     if status != 0:
         msg = err.value.decode("utf-8", "replace").removeprefix("voxax: ")
@@ -168,8 +208,13 @@ def pieces(vertices, faces=None, grid=None, *, threads=None) -> Pieces:
         face = np.empty(n, np.int32)
         area = np.empty(n, np.float64)
         cen = np.empty((n, 3), np.float64)
-        lib.voxax_fc_pieces(handle, cell.ctypes.data_as(_I64), face.ctypes.data_as(_I32),
-                            area.ctypes.data_as(_D), cen.ctypes.data_as(_D))
+        lib.voxax_fc_pieces(
+            handle,
+            cell.ctypes.data_as(_I64),
+            face.ctypes.data_as(_I32),
+            area.ctypes.data_as(_D),
+            cen.ctypes.data_as(_D),
+        )
     finally:
         lib.voxax_fc_free(handle)
     return Pieces(cell, face, area, cen)
@@ -187,8 +232,8 @@ class Tokens:
     - `offsets`: `(K, 3)` float64 anchors in cell units, `(x - centre) / spacing`, within
       `[-0.5, 0.5]` (`anchors` gives world coordinates).
     - `normals`: `(K, 3)` float64 unit normals.
-    - `edge_signs`: `(K, 12)` int8 net crossing signs of the cell's edges (see the module
-      docstring for the edge order).
+    - `edge_signs`: `(K, 12)` int8 net flux of the surface through the cell's edges (see
+      the module docstring for the edge order): -1, 0, +1 unless sheets overlap.
     - `component`: `(K,)` int32 component of the row within its cell (0 with one anchor per cell).
     - `area`: `(K,)` float64 surface area of the row's pieces (0 for rows added for cells
       that a crossing only touches).
@@ -250,27 +295,61 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
     from . import raster
 
     edges, signs, faces, points = [], [], [], []
+    normals = _face_normals(V, F)
+    # The lines' tie rule moves a line along its axis a through (b + d, c + d^2) with (b, c)
+    # the other axes in cyclic order after a. For x and z that is increasing order, for y
+    # it is (z, x): y-lines are computed on the mesh with x and z swapped (a mirror, which
+    # negates the signs), so all three families move the lines as the single perturbation
+    # of every node p + (e_x, e_y, e_z), e_x >> e_y >> e_z, and agree on each node's side.
+    swap = [2, 1, 0]
+    Vs = np.ascontiguousarray(V[:, swap])
+    gs = Grid(
+        tuple(grid.lower[i] for i in swap), tuple(grid.upper[i] for i in swap), tuple(grid.shape[i] for i in swap)
+    )
     for a in range(3):
-        d = raster.line_crossings(V, F, grid, a, lines="nodes", threads=threads)
+        if a == 1:
+            d = raster.line_crossings(Vs, F, gs, a, lines="nodes", threads=threads)
+        else:
+            d = raster.line_crossings(V, F, grid, a, lines="nodes", threads=threads)
         depth = np.asarray(d.depth)
         planes = grid.edges(a)
         keep = (depth >= planes[0]) & (depth <= planes[-1])
         line = np.asarray(d.line_index())[keep]
         depth = depth[keep]
-        seg = np.clip(np.searchsorted(planes, depth, side="right") - 1, 0, grid.shape[a] - 1)
+        face = np.asarray(d.face, np.int32)[keep]
+        seg = np.searchsorted(planes, depth, side="right") - 1
+        # A crossing exactly at a node goes to the edge below or above it as if every node
+        # were moved to p + (e_x, e_y, e_z) with e_x >> e_y >> e_z > 0, the perturbation
+        # that the lines' tie rule (through (b + d, c + d^2)) applies to the two other axes.
+        # On the perturbed line, the crossing moves by -(n_k / n_a) e_k along the axis, the
+        # node by e_a: the first non-zero term in x, y, z order decides.
+        at = np.flatnonzero(depth == planes[np.clip(seg, 0, len(planes) - 1)])
+        if len(at):
+            n = normals[face[at]]
+            below = np.ones(len(at), bool)
+            decided = np.zeros(len(at), bool)
+            for k in range(a):
+                now = ~decided & (n[:, k] != 0)
+                below[now] = -n[now, k] * n[now, a] < 0
+                decided |= now
+            seg[at] -= below.astype(seg.dtype)
+        seg = np.clip(seg, 0, grid.shape[a] - 1)
         nv = len(d.line_coords[1])
         iu, iv = np.divmod(line.astype(np.int64), nv)
         others = [b for b in range(3) if b != a]
         nodes = np.empty((len(line), 3), np.int64)
         nodes[:, a] = seg
+        if a == 1:  # lines indexed by (z, x)
+            iu, iv = iv, iu
         nodes[:, others[0]] = iu
         nodes[:, others[1]] = iv
         edges.append(_node_ids(grid, a, nodes))
-        signs.append(np.asarray(d.sign, np.int8)[keep])
-        faces.append(np.asarray(d.face, np.int32)[keep])
-        points.append(np.asarray(d.points(), np.float64)[keep])
-    return _Crossings(np.concatenate(edges), np.concatenate(signs), np.concatenate(faces),
-                      np.concatenate(points))
+        sign = np.asarray(d.sign, np.int8)[keep]
+        pts = np.asarray(d.points(), np.float64)[keep]
+        signs.append(-sign if a == 1 else sign)
+        faces.append(face)
+        points.append(pts[:, swap] if a == 1 else pts)
+    return _Crossings(np.concatenate(edges), np.concatenate(signs), np.concatenate(faces), np.concatenate(points))
 
 
 def _edge_geometry(grid: Grid, edge: np.ndarray):
@@ -308,9 +387,11 @@ def _token_edges(grid: Grid, cells: np.ndarray) -> np.ndarray:
     return _node_ids(grid, EDGE_AXIS[None, :], nodes)
 
 
-def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads):
+def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries=True):
     flags = (1 if clamp else 0) | (2 | 4 if components else 0)
-    handle, sizes = _call_encode(where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads)
+    handle, sizes = _call_encode(
+        where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries
+    )
     lib = _lib()
     try:
         k, nfc = int(sizes[0]), int(sizes[1])
@@ -322,18 +403,25 @@ def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components
         clamped = np.empty(k, np.int32)
         fcount = np.zeros(k, np.int64)
         faces = np.empty(nfc, np.int32)
-        lib.voxax_fc_rows(handle, index.ctypes.data_as(_I64), comp.ctypes.data_as(_I32),
-                          off.ctypes.data_as(_D), nrm.ctypes.data_as(_D), area.ctypes.data_as(_D),
-                          clamped.ctypes.data_as(_I32), fcount.ctypes.data_as(_I64),
-                          faces.ctypes.data_as(_I32))
+        lib.voxax_fc_rows(
+            handle,
+            index.ctypes.data_as(_I64),
+            comp.ctypes.data_as(_I32),
+            off.ctypes.data_as(_D),
+            nrm.ctypes.data_as(_D),
+            area.ctypes.data_as(_D),
+            clamped.ctypes.data_as(_I32),
+            fcount.ctypes.data_as(_I64),
+            faces.ctypes.data_as(_I32),
+        )
     finally:
         lib.voxax_fc_free(handle)
     return index, comp, off, nrm, area, fcount, faces
 
 
-def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads):
+def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries):
     index, comp, off, nrm, area, fcount, rfaces = _rows(
-        where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads
+        where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries
     )
     cr = _crossings(V, F, grid, threads)
     axis, nodes = _edge_geometry(grid, cr.edge)
@@ -343,8 +431,9 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     lo = np.asarray(grid.lower)
     # Cells that a crossing touches without a piece of positive area get a row at the
     # crossing point, so every quad has its four vertices.
-    cidx = np.where(inside, np.ravel_multi_index(tuple(np.moveaxis(np.clip(around, 0, None), 2, 0)),
-                                                 shape, mode="clip"), -1)
+    cidx = np.where(
+        inside, np.ravel_multi_index(tuple(np.moveaxis(np.clip(around, 0, None), 2, 0)), shape, mode="clip"), -1
+    )
     want = np.unique(cidx[inside])
     missing = want[~np.isin(want, index)]
     if len(missing):
@@ -417,7 +506,7 @@ def _component_signs(grid, cr, around, inside, cidx, index, off, fcount, rfaces,
     tedges = _token_edges(grid, cells.astype(np.int64))
     for (r, e), s in acc.items():
         col = np.nonzero(tedges[r] == e)[0]
-        signs[r, col] = np.sign(s)
+        signs[r, col] = np.clip(s, -127, 127)
     return signs
 
 
@@ -441,6 +530,7 @@ def encode(
     weight_power: float = 1.0,
     clamp: bool = True,
     anchors_per_cell=1,
+    open_boundaries: bool = True,
     threads=None,
 ) -> Tokens:
     """Encodes a triangle mesh into Faithful Contour Tokens on `grid`.
@@ -458,6 +548,10 @@ def encode(
     - `clamp`: move anchors that leave their cell back onto the cell's pieces.
     - `anchors_per_cell`: `1`, or `"components"` for one anchor per connected component
       of the cell's pieces.
+    - `open_boundaries`: where an open boundary of the mesh (an edge of one face only)
+      passes through a cell, add its lines to the QEF with the weight of the tangent
+      planes, so that the anchor lies on the boundary and open sheets keep their extent
+      (beyond the paper; no effect on closed meshes).
     - `threads`: worker threads (None: all cores); the result does not depend on it.
 
     **Returns:** [`Tokens`][voxax.fc.Tokens].
@@ -475,9 +569,10 @@ def encode(
         raise ValueError(f"{where}: `weight_power` must lie in [0, 16], got {weight_power}")
     _threads(threads)
     components = anchors_per_cell == "components"
-    tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), components, threads)
+    b = bool(open_boundaries)
+    tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), components, threads, b)
     if layout == "dual":
-        tok = _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, bool(clamp), threads)
+        tok = _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, bool(clamp), threads, b)
     return tok
 
 
@@ -496,13 +591,15 @@ def _net_signs(grid: Grid, cr: _Crossings, edges: np.ndarray) -> np.ndarray:
     if not len(uniq):
         return np.zeros(edges.shape, np.int8)
     pos = np.clip(np.searchsorted(uniq, edges), 0, len(uniq) - 1)
-    return np.where(uniq[pos] == edges, np.sign(net[pos]), 0).astype(np.int8)
+    return np.where(uniq[pos] == edges, np.clip(net[pos], -127, 127), 0).astype(np.int8)
 
 
-def _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, clamp, threads) -> Tokens:
+def _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, clamp, threads, boundaries) -> Tokens:
     grid = tok.grid
     dg = dual_grid(grid)
-    index, _, off, nrm, _, _, _ = _rows(where, V, F, dg, lambda_n, lambda_d, weight_power, clamp, False, threads)
+    index, _, off, nrm, _, _, _ = _rows(
+        where, V, F, dg, lambda_n, lambda_d, weight_power, clamp, False, threads, boundaries
+    )
     cells = tok.cells.astype(np.int64)
     corners = cells[:, None, :] + np.array(np.unravel_index(np.arange(8), (2, 2, 2))).T[None]
     cid = np.ravel_multi_index(tuple(np.moveaxis(corners, 2, 0)), dg.shape)
@@ -520,7 +617,7 @@ def _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, clamp, threads
     return dataclasses.replace(tok, dual_offsets=doff, dual_normals=dnrm, dual_mask=mask, semi_axis=semi)
 
 
-def decode(tokens: Tokens, *, split: str = "normal") -> Mesh:
+def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True) -> Mesh:
     """Dual contouring of Faithful Contour Tokens into a triangle mesh.
 
     Every row gives a vertex at its anchor. Every lattice edge with a non-zero sign gives
@@ -539,6 +636,10 @@ def decode(tokens: Tokens, *, split: str = "normal") -> Mesh:
     - `split`: `"normal"` (the diagonal whose triangles deviate least from the anchors'
       normals), `"short"` (the shorter diagonal) or `"none"` (always the diagonal from
       the first corner).
+    - `tips`: also connect the anchors that no quad uses -- cells that a sharp corner
+      pokes into without crossing any of their edges, which plain dual contouring cuts
+      off -- by splitting the closest output triangle into three around the anchor (only
+      where the anchor lies over that triangle's interior; the topology is unchanged).
 
     **Returns:** a [`Mesh`][voxax.Mesh] (vertices referenced by faces only, in row order).
     """
@@ -611,8 +712,73 @@ def decode(tokens: Tokens, *, split: str = "normal") -> Mesh:
     else:
         use_second = _deviation(P, N, second) < _deviation(P, N, first)
     tris = np.where(use_second[:, None, None], second, first).reshape(-1, 3)
+    if tips and len(tris):
+        tris = _insert_tips(P, tris, np.asarray(tokens.area))
     used, inv = np.unique(tris.reshape(-1), return_inverse=True)
     return Mesh(P[used], inv.reshape(-1, 3).astype(np.int32))
+
+
+def _insert_tips(P, tris, area, rounds: int = 4):
+    """Connects the anchors that no quad uses (cells a sharp tip pokes into without
+    crossing any of their edges) to the output: the closest triangle is split into three
+    around the anchor where its closest point is interior, or the closest edge and the
+    two triangles sharing it into four where it lies on an edge. The topology (Euler
+    characteristic, closedness, orientation) is unchanged."""
+    from ._spatial import closest_points
+
+    todo = np.setdiff1d(np.flatnonzero(~(area == 0)), tris.reshape(-1))
+    for _ in range(rounds):
+        if not len(todo):
+            break
+        cp = closest_points((P, tris.astype(np.int32)), P[todo])
+        zero = cp.barycentric <= 1e-9
+        ok = (cp.distance > 0) & (zero.sum(axis=1) <= 1)
+        order = np.argsort(cp.distance, kind="stable")
+        touched = np.zeros(len(tris), bool)
+        nv = np.int64(len(P))
+        he = (tris.astype(np.int64) * nv + np.roll(tris, -1, axis=1)).reshape(-1)
+        he_order = np.argsort(he, kind="stable")
+        he_sorted = he[he_order]
+
+        def faces_with(u, v, he_sorted=he_sorted, he_order=he_order, nv=nv):
+            key = u * nv + v
+            lo, hi = np.searchsorted(he_sorted, [key, key + 1])
+            return (he_order[lo:hi] // 3).tolist()
+
+        new, drop, done = [], [], []
+        for q in order:
+            if not ok[q]:
+                continue
+            f = int(cp.face[q])
+            x = int(todo[q])
+            if touched[f]:
+                continue
+            a, b, c = (int(v) for v in tris[f])
+            if not zero[q].any():
+                new += [(a, b, x), (b, c, x), (c, a, x)]
+                touched[f] = True
+                drop.append(f)
+                done.append(x)
+                continue
+            k = int(np.argmax(zero[q]))  # the edge opposite corner k
+            u, v = int(tris[f, (k + 1) % 3]), int(tris[f, (k + 2) % 3])
+            w = int(tris[f, k])
+            twin = faces_with(v, u)
+            if len(twin) != 1 or len(faces_with(u, v)) != 1 or touched[twin[0]]:
+                continue
+            g = twin[0]
+            w2 = [int(y) for y in tris[g] if y != u and y != v][0]
+            new += [(u, x, w), (x, v, w), (v, x, w2), (x, u, w2)]
+            touched[f] = touched[g] = True
+            drop += [f, g]
+            done.append(x)
+        if not done:
+            break
+        keep = np.ones(len(tris), bool)
+        keep[drop] = False
+        tris = np.concatenate([tris[keep], np.asarray(new, tris.dtype).reshape(-1, 3)])
+        todo = np.setdiff1d(todo, done)
+    return tris
 
 
 def _deviation(P, N, tris) -> np.ndarray:
@@ -704,8 +870,9 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
         if anchor_frame == "world":
             corners = cells[:, None, :] + np.array(np.unravel_index(np.arange(8), (2, 2, 2))).T[None]
             doff = np.where(mask[..., None], (doff - lo) / h - corners, 0.0)
-        kw = dict(dual_offsets=doff, dual_normals=per[..., 4:7], dual_mask=mask,
-                  semi_axis=_signs(where, body[:, 62:68]))
+        kw = dict(
+            dual_offsets=doff, dual_normals=per[..., 4:7], dual_mask=mask, semi_axis=_signs(where, body[:, 62:68])
+        )
         signs = np.zeros((len(idx), 12), np.int8)
     else:
         signs = _signs(where, body[:, 6:18])
@@ -713,8 +880,8 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
 
 
 def _signs(where, x):
-    if np.any((x != -1) & (x != 0) & (x != 1)):
-        raise ValueError(f"{where}: signs must be -1, 0 or +1")
+    if np.any((x != np.round(x)) | (np.abs(x) > 127)):
+        raise ValueError(f"{where}: signs must be integers in [-127, 127]")
     return x.astype(np.int8)
 
 
@@ -770,8 +937,16 @@ def _take(tokens: Tokens, rows) -> Tokens:
     for name in ("dual_offsets", "dual_normals", "dual_mask", "semi_axis"):
         v = getattr(tokens, name)
         kw[name] = None if v is None else v[rows]
-    return Tokens(tokens.grid, tokens.index[rows], tokens.offsets[rows], tokens.normals[rows],
-                  tokens.edge_signs[rows], tokens.component[rows], tokens.area[rows], **kw)
+    return Tokens(
+        tokens.grid,
+        tokens.index[rows],
+        tokens.offsets[rows],
+        tokens.normals[rows],
+        tokens.edge_signs[rows],
+        tokens.component[rows],
+        tokens.area[rows],
+        **kw,
+    )
 
 
 def merge(a: Tokens, b: Tokens) -> Tokens:
@@ -813,7 +988,9 @@ def merge(a: Tokens, b: Tokens) -> Tokens:
 
     nrm = mean(cat("normals"))
     ln = np.linalg.norm(nrm, axis=1, keepdims=True)
-    nrm = np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), cat("normals")[new])
+    # Rows that come from one token (or from equal ones) keep their normal bit for bit.
+    alone = (cnt == 1)[:, None] | (np.abs(ln - 1) <= 1e-15)
+    nrm = np.where(alone, nrm, np.where(ln > 0, nrm / np.where(ln > 0, ln, 1), cat("normals")[new]))
     area = np.zeros(n)
     np.add.at(area, gid, cat("area"))
     kw = {}
@@ -827,8 +1004,12 @@ def merge(a: Tokens, b: Tokens) -> Tokens:
         np.add.at(dn, gid, cat("dual_normals") * m[..., None])
         safe = np.where(w > 0, w, 1)[..., None]
         ln = np.linalg.norm(dn, axis=2, keepdims=True)
-        kw = dict(dual_offsets=ds / safe, dual_normals=dn / np.where(ln > 0, ln, 1), dual_mask=w > 0,
-                  semi_axis=vote(cat("semi_axis")))
+        kw = dict(
+            dual_offsets=ds / safe,
+            dual_normals=dn / np.where(ln > 0, ln, 1),
+            dual_mask=w > 0,
+            semi_axis=vote(cat("semi_axis")),
+        )
     return Tokens(a.grid, idx[new], mean(cat("offsets")), nrm, vote(cat("edge_signs")), comp[new], area, **kw)
 
 
@@ -856,8 +1037,15 @@ class RoundtripReport:
     manifold: object
 
 
-def roundtrip(mesh, resolution: int = 512, *, grid: Grid | None = None, samples: int = 100_000,
-              threshold: float | None = None, **encode_options):
+def roundtrip(
+    mesh,
+    resolution: int = 512,
+    *,
+    grid: Grid | None = None,
+    samples: int = 100_000,
+    threshold: float | None = None,
+    **encode_options,
+):
     """Encodes `mesh` into tokens at `resolution` and decodes them; measures the result.
 
     **Arguments:**
