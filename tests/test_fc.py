@@ -379,3 +379,39 @@ def test_bad_input():
     V = np.zeros((3, 3))
     assert len(fc.encode(V, np.array([[0, 1, 2]]), g)) == 0
     assert fc.decode(fc.encode(np.zeros((0, 3)), np.zeros((0, 3), np.int32), g)).n_faces == 0
+
+
+def test_cli_writes_the_decoded_mesh(tmp_path, capsys):
+    from voxax import cli
+
+    out = tmp_path / "t.ply"
+    rep = tmp_path / "r.json"
+    assert cli.main(["fc", "torus", "-r", "24", "-o", str(out), "--report", str(rep)]) == 0
+    got = voxax.io.load(str(out))
+    m = voxax.data.torus()
+    want = fc.decode(fc.encode(m, voxax.Grid.around(m.vertices, 24)))
+    assert got.n_faces == want.n_faces and np.allclose(np.sort(got.vertices, axis=0), np.sort(want.vertices, axis=0))
+    import json
+
+    data = json.loads(rep.read_text())
+    assert data["tokens"] > 0 and data["f_score"] > 0.99 and data["euler_characteristic"] == 0
+    assert cli.main(["fc", "no_such_mesh", "-o", str(out)]) != 0
+    assert "neither a mesh file" in capsys.readouterr().err
+
+
+def test_example_runs(tmp_path, capsys):
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parent.parent / "examples" / "faithful_contouring.py"
+    spec = importlib.util.spec_from_file_location("voxax_example_faithful_contouring", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--resolution", "20", "--out", str(tmp_path)]) == 0
+    for name in ("cad_part_fc.ply", "open_surface_fc.ply", "report.json"):
+        assert (tmp_path / name).exists(), name
+    import json
+
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["open_surface"]["fc_boundary_loops"] == 1
+    assert rep["cad_part"]["fc_distance_cells"]["mean"] < rep["cad_part"]["mc_distance_cells"]["mean"]

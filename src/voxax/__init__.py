@@ -53,6 +53,7 @@ from ._spatial import (
     nearest_neighbors,
 )
 from . import fields, metrics, raster
+from . import fc
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
 from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
@@ -96,6 +97,7 @@ __all__ = [
     "fields",
     "metrics",
     "raster",
+    "fc",
     "export_safety_checks",
     "least_squares",
     "voxelize_sharded",
