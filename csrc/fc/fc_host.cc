@@ -24,6 +24,7 @@
 
 #include "common/constants.h"
 #include "common/grid.h"
+#include "fc/decode.h"
 #include "fc/encode.h"
 #include "spatial/host_pool.h"
 
@@ -190,3 +191,80 @@ VOXAX_EXPORT void voxax_fc_pieces(void* handle, int64_t* cell, int32_t* face, do
 }
 
 VOXAX_EXPORT void voxax_fc_free(void* handle) { delete static_cast<Rows*>(handle); }
+
+// voxax_fc_decode(index (K,) i64, P (K, 3), N (K, 3), S (K, 12) i8, K, shape[3], split, threads,
+//                 &handle, &count, err, errlen): triangles as row triples; copy with
+//                 voxax_fc_triangles(handle, out (T, 3) i64), free with voxax_fc_free_triangles.
+VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const double* N,
+                                 const int8_t* S, int64_t K, const int64_t* shape, int32_t split,
+                                 int32_t threads, void** handle, int64_t* count, char* err,
+                                 int64_t errlen) {
+  if (handle) *handle = nullptr;
+  try {
+    if (!handle || !count || !shape || K < 0 || (K > 0 && (!index || !P || !N || !S)))
+      return fail(err, errlen, "voxax: fc.decode got a null argument");
+    if (split < 0 || split > 2) return fail(err, errlen, "voxax: fc.decode: bad split mode");
+    voxax::fc::DecodeInput in;
+    in.K = K;
+    in.index = index;
+    in.P = P;
+    in.N = N;
+    in.S = S;
+    in.split = split;
+    for (int a = 0; a < 3; ++a) {
+      if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
+        return fail(err, errlen, "voxax: fc.decode: bad grid shape");
+      in.n[a] = shape[a];
+    }
+    const double cells = double(in.n[0]) * double(in.n[1]) * double(in.n[2]);
+    if (!(cells < 9.2e18)) return fail(err, errlen, "voxax: fc.decode: the grid is too large");
+    const int64_t total = in.n[0] * in.n[1] * in.n[2];
+    for (int64_t r = 0; r < K; ++r) {
+      if (index[r] < 0 || index[r] >= total)
+        return fail(err, errlen,
+                    "voxax: fc.decode: cell index out of range (row " + std::to_string(r) + ")");
+      if (r > 0 && index[r] < index[r - 1])
+        return fail(err, errlen, "voxax: fc.decode: rows must be sorted by cell index");
+    }
+    for (int64_t i = 0; i < 3 * K; ++i)
+      if (!std::isfinite(P[i]) || !std::isfinite(N[i]))
+        return fail(err, errlen, "voxax: fc.decode: anchors and normals must be finite");
+    constexpr int64_t kChunk = 4096;
+    const int64_t chunks = (K + kChunk - 1) / kChunk;
+    std::vector<std::vector<int64_t>> parts(chunks);
+    voxax::spatial::parallel_chunks(K, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
+      voxax::fc::decode_rows(in, b, e, &parts[c]);
+    });
+    auto* out = new std::vector<int64_t>();
+    try {
+      size_t n = 0;
+      for (const auto& p : parts) n += p.size();
+      out->reserve(n);
+      for (auto& p : parts) {
+        out->insert(out->end(), p.begin(), p.end());
+        std::vector<int64_t>().swap(p);
+      }
+    } catch (...) {
+      delete out;
+      throw;
+    }
+    *count = static_cast<int64_t>(out->size() / 3);
+    *handle = out;
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return fail(err, errlen, "voxax: out of memory in fc.decode");
+  } catch (const std::exception& e) {
+    return fail(err, errlen, std::string("voxax: fc.decode error: ") + e.what());
+  } catch (...) {
+    return fail(err, errlen, "voxax: unknown error in fc.decode");
+  }
+}
+
+VOXAX_EXPORT void voxax_fc_triangles(void* handle, int64_t* out) {
+  const auto* t = static_cast<const std::vector<int64_t>*>(handle);
+  if (t && out) std::copy(t->begin(), t->end(), out);
+}
+
+VOXAX_EXPORT void voxax_fc_free_triangles(void* handle) {
+  delete static_cast<std::vector<int64_t>*>(handle);
+}

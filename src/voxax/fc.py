@@ -86,6 +86,25 @@ _SIGNATURES = {
     "voxax_fc_rows": (None, [_VP, _I64, _I32, _D, _D, _D, _I32, _I64, _I32]),
     "voxax_fc_pieces": (None, [_VP, _I64, _I32, _D, _D]),
     "voxax_fc_free": (None, [_VP]),
+    "voxax_fc_decode": (
+        ctypes.c_int,
+        [
+            _I64,
+            _D,
+            _D,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.c_int64,
+            _I64,
+            ctypes.c_int32,
+            ctypes.c_int32,
+            ctypes.POINTER(_VP),
+            _I64,
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
+    ),
+    "voxax_fc_triangles": (None, [_VP, _I64]),
+    "voxax_fc_free_triangles": (None, [_VP]),
 }
 
 # Corner offsets of the 12 cell edges: EDGE_OFFSETS[e] is the lower end of edge e relative
@@ -361,6 +380,21 @@ def _edge_geometry(grid: Grid, edge: np.ndarray):
     return axis, nodes
 
 
+def _around_offsets() -> np.ndarray:
+    """`(3, 4, 3)`: the offsets from an edge's start node to the 4 cells around it, per axis."""
+    off = np.zeros((3, 4, 3), np.int64)
+    for a in range(3):
+        others = [b for b in range(3) if b != a]
+        for p in range(4):
+            o = _QUAD[(p + 2) % 4]
+            off[a, p, others[0]] = -o[0]
+            off[a, p, others[1]] = -o[1]
+    return off
+
+
+_AROUND = _around_offsets()
+
+
 def _cells_around(grid: Grid, axis, nodes):
     """The 4 cells around each edge, `(C, 4, 3)`, in the order of positions 0-3, and
     whether each lies in the grid `(C, 4)`.
@@ -368,14 +402,7 @@ def _cells_around(grid: Grid, axis, nodes):
     Position p holds the cell whose edge `_QUAD[(p + 2) % 4]` is this edge: positions run
     counter-clockwise around the edge in the plane of the two other axes (in increasing
     axis order)."""
-    cells = np.repeat(nodes[:, None, :], 4, axis=1).copy()
-    for p in range(4):
-        o = _QUAD[(p + 2) % 4]
-        for a in range(3):
-            others = [b for b in range(3) if b != a]
-            sel = axis == a
-            cells[sel, p, others[0]] -= o[0]
-            cells[sel, p, others[1]] -= o[1]
+    cells = nodes[:, None, :] + _AROUND[axis]
     shape = np.asarray(grid.shape, np.int64)
     inside = np.all((cells >= 0) & (cells < shape), axis=2)
     return cells, inside
@@ -419,29 +446,54 @@ def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components
     return index, comp, off, nrm, area, fcount, faces
 
 
+def _group(keys):
+    """Sorts `keys`; returns (order, start of each run of equal keys in sorted order)."""
+    order = np.argsort(keys, kind="stable")
+    k = keys[order]
+    starts = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]])) if len(k) else np.zeros(0, np.int64)
+    return order, starts
+
+
+def _lookup(index, cells):
+    """Rows of `cells` in the sorted `index` (-1 where absent)."""
+    if not len(index):
+        return np.full(cells.shape, -1, np.int64)
+    pos = np.clip(np.searchsorted(index, cells), 0, len(index) - 1)
+    return np.where(index[pos] == cells, pos, -1)
+
+
 def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries):
     index, comp, off, nrm, area, fcount, rfaces = _rows(
         where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries
     )
     cr = _crossings(V, F, grid, threads)
-    axis, nodes = _edge_geometry(grid, cr.edge)
-    around, inside = _cells_around(grid, axis, nodes)
     shape = grid.shape
     h = np.asarray(grid.spacing)
     lo = np.asarray(grid.lower)
+    if components:
+        # Every crossing counts for the rows of its own sheet: all crossings need cells.
+        src_of = np.arange(len(cr.edge))
+        edge = cr.edge
+    else:
+        # Net flux per crossed edge; edges whose crossings cancel give no quad.
+        order, starts = _group(cr.edge)
+        net = np.add.reduceat(cr.sign[order].astype(np.int64), starts) if len(starts) else np.zeros(0, np.int64)
+        nz = net != 0
+        edge = cr.edge[order[starts]][nz]
+        src_of = order[starts][nz]  # the first crossing of each edge
+        net = net[nz]
+    axis, nodes = _edge_geometry(grid, edge)
+    around, inside = _cells_around(grid, axis, nodes)
+    cidx = np.where(inside, (around[..., 0] * shape[1] + around[..., 1]) * shape[2] + around[..., 2], -1)
     # Cells that a crossing touches without a piece of positive area get a row at the
     # crossing point, so every quad has its four vertices.
-    cidx = np.where(
-        inside, np.ravel_multi_index(tuple(np.moveaxis(np.clip(around, 0, None), 2, 0)), shape, mode="clip"), -1
-    )
-    want = np.unique(cidx[inside])
-    missing = want[~np.isin(want, index)]
+    flat = cidx.reshape(-1)
+    forder, fstarts = _group(flat)
+    want = flat[forder[fstarts]]
+    firsts = forder[fstarts]
+    keep = (want >= 0) & (_lookup(index, want) < 0)
+    missing, src = want[keep], src_of[firsts[keep] // 4]
     if len(missing):
-        # The first crossing (in order) that touches each missing cell.
-        flat = cidx.reshape(-1)
-        order = np.argsort(flat, kind="stable")
-        pos = order[np.searchsorted(flat[order], missing)]
-        src = pos // 4
         mcells = np.stack(np.unravel_index(missing, shape), axis=1)
         moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
         fn = _face_normals(V, F)[cr.face[src]]
@@ -461,10 +513,13 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
             fcount = fcount[order]
             rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
     K = len(index)
-    cells = np.stack(np.unravel_index(index, shape), axis=1).astype(np.int64)
-    tedges = _token_edges(grid, cells)
     if not components:
-        signs = _net_signs(grid, cr, tedges)
+        signs = np.zeros((K, 12), np.int8)
+        rows = _lookup(index, cidx)
+        slot = axis[:, None] * 4 + (np.arange(4)[None] + 2) % 4
+        ok = rows >= 0
+        val = np.broadcast_to(np.clip(net, -127, 127)[:, None], rows.shape)
+        signs[rows[ok], slot[ok]] = val[ok]
     else:
         signs = _component_signs(grid, cr, around, inside, cidx, index, off, fcount, rfaces, F, K)
     return Tokens(grid, index, off, nrm, signs, comp, area)
@@ -617,7 +672,7 @@ def _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, clamp, threads
     return dataclasses.replace(tok, dual_offsets=doff, dual_normals=dnrm, dual_mask=mask, semi_axis=semi)
 
 
-def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True) -> Mesh:
+def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=None) -> Mesh:
     """Dual contouring of Faithful Contour Tokens into a triangle mesh.
 
     Every row gives a vertex at its anchor. Every lattice edge with a non-zero sign gives
@@ -640,6 +695,7 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True) -> Mesh:
       pokes into without crossing any of their edges, which plain dual contouring cuts
       off -- by splitting the closest output triangle into three around the anchor (only
       where the anchor lies over that triangle's interior; the topology is unchanged).
+    - `threads`: worker threads (None: all cores); the result does not depend on it.
 
     **Returns:** a [`Mesh`][voxax.Mesh] (vertices referenced by faces only, in row order).
     """
@@ -650,75 +706,81 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True) -> Mesh:
         raise ValueError(f"{where}: `split` must be 'normal', 'short' or 'none', got {split!r}")
     grid = tokens.grid
     K = len(tokens)
-    if K == 0:
-        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int32))
-    cells = tokens.cells.astype(np.int64)
-    signs = np.asarray(tokens.edge_signs, np.int8)
-    r, e = np.nonzero(signs)
-    s = signs[r, e].astype(np.int64)
-    edge = _token_edges(grid, cells)[r, e]
-    p = np.array([2, 3, 0, 1])[e % 4]  # the cell's position around the edge
-    axis = e // 4
-    depth = tokens.offsets[r, axis]
-    # Votes sorted by edge, position, depth along the edge, row.
-    order = np.lexsort((r, depth, p, edge))
-    edge, p, r, s, axis = edge[order], p[order], r[order], s[order], axis[order]
-    if len(edge) == 0:
-        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int32))
-    # Rank of each vote within its (edge, position) group.
-    grp = np.concatenate([[True], (edge[1:] != edge[:-1]) | (p[1:] != p[:-1])])
-    gstart = np.flatnonzero(grp)
-    gid = np.cumsum(grp) - 1
-    rank = np.arange(len(edge)) - gstart[gid]
-    gsize = np.diff(np.append(gstart, len(edge)))
-    # Per edge: the group size at each position (0 where no vote).
-    estart = np.concatenate([[True], edge[1:] != edge[:-1]])
-    eid = np.cumsum(estart) - 1
-    ne = int(eid[-1]) + 1
-    counts = np.zeros((ne, 4), np.int64)
-    counts[eid[gstart], p[gstart]] = gsize
-    m = counts.min(axis=1)
-    regular = np.all(counts == counts[:, :1], axis=1)
-    # Irregular edges (different counts per position) keep one quad from each position's
-    # first row; positions without a vote leave the edge out.
-    take = np.where(regular[eid], True, rank == 0) & (m[eid] > 0)
-    q = np.where(regular[eid], rank, 0)
-    slot = eid[take] * 0 + 0
-    quads = {}
-    key = eid[take].astype(np.int64) * (int(counts.max()) + 1) + q[take]
-    ukey, kinv = np.unique(key, return_inverse=True)
-    nq = len(ukey)
-    rows = np.full((nq, 4), -1, np.int64)
-    rows[kinv, p[take]] = r[take]
-    vote = np.zeros(nq, np.int64)
-    np.add.at(vote, kinv, s[take])
-    qaxis = np.zeros(nq, np.int64)
-    qaxis[kinv] = axis[take]
-    del slot, quads
-    ok = np.all(rows >= 0, axis=1) & (vote != 0)
-    rows, vote, qaxis = rows[ok], vote[ok], qaxis[ok]
-    # Counter-clockwise positions give normals along +axis for x and z, along -axis for y.
-    flip = (vote < 0) ^ (qaxis == 1)
-    rows[flip] = rows[flip][:, ::-1]
-    P = tokens.anchors
-    N = np.asarray(tokens.normals, np.float64)
-    a, b, c, d = (rows[:, i] for i in range(4))
-    first = np.stack([np.stack([a, b, c], 1), np.stack([a, c, d], 1)], 1)
-    second = np.stack([np.stack([a, b, d], 1), np.stack([b, c, d], 1)], 1)
-    if split == "none":
-        use_second = np.zeros(len(rows), bool)
-    elif split == "short":
-        use_second = np.linalg.norm(P[b] - P[d], axis=1) < np.linalg.norm(P[a] - P[c], axis=1)
-    else:
-        use_second = _deviation(P, N, second) < _deviation(P, N, first)
-    tris = np.where(use_second[:, None, None], second, first).reshape(-1, 3)
+    P = np.ascontiguousarray(tokens.anchors, np.float64)
+    N = np.ascontiguousarray(tokens.normals, np.float64)
+    index = np.ascontiguousarray(tokens.index, np.int64)
+    signs = np.ascontiguousarray(tokens.edge_signs, np.int8)
+    if index.shape != (K,) or P.shape != (K, 3) or N.shape != (K, 3) or signs.shape != (K, 12):
+        raise ValueError(f"{where}: inconsistent token fields")
+    lib = _lib()
+    handle = _VP()
+    count = np.zeros(1, np.int64)
+    shape = np.ascontiguousarray(grid.shape, np.int64)
+    err = _host.error_buffer()
+    status = lib.voxax_fc_decode(
+        index.ctypes.data_as(_I64),
+        P.ctypes.data_as(_D),
+        N.ctypes.data_as(_D),
+        signs.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        K,
+        shape.ctypes.data_as(_I64),
+        {"normal": 0, "short": 1, "none": 2}[split],
+        _threads(threads),
+        ctypes.byref(handle),
+        count.ctypes.data_as(_I64),
+        err,
+        _host.ERRLEN,
+    )
+    if status != 0:
+        raise ValueError(f"{where}: " + err.value.decode("utf-8", "replace").removeprefix("voxax: "))
+    try:
+        tris = np.empty((int(count[0]), 3), np.int64)
+        lib.voxax_fc_triangles(handle, tris.ctypes.data_as(_I64))
+    finally:
+        lib.voxax_fc_free_triangles(handle)
     if tips and len(tris):
-        tris = _insert_tips(P, tris, np.asarray(tokens.area))
-    used, inv = np.unique(tris.reshape(-1), return_inverse=True)
-    return Mesh(P[used], inv.reshape(-1, 3).astype(np.int32))
+        tris = _insert_tips(tokens, P, tris)
+    used = np.zeros(K, bool)
+    used[tris.reshape(-1)] = True
+    remap = np.cumsum(used) - 1
+    return Mesh(P[used], remap[tris].astype(np.int32))
 
 
-def _insert_tips(P, tris, area, rounds: int = 4):
+def _near_rows(tokens: Tokens, rows) -> np.ndarray:
+    """Boolean `(K,)`: the rows in the 27 cells around the cells of `rows`."""
+    grid = tokens.grid
+    shape = np.asarray(grid.shape, np.int64)
+    d = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cells = (tokens.cells[rows].astype(np.int64)[:, None, :] + d[None]).reshape(-1, 3)
+    cells = cells[np.all((cells >= 0) & (cells < shape), axis=1)]
+    lin = np.unique((cells[:, 0] * shape[1] + cells[:, 1]) * shape[2] + cells[:, 2])
+    lo = np.searchsorted(tokens.index, lin, side="left")
+    hi = np.searchsorted(tokens.index, lin, side="right")
+    mark = np.zeros(len(tokens.index) + 1, np.int64)
+    np.add.at(mark, lo, 1)
+    np.add.at(mark, hi, -1)
+    return np.cumsum(mark)[:-1] > 0
+
+
+def _insert_tips(tokens: Tokens, P, tris):
+    """Connects the anchors that no quad uses (cells a sharp tip pokes into without
+    crossing any of their edges): works on the triangles near them only."""
+    K = len(tokens)
+    used = np.zeros(K, bool)
+    used[tris.reshape(-1)] = True
+    todo = np.flatnonzero(~used & ~(np.asarray(tokens.area) == 0))
+    if not len(todo):
+        return tris
+    near = _near_rows(tokens, todo)
+    ring = np.any(near[tris], axis=1)
+    verts = np.zeros(K, bool)
+    verts[tris[ring].reshape(-1)] = True
+    sub = np.any(verts[tris], axis=1)  # the triangles near the tips and their neighbours
+    new = _split_for_tips(P, tris[sub], todo)
+    return np.concatenate([tris[~sub], new])
+
+
+def _split_for_tips(P, tris, todo, rounds: int = 4):
     """Connects the anchors that no quad uses (cells a sharp tip pokes into without
     crossing any of their edges) to the output: the closest triangle is split into three
     around the anchor where its closest point is interior, or the closest edge and the
@@ -726,7 +788,6 @@ def _insert_tips(P, tris, area, rounds: int = 4):
     characteristic, closedness, orientation) is unchanged."""
     from ._spatial import closest_points
 
-    todo = np.setdiff1d(np.flatnonzero(~(area == 0)), tris.reshape(-1))
     for _ in range(rounds):
         if not len(todo):
             break
@@ -779,17 +840,6 @@ def _insert_tips(P, tris, area, rounds: int = 4):
         tris = np.concatenate([tris[keep], np.asarray(new, tris.dtype).reshape(-1, 3)])
         todo = np.setdiff1d(todo, done)
     return tris
-
-
-def _deviation(P, N, tris) -> np.ndarray:
-    """Sum over the triangles of a split of (1 - cos) between each triangle's normal and
-    the normals of its corners."""
-    x = P[tris]  # (Q, 2, 3, 3)
-    n = np.cross(x[..., 1, :] - x[..., 0, :], x[..., 2, :] - x[..., 0, :])
-    ln = np.linalg.norm(n, axis=-1, keepdims=True)
-    n = n / np.where(ln > 0, ln, 1)
-    cos = np.einsum("qtk,qtck->qtc", n, N[tris])
-    return (1 - cos).sum(axis=(1, 2))
 
 
 FORMATS = {"fct18": 18, "fct19": 19, "fct69": 69}
