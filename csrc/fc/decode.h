@@ -43,15 +43,49 @@ struct DecodeInput {
   int split = 0;  // 0 normal, 1 short, 2 none
 };
 
-// Rows [lo, hi) of cell c (empty when absent).
-inline void cell_rows(const DecodeInput& in, int64_t c, int64_t* lo, int64_t* hi) {
-  const int64_t* b = in.index;
-  const int64_t* e = in.index + in.K;
-  const int64_t* l = std::lower_bound(b, e, c);
-  const int64_t* h = std::upper_bound(l, e, c);
-  *lo = l - b;
-  *hi = h - b;
-}
+// An open-addressing hash table from a cell index to its first row (rows of one cell
+// are consecutive in the sorted index).
+class CellTable {
+ public:
+  explicit CellTable(const int64_t* index, int64_t K) : index_(index), K_(K) {
+    size_t cap = 16;
+    while (cap < static_cast<size_t>(2 * K + 1)) cap *= 2;
+    mask_ = cap - 1;
+    slots_.assign(cap, -1);
+    for (int64_t r = 0; r < K; ++r) {
+      if (r > 0 && index[r] == index[r - 1]) continue;
+      size_t h = hash(index[r]);
+      while (slots_[h] >= 0) h = (h + 1) & mask_;
+      slots_[h] = r;
+    }
+  }
+  // Rows [lo, hi) of cell c (empty when absent).
+  void rows(int64_t c, int64_t* lo, int64_t* hi) const {
+    size_t h = hash(c);
+    while (slots_[h] >= 0) {
+      const int64_t r = slots_[h];
+      if (index_[r] == c) {
+        int64_t e = r + 1;
+        while (e < K_ && index_[e] == c) ++e;
+        *lo = r;
+        *hi = e;
+        return;
+      }
+      h = (h + 1) & mask_;
+    }
+    *lo = *hi = 0;
+  }
+
+ private:
+  size_t hash(int64_t c) const {
+    uint64_t x = static_cast<uint64_t>(c) * 0x9E3779B97F4A7C15ULL;
+    return static_cast<size_t>(x ^ (x >> 29)) & mask_;
+  }
+  const int64_t* index_;
+  int64_t K_;
+  size_t mask_ = 0;
+  std::vector<int64_t> slots_;
+};
 
 inline double tri_deviation(const DecodeInput& in, int64_t a, int64_t b, int64_t c) {
   const double* pa = in.P + 3 * a;
@@ -96,7 +130,8 @@ inline void emit_quad(const DecodeInput& in, const int64_t q[4], std::vector<int
 }
 
 // Triangles (as row triples) of the edges owned by rows [r0, r1).
-inline void decode_rows(const DecodeInput& in, int64_t r0, int64_t r1, std::vector<int64_t>* out) {
+inline void decode_rows(const DecodeInput& in, const CellTable& table, int64_t r0, int64_t r1,
+                        std::vector<int64_t>* out) {
   const int64_t ny = in.n[1], nz = in.n[2];
   std::vector<int64_t> L[4];
   for (int64_t r = r0; r < r1; ++r) {
@@ -123,7 +158,7 @@ inline void decode_rows(const DecodeInput& in, int64_t r0, int64_t r1, std::vect
         }
         if (!complete) break;
         int64_t lo, hi;
-        cell_rows(in, (qc[0] * ny + qc[1]) * nz + qc[2], &lo, &hi);
+        table.rows((qc[0] * ny + qc[1]) * nz + qc[2], &lo, &hi);
         if (lo == hi) {
           complete = false;
           break;

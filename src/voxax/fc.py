@@ -396,16 +396,24 @@ _AROUND = _around_offsets()
 
 
 def _cells_around(grid: Grid, axis, nodes):
-    """The 4 cells around each edge, `(C, 4, 3)`, in the order of positions 0-3, and
-    whether each lies in the grid `(C, 4)`.
+    """The C-order indices of the 4 cells around each edge, `(C, 4)` int64, in the order
+    of positions 0-3 (-1 where the cell lies outside the grid).
 
     Position p holds the cell whose edge `_QUAD[(p + 2) % 4]` is this edge: positions run
     counter-clockwise around the edge in the plane of the two other axes (in increasing
     axis order)."""
-    cells = nodes[:, None, :] + _AROUND[axis]
     shape = np.asarray(grid.shape, np.int64)
-    inside = np.all((cells >= 0) & (cells < shape), axis=2)
-    return cells, inside
+    out = np.empty((len(axis), 4), np.int64)
+    for p in range(4):
+        d = _AROUND[axis, p]  # (C, 3)
+        lin = np.zeros(len(axis), np.int64)
+        ok = np.ones(len(axis), bool)
+        for k in range(3):
+            c = nodes[:, k] + d[:, k]
+            ok &= (c >= 0) & (c < shape[k])
+            lin = lin * shape[k] + c
+        out[:, p] = np.where(ok, lin, -1)
+    return out
 
 
 def _token_edges(grid: Grid, cells: np.ndarray) -> np.ndarray:
@@ -483,8 +491,8 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
         src_of = order[starts][nz]  # the first crossing of each edge
         net = net[nz]
     axis, nodes = _edge_geometry(grid, edge)
-    around, inside = _cells_around(grid, axis, nodes)
-    cidx = np.where(inside, (around[..., 0] * shape[1] + around[..., 1]) * shape[2] + around[..., 2], -1)
+    cidx = _cells_around(grid, axis, nodes)
+    inside = cidx >= 0
     # Cells that a crossing touches without a piece of positive area get a row at the
     # crossing point, so every quad has its four vertices.
     flat = cidx.reshape(-1)
@@ -521,11 +529,11 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
         val = np.broadcast_to(np.clip(net, -127, 127)[:, None], rows.shape)
         signs[rows[ok], slot[ok]] = val[ok]
     else:
-        signs = _component_signs(grid, cr, around, inside, cidx, index, off, fcount, rfaces, F, K)
+        signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K)
     return Tokens(grid, index, off, nrm, signs, comp, area)
 
 
-def _component_signs(grid, cr, around, inside, cidx, index, off, fcount, rfaces, F, K):
+def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     """Per-row edge signs: each crossing counts for the row (in each of the 4 cells
     around its edge) whose pieces hold the crossing face, or else the row nearest to it."""
     h = np.asarray(grid.spacing)
