@@ -26,6 +26,7 @@
 #include "common/grid.h"
 #include "fc/decode.h"
 #include "fc/encode.h"
+#include "intersect/predicates.h"
 #include "spatial/host_pool.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
@@ -268,4 +269,51 @@ VOXAX_EXPORT void voxax_fc_triangles(void* handle, int64_t* out) {
 
 VOXAX_EXPORT void voxax_fc_free_triangles(void* handle) {
   delete static_cast<std::vector<int64_t>*>(handle);
+}
+
+// voxax_fc_node_side(V (nv, 3), nv, F (nf, 3), nf, m, faces (m,), nodes (m, 3), axis (m,),
+//                    out (m,) i8, err, errlen): for the crossing of face faces[i] with the line
+// along axis[i] through nodes[i], +1 when the crossing lies above the node along the axis,
+// -1 below, decided exactly (orientation predicates) with the node moved to
+// node + (e_x, e_y, e_z), e_x >> e_y >> e_z > 0 (the perturbation of the lines' tie rule).
+VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                                    int64_t m, const int32_t* faces, const double* nodes,
+                                    const int32_t* axis, int8_t* out, char* err, int64_t errlen) {
+  try {
+    if (nv < 0 || nf < 0 || m < 0 || (m > 0 && (!faces || !nodes || !axis || !out)) ||
+        (nf > 0 && !F) || (nv > 0 && !V))
+      return fail(err, errlen, "voxax: fc.node_side got a bad argument");
+    for (int64_t i = 0; i < m; ++i) {
+      if (faces[i] < 0 || faces[i] >= nf || axis[i] < 0 || axis[i] > 2)
+        return fail(err, errlen, "voxax: fc.node_side: face or axis out of range");
+      for (int c = 0; c < 3; ++c) {
+        const int32_t v = F[3 * int64_t(faces[i]) + c];
+        if (v < 0 || v >= nv) return fail(err, errlen, "voxax: fc.node_side: vertex out of range");
+      }
+    }
+    for (int64_t i = 0; i < m; ++i) {
+      const int32_t* f = F + 3 * int64_t(faces[i]);
+      const double* a = V + 3 * int64_t(f[0]);
+      const double* b = V + 3 * int64_t(f[1]);
+      const double* c = V + 3 * int64_t(f[2]);
+      const double* d = nodes + 3 * i;
+      // Signs of the normal's components, exactly: n_x is orient2d of the (y, z)
+      // projections, n_y of (z, x), n_z of (x, y).
+      int ns[3];
+      for (int k = 0; k < 3; ++k) {
+        const int u = (k + 1) % 3, w = (k + 2) % 3;
+        const double pa[2] = {a[u], a[w]}, pb[2] = {b[u], b[w]}, pc[2] = {c[u], c[w]};
+        ns[k] = voxax::exact::orient2d(pa, pb, pc);
+      }
+      // sign(n . (d - a)) = -orient3d(a, b, c, d); on the plane, n . e decides.
+      int s = -voxax::exact::orient3d(a, b, c, d);
+      for (int k = 0; k < 3 && s == 0; ++k) s = ns[k];
+      const int na = ns[axis[i]];
+      // The crossing lies below the node (t* < d_a) when n . (d - a) and n_a agree.
+      out[i] = static_cast<int8_t>(s * na > 0 ? -1 : (s * na < 0 ? 1 : 0));
+    }
+    return 0;
+  } catch (...) {
+    return fail(err, errlen, "voxax: unknown error in fc.node_side");
+  }
 }

@@ -104,6 +104,22 @@ _SIGNATURES = {
         ],
     ),
     "voxax_fc_triangles": (None, [_VP, _I64]),
+    "voxax_fc_node_side": (
+        ctypes.c_int,
+        [
+            _D,
+            ctypes.c_int64,
+            _I32,
+            ctypes.c_int64,
+            ctypes.c_int64,
+            _I32,
+            _D,
+            _I32,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
+    ),
     "voxax_fc_free_triangles": (None, [_VP]),
 }
 
@@ -314,7 +330,6 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
     from . import raster
 
     edges, signs, faces, points = [], [], [], []
-    normals = _face_normals(V, F)
     # The lines' tie rule moves a line along its axis a through (b + d, c + d^2) with (b, c)
     # the other axes in cyclic order after a. For x and z that is increasing order, for y
     # it is (z, x): y-lines are computed on the mesh with x and z swapped (a mirror, which
@@ -332,34 +347,37 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
             d = raster.line_crossings(V, F, grid, a, lines="nodes", threads=threads)
         depth = np.asarray(d.depth)
         planes = grid.edges(a)
-        keep = (depth >= planes[0]) & (depth <= planes[-1])
+        slack = 1e-9 * (grid.spacing[a] + np.abs(planes[[0, -1]]))
+        keep = (depth >= planes[0] - slack[0]) & (depth <= planes[-1] + slack[1])
         line = np.asarray(d.line_index())[keep]
         depth = depth[keep]
         face = np.asarray(d.face, np.int32)[keep]
-        seg = np.searchsorted(planes, depth, side="right") - 1
-        # A crossing exactly at a node goes to the edge below or above it as if every node
-        # were moved to p + (e_x, e_y, e_z) with e_x >> e_y >> e_z > 0, the perturbation
-        # that the lines' tie rule (through (b + d, c + d^2)) applies to the two other axes.
-        # On the perturbed line, the crossing moves by -(n_k / n_a) e_k along the axis, the
-        # node by e_a: the first non-zero term in x, y, z order decides.
-        at = np.flatnonzero(depth == planes[np.clip(seg, 0, len(planes) - 1)])
-        if len(at):
-            n = normals[face[at]]
-            below = np.ones(len(at), bool)
-            decided = np.zeros(len(at), bool)
-            for k in range(a):
-                now = ~decided & (n[:, k] != 0)
-                below[now] = -n[now, k] * n[now, a] < 0
-                decided |= now
-            seg[at] -= below.astype(seg.dtype)
-        seg = np.clip(seg, 0, grid.shape[a] - 1)
+        seg = np.clip(np.searchsorted(planes, depth, side="right") - 1, 0, len(planes) - 2)
         nv = len(d.line_coords[1])
         iu, iv = np.divmod(line.astype(np.int64), nv)
-        others = [b for b in range(3) if b != a]
-        nodes = np.empty((len(line), 3), np.int64)
-        nodes[:, a] = seg
         if a == 1:  # lines indexed by (z, x)
             iu, iv = iv, iu
+        others = [b for b in range(3) if b != a]
+        # Crossings within rounding distance of a node: which side of the node they lie
+        # on is decided exactly, with the nodes perturbed as the lines are.
+        tol = 1e-9 * (grid.spacing[a] + np.abs(planes[seg]))
+        lo_near = depth - planes[seg] <= tol
+        hi_near = planes[seg + 1] - depth <= tol
+        near = np.flatnonzero(lo_near | hi_near)
+        if len(near):
+            k = np.where(lo_near[near], seg[near], seg[near] + 1)
+            pts = np.empty((len(near), 3))
+            pts[:, a] = planes[k]
+            pts[:, others[0]] = grid.edges(others[0])[iu[near]]
+            pts[:, others[1]] = grid.edges(others[1])[iv[near]]
+            side = _node_side(V, F, face[near], pts, a)
+            seg[near] = np.where(side < 0, k - 1, k)
+        # Crossings beyond the first or last node (after the tie rule) leave the grid.
+        inside = (seg >= 0) & (seg < grid.shape[a])
+        keep[np.flatnonzero(keep)[~inside]] = False
+        line, depth, face, seg, iu, iv = line[inside], depth[inside], face[inside], seg[inside], iu[inside], iv[inside]
+        nodes = np.empty((len(line), 3), np.int64)
+        nodes[:, a] = seg
         nodes[:, others[0]] = iu
         nodes[:, others[1]] = iv
         edges.append(_node_ids(grid, a, nodes))
@@ -369,6 +387,33 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
         faces.append(face)
         points.append(pts[:, swap] if a == 1 else pts)
     return _Crossings(np.concatenate(edges), np.concatenate(signs), np.concatenate(faces), np.concatenate(points))
+
+
+def _node_side(V, F, faces, nodes, axis) -> np.ndarray:
+    """+1 where the crossing of each face with the line along `axis` through each node lies
+    above the node, -1 below (exact, nodes perturbed as the lines are)."""
+    V = np.ascontiguousarray(V, np.float64)
+    F = np.ascontiguousarray(F, np.int32)
+    faces = np.ascontiguousarray(faces, np.int32)
+    nodes = np.ascontiguousarray(nodes, np.float64)
+    ax = np.full(len(faces), axis, np.int32)
+    out = np.zeros(len(faces), np.int8)
+    err = _host.error_buffer()
+    status = _lib().voxax_fc_node_side(
+        V.ctypes.data_as(_D),
+        len(V),
+        F.ctypes.data_as(_I32),
+        len(F),
+        len(faces),
+        faces.ctypes.data_as(_I32),
+        nodes.ctypes.data_as(_D),
+        ax.ctypes.data_as(_I32),
+        out.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        err,
+        _host.ERRLEN,
+    )
+    _host.check(status, err)
+    return out
 
 
 def _edge_geometry(grid: Grid, edge: np.ndarray):
@@ -534,42 +579,69 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
 
 
 def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
-    """Per-row edge signs: each crossing counts for the row (in each of the 4 cells
-    around its edge) whose pieces hold the crossing face, or else the row nearest to it."""
+    """Per-row edge signs with several rows per cell.
+
+    In each of the 4 cells around its edge, a crossing belongs to the row whose pieces
+    hold the crossing face (or else the row nearest to the crossing). Crossings of one
+    edge that share a row in any of its cells form one group (one sheet through the
+    edge); each group puts its net sign on one row per cell (the row most of its
+    crossings belong to), so every cell around the edge gets the same groups."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     h = np.asarray(grid.spacing)
     lo = np.asarray(grid.lower)
     nf = np.uint64(max(len(F), 1))
+    C = len(cr.edge)
     row_of_face = np.repeat(np.arange(K), fcount)
     key = index[row_of_face].astype(np.uint64) * nf + rfaces.astype(np.uint64)
     korder = np.argsort(key, kind="stable")
     skey = key[korder]
-    # Rows of each cell: [first, last).
     first = np.searchsorted(index, cidx, side="left")
     last = np.searchsorted(index, cidx, side="right")
-    acc = {}
-    C = len(cr.edge)
     cells = np.stack(np.unravel_index(index, grid.shape), axis=1)
     anchors = lo + (cells + 0.5 + off) * h
+    rows = np.full((C, 4), -1, np.int64)
     for p in range(4):
         ok = inside[:, p]
         c = np.where(ok, cidx[:, p], 0).astype(np.uint64)
         q = c * nf + cr.face.astype(np.uint64)
         at = np.clip(np.searchsorted(skey, q), 0, max(len(skey) - 1, 0))
         hit = ok & (skey[at] == q) if len(skey) else np.zeros(C, bool)
-        row = np.where(hit, row_of_face[korder[at]] if len(skey) else -1, -1)
+        rows[:, p] = np.where(hit, row_of_face[korder[at]] if len(skey) else -1, -1)
         for t in np.nonzero(ok & ~hit)[0]:
             a, b = first[t, p], last[t, p]
             if b > a:
                 d = np.linalg.norm(anchors[a:b] - cr.point[t], axis=1)
-                row[t] = a + int(np.argmin(d))
-        for t in np.nonzero(row >= 0)[0]:
-            k = (int(row[t]), int(cr.edge[t]))
-            acc[k] = acc.get(k, 0) + int(cr.sign[t])
+                rows[t, p] = a + int(np.argmin(d))
     signs = np.zeros((K, 12), np.int8)
-    tedges = _token_edges(grid, cells.astype(np.int64))
-    for (r, e), s in acc.items():
-        col = np.nonzero(tedges[r] == e)[0]
-        signs[r, col] = np.clip(s, -127, 127)
+    if C == 0:
+        return signs
+    # Groups: crossings joined through a shared (edge, row) in any cell.
+    t_idx, p_idx = np.nonzero(rows >= 0)
+    ekey = np.stack([cr.edge[t_idx], rows[t_idx, p_idx]], 1)
+    _, node = np.unique(ekey, axis=0, return_inverse=True)
+    node = node.reshape(-1)
+    graph = coo_matrix((np.ones(len(t_idx)), (t_idx, C + node)), shape=(C + node.max() + 1,) * 2)
+    _, label = connected_components(graph, directed=False)
+    group = label[:C]
+    _, group = np.unique(group, return_inverse=True)
+    net = np.zeros(group.max() + 1, np.int64)
+    np.add.at(net, group, cr.sign.astype(np.int64))
+    axis = (cr.edge // np.prod(np.asarray(grid.shape, np.int64) + 1)).astype(np.int64)
+    # The row each group uses in each cell: the most frequent one (ties: the lowest row).
+    g = group[t_idx]
+    r = rows[t_idx, p_idx]
+    trip = np.stack([g, p_idx, r], 1)
+    uniq, counts = np.unique(trip, axis=0, return_counts=True)
+    order = np.lexsort((uniq[:, 2], -counts, uniq[:, 1], uniq[:, 0]))
+    uniq = uniq[order]
+    firsts = np.concatenate([[True], np.any(uniq[1:, :2] != uniq[:-1, :2], axis=1)])
+    chosen = uniq[firsts]  # (group, position, row)
+    gaxis = np.zeros(len(net), np.int64)
+    gaxis[group] = axis
+    slot = gaxis[chosen[:, 0]] * 4 + (chosen[:, 1] + 2) % 4
+    signs[chosen[:, 2], slot] = np.clip(net[chosen[:, 0]], -127, 127)
     return signs
 
 

@@ -901,6 +901,112 @@ def run_line_crossings(rng, n_inputs):
         COUNTS["line_crossings_invalid"] += 1
 
 
+def run_fc(rng, n_inputs):
+    """Faithful Contouring: encode and decode adversarial soups and closed meshes snapped
+    onto the grid (structural checks, thread-count determinism), and hostile raw calls."""
+    import ctypes
+
+    from voxax import _host, fc
+
+    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
+    for i in range(n_inputs):
+        kind = kinds[i % len(kinds)]
+        if kind == "closed":
+            m = voxax.data.icosphere(int(rng.integers(0, 3)))
+            v = np.round(np.asarray(m.vertices) * 4) / 4  # vertices on grid nodes
+            f = np.asarray(m.faces)
+        else:
+            v, f = _spatial_soup(rng, kind)
+        scale = 1.25 * float(np.abs(v).max()) if v.size else 1.0  # the mesh strictly inside
+        n = tuple(int(x) for x in rng.integers(1, 9, size=3))
+        grid = voxax.Grid((-scale,) * 3, (max(scale, 1e-40),) * 3, n) if scale > 0 else voxax.Grid.cube(n)
+        label = f"fc/{kind}/{i}"
+        mode = 1 if i % 2 else "components"
+        try:
+            a = fc.encode(v, f, grid, anchors_per_cell=mode, layout=("primal", "dual")[i % 2], threads=1)
+            b = fc.encode(v, f, grid, anchors_per_cell=mode, layout=("primal", "dual")[i % 2], threads=3)
+            out = fc.decode(a, threads=2)
+            CALLS["fc"] += 3
+        except ValueError as err:
+            if kind == "tiny" and any(m in str(err) for m in ("1e-300", "1e-50", "cell volume")):
+                COUNTS["fc_invalid"] += 1
+                continue
+            fail(f"{label}: raised\n" + traceback.format_exc())
+            continue
+        except Exception:  # noqa: BLE001
+            fail(f"{label}: raised\n" + traceback.format_exc())
+            continue
+        if not np.array_equal(a.to_array("fct19"), b.to_array("fct19")):
+            fail(f"{label}: tokens depend on the thread count")
+        if len(a) and (np.any(np.diff(a.index) < 0) or np.abs(a.offsets).max() > 0.5):
+            fail(f"{label}: tokens unsorted or anchors outside their cells")
+        if out.n_faces and (out.faces.min() < 0 or out.faces.max() >= out.n_vertices):
+            fail(f"{label}: decoded face index out of range")
+        if kind == "closed" and mode == 1 and out.n_faces:  # several anchors per cell: no promise
+            rep = voxax.metrics.manifold_report(out)
+            if rep.n_boundary_edges:
+                fail(f"{label}: a closed mesh on grid nodes decodes with a boundary")
+        COUNTS["fc"] += 1
+    lib = _host.declare(fc._SIGNATURES)
+    v, f = _spatial_soup(rng, "random")
+    v, f = np.ascontiguousarray(v[:30]), np.arange(30, dtype=np.int32).reshape(10, 3)
+
+    def raw_encode(nv, nf, box, shape, params, flags=1):
+        err, handle = _host.error_buffer(), _host.VP()
+        box, shape = np.ascontiguousarray(box, np.float64), np.ascontiguousarray(shape, np.int64)
+        params, sizes = np.ascontiguousarray(params, np.float64), np.zeros(3, np.int64)
+        status = lib.voxax_fc_encode(_host.pointer(v, _host.D), nv, _host.pointer(f, _host.I32), nf, None,
+                                     _host.pointer(box, _host.D), _host.pointer(shape, _host.I64),
+                                     _host.pointer(params, _host.D), flags, 2, ctypes.byref(handle),
+                                     _host.pointer(sizes, _host.I64), err, _host.ERRLEN)
+        lib.voxax_fc_free(handle)
+        _host.check(status, err)
+
+    def raw_decode(index, shape, k=None):
+        err, handle = _host.error_buffer(), _host.VP()
+        index = np.ascontiguousarray(index, np.int64)
+        k = len(index) if k is None else k
+        p = np.zeros((max(len(index), 1), 3))
+        s = np.ones((max(len(index), 1), 12), np.int8)
+        shape, count = np.ascontiguousarray(shape, np.int64), np.zeros(1, np.int64)
+        status = lib.voxax_fc_decode(_host.pointer(index, _host.I64), _host.pointer(p, _host.D),
+                                     _host.pointer(p, _host.D), s.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)), k,
+                                     _host.pointer(shape, _host.I64), 0, 2, ctypes.byref(handle),
+                                     _host.pointer(count, _host.I64), err, _host.ERRLEN)
+        lib.voxax_fc_free_triangles(handle)
+        _host.check(status, err)
+
+    g = voxax.Grid.cube(4)
+    box = [-1, -1, -1, 1, 1, 1]
+    bad = {
+        "NaN vertex": (lambda: fc.encode(np.where(np.arange(90).reshape(30, 3) == 7, np.nan, v), f, g), "NaN"),
+        "index high": (lambda: fc.encode(v, f + 1, g), "range"),
+        "huge vertex": (lambda: fc.encode(v * 1e80, f, g), "1e75"),
+        "raw faces out of range": (lambda: raw_encode(5, 10, box, [4, 4, 4], [1, 1e-3, 1]), "range"),
+        "raw negative count": (lambda: raw_encode(30, -3, box, [4, 4, 4], [1, 1e-3, 1]), "2\\^31"),
+        "raw bad grid": (lambda: raw_encode(30, 10, [1, -1, -1, -1, 1, 1], [4, 4, 4], [1, 1e-3, 1]), "grid"),
+        "raw zero shape": (lambda: raw_encode(30, 10, box, [0, 4, 4], [1, 1e-3, 1]), "grid shape"),
+        "raw lambda_d": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 0.0, 1]), "lambda_d"),
+        "raw NaN power": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 1e-3, np.nan]), "weight_power"),
+        "raw flags": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 1e-3, 1], flags=99), "flags"),
+        "raw decode unsorted": (lambda: raw_decode([5, 3], [4, 4, 4]), "sorted"),
+        "raw decode index": (lambda: raw_decode([5, 64], [4, 4, 4]), "range"),
+        "raw decode shape": (lambda: raw_decode([0], [4, -1, 4]), "shape"),
+        "raw decode huge grid": (lambda: raw_decode([0], [1 << 31, 1 << 31, 1 << 31]), "too large"),
+    }
+    for name, (call, match) in bad.items():
+        try:
+            call()
+        except (ValueError, TypeError) as err:
+            if not re.search(match, str(err)):
+                fail(f"fc '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"fc '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"fc '{name}': no error raised")
+        COUNTS["fc_invalid"] += 1
+
+
 # -- marching cubes ------------------------------------------------------------------------
 
 
@@ -1202,6 +1308,7 @@ def main(argv=None):
         run_raw_ffi(rng)
         run_spatial(rng, args.spatial_inputs)
         run_line_crossings(rng, max(40, args.spatial_inputs // 2))
+        run_fc(rng, max(28, args.spatial_inputs // 4))
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
         run_intersections(rng)

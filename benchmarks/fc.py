@@ -1,0 +1,178 @@
+"""Faithful Contouring: encode + decode on `data.large` against the dense voxelize + isosurface path.
+
+For every mesh size (`--faces`, faces of `voxax.data.large`) and grid size (`--sizes`, n^3
+cells over [-1, 1]^3), one fresh process runs
+
+- `fc`: `voxax.fc.encode` then `voxax.fc.decode` (all cores), timed separately (wall clock
+  and process CPU time), with the number of tokens (active cells), the time per token and
+  the peak resident memory of the process;
+- `dense` (up to `--dense-max`): `voxax.voxelize` (float32) then `voxax.isosurface(W, 0.5)`,
+  timed the same way, with its peak memory;
+
+and both outputs are compared with the input by the two-sided Hausdorff distance
+(`voxax.metrics.hausdorff`, vertices plus `--samples` area samples per surface), reported in
+cells. The first call of each path in a process includes one-time costs (JIT compilation of
+the dense path, page faults); `--repeats` > 1 reports the best of the later calls.
+
+Usage:
+
+```bash
+PYTHONPATH=src python benchmarks/fc.py --faces 100000 1000000 --sizes 256 512 1024 --write-readme
+```
+
+`--write-readme` replaces the section between the Faithful Contouring markers in
+`benchmarks/README.md`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def _peak_kib() -> int:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    return 0
+
+
+def _timed(fn):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return time.perf_counter() - w, time.process_time() - c, out
+
+
+def worker(kind: str, faces: int, n: int, repeats: int, samples: int) -> dict:
+    import numpy as np
+
+    import voxax
+
+    mesh = voxax.data.large(faces)
+    grid = voxax.Grid.cube(n)
+    h = grid.spacing[0]
+    base = _peak_kib()
+    row = {"kind": kind, "faces": mesh.n_faces, "n": n}
+    best = None
+    for _ in range(repeats):
+        if kind == "fc":
+            te, ce, tok = _timed(lambda: voxax.fc.encode(mesh, grid))
+            td, cd, out = _timed(lambda tok=tok: voxax.fc.decode(tok))
+            tokens = len(tok)
+            del tok
+        else:
+            v32 = mesh.vertices.astype(np.float32)
+            te, ce, W = _timed(lambda v32=v32: np.asarray(voxax.voxelize(v32, mesh.faces, grid)))
+            td, cd, iso = _timed(lambda W=W: voxax.isosurface(W, grid, 0.5).to_mesh())
+            tokens, out = None, iso
+            del W
+        t = {"encode_s": te, "decode_s": td, "encode_cpu_s": ce, "decode_cpu_s": cd, "total_s": te + td}
+        if best is None or t["total_s"] < best["total_s"]:
+            best = t
+    row.update(best)
+    row["peak_gib"] = _peak_kib() / 2**20
+    row["input_gib"] = base / 2**20
+    row["tokens"] = tokens
+    row["out_faces"] = int(out.n_faces)
+    if tokens:
+        row["us_per_token"] = 1e6 * row["total_s"] / tokens
+    row["hausdorff_cells"] = voxax.metrics.hausdorff(out, mesh, n=samples) / h
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--faces", type=int, nargs="+", default=[100_000])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
+    ap.add_argument("--dense-max", type=int, default=512, help="largest grid for the dense path")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--samples", type=int, default=20_000)
+    ap.add_argument("--write-readme", action="store_true")
+    ap.add_argument("--worker", nargs=3, metavar=("KIND", "FACES", "N"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        kind, faces, n = args.worker
+        print(json.dumps(worker(kind, int(faces), int(n), args.repeats, args.samples)), flush=True)
+        return 0
+    rows = []
+    for faces in args.faces:
+        for n in args.sizes:
+            for kind in ("fc", "dense"):
+                if kind == "dense" and n > args.dense_max:
+                    continue
+                cmd = [
+                    sys.executable,
+                    __file__,
+                    "--worker",
+                    kind,
+                    str(faces),
+                    str(n),
+                    "--repeats",
+                    str(args.repeats),
+                    "--samples",
+                    str(args.samples),
+                ]
+                proc = subprocess.run(cmd, capture_output=True, text=True)
+                if proc.returncode != 0:
+                    print(f"{kind} {faces} {n}^3 failed:\n{proc.stderr[-2000:]}", flush=True)
+                    rows.append({"kind": kind, "faces": faces, "n": n, "failed": proc.stderr.strip().splitlines()[-1:]})
+                    continue
+                row = json.loads(proc.stdout.strip().splitlines()[-1])
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    table = [
+        "| faces | grid | path | tokens | encode | decode | total (CPU) | us / token | peak memory | Hausdorff |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        if "failed" in r:
+            table.append(f"| {r['faces']} | {r['n']}^3 | {r['kind']} | failed: {' '.join(r['failed'])} | | | | | | |")
+            continue
+        name = "FC encode + decode" if r["kind"] == "fc" else "voxelize + isosurface"
+        tok = f"{r['tokens']:,}" if r["tokens"] else "-"
+        per = f"{r['us_per_token']:.2f}" if r.get("us_per_token") else "-"
+        cpu = r["encode_cpu_s"] + r["decode_cpu_s"]
+        table.append(
+            f"| {r['faces']:,} | {r['n']}^3 | {name} | {tok} | {r['encode_s']:.2f} s | {r['decode_s']:.2f} s | "
+            f"{r['total_s']:.2f} s ({cpu:.2f} s) | {per} | {r['peak_gib']:.2f} GiB | {r['hausdorff_cells']:.3f} h |"
+        )
+    text = "\n".join(table)
+    print(text)
+    if args.write_readme:
+        with open("/proc/loadavg") as fh:
+            load = fh.read().split()[:3]
+        machine = f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+        cmd = "python benchmarks/fc.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        start, end = "<!-- fc-results:start -->", "<!-- fc-results:end -->"
+        body = (
+            f"{start}\n\nMachine: {machine}; load average at the end {', '.join(load)} (the machine is shared, "
+            f"so wall times are inflated; the CPU column is the process CPU time). Command: `{cmd}`.\n\n"
+            f"{text}\n\n{end}"
+        )
+        readme = Path(__file__).with_name("README.md")
+        old = readme.read_text()
+        if start in old:
+            new = re.sub(re.escape(start) + ".*?" + re.escape(end), lambda _: body, old, flags=re.DOTALL)
+        else:
+            new = (
+                old.rstrip()
+                + "\n\n## Faithful Contouring: encode + decode against voxelize + isosurface\n\n"
+                + "`fc.py` encodes `data.large` into Faithful Contour Tokens and decodes them, and runs the dense "
+                + "path `voxelize` + `isosurface` on the same grid; see its docstring.\n\n"
+                + body
+                + "\n"
+            )
+        readme.write_text(new)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
