@@ -379,6 +379,39 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
   }
 }
 
+// Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face: an
+// open-addressing table counts the undirected edges.
+inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
+  size_t cap = 16;
+  while (cap < static_cast<size_t>(6 * nf + 1)) cap *= 2;
+  const size_t mask = cap - 1;
+  std::vector<uint64_t> keys(cap, ~uint64_t{0});
+  std::vector<uint8_t> count(cap, 0);
+  auto slot = [&](uint64_t key) {
+    uint64_t x = key * 0x9E3779B97F4A7C15ULL;
+    size_t h = static_cast<size_t>(x ^ (x >> 31)) & mask;
+    while (keys[h] != key && keys[h] != ~uint64_t{0}) h = (h + 1) & mask;
+    return h;
+  };
+  auto key_of = [&](int64_t t, int k) {
+    const uint64_t a = static_cast<uint32_t>(F[3 * t + k]);
+    const uint64_t b = static_cast<uint32_t>(F[3 * t + (k + 1) % 3]);
+    return a < b ? (a << 32) | b : (b << 32) | a;
+  };
+  for (int64_t t = 0; t < nf; ++t)
+    for (int k = 0; k < 3; ++k) {
+      const uint64_t key = key_of(t, k);
+      const size_t h = slot(key);
+      keys[h] = key;
+      if (count[h] < 2) ++count[h];
+    }
+  std::vector<uint8_t> bits(nf, 0);
+  for (int64_t t = 0; t < nf; ++t)
+    for (int k = 0; k < 3; ++k)
+      if (count[slot(key_of(t, k))] == 1) bits[t] |= static_cast<uint8_t>(1u << k);
+  return bits;
+}
+
 // Whether faces s and t share an edge (two vertex indices).
 inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
   int common = 0;

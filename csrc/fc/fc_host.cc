@@ -7,7 +7,8 @@
 //                   of the face is an open boundary), box[6] (lower, upper), shape[3],
 //                   params[3] (lambda_n, lambda_d, weight_power), flags, threads,
 //                   &handle, sizes[3] (rows, faces, pieces), err, errlen)
-//       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only
+//       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only, 16 find the
+//       open boundary edges here (instead of `open`)
 //   voxax_fc_rows(handle, index (K,) i64, component (K,) i32, offset (K, 3), normal (K, 3),
 //                 area (K,), clamped (K,) i32, face_count (K,) i64, faces (sum,) i32)
 //   voxax_fc_pieces(handle, cell (P,) i64, face (P,) i32, area (P,), centroid (P, 3))
@@ -89,11 +90,17 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
       return fail(err, errlen, "voxax: fc.encode: lambda_d must be > 0 and finite");
     if (!(prm.power >= 0) || !(prm.power <= 16))
       return fail(err, errlen, "voxax: fc.encode: weight_power must lie in [0, 16]");
-    if (flags < 0 || flags > 15) return fail(err, errlen, "voxax: fc.encode: bad flags");
+    if (flags < 0 || flags > 31) return fail(err, errlen, "voxax: fc.encode: bad flags");
     prm.clamp = (flags & 1) != 0;
     prm.components = (flags & 2) != 0;
     prm.faces = (flags & 4) != 0;
-    prm.open = open;
+    std::vector<uint8_t> open_bits;
+    if (flags & 16) {
+      open_bits = voxax::fc::open_edges(F, nf);
+      prm.open = open_bits.data();
+    } else {
+      prm.open = open;
+    }
     const bool pieces_only = (flags & 8) != 0;
     g.build_planes();
 

@@ -146,19 +146,6 @@ def _threads(threads) -> int:
     return _host.threads(threads)
 
 
-def _open_edges(F) -> np.ndarray:
-    """`(F,)` uint8: bit k set where edge k of the face (corners k, k + 1) is used by no
-    other face (an open boundary of the mesh)."""
-    if len(F) == 0:
-        return np.zeros(0, np.uint8)
-    e = np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2).astype(np.int64)
-    e.sort(axis=1)
-    key = e[:, 0] * (int(F.max()) + 1) + e[:, 1]
-    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-    lone = (cnt[inv] == 1).reshape(-1, 3)
-    return (lone[:, 0] * 1 + lone[:, 1] * 2 + lone[:, 2] * 4).astype(np.uint8)
-
-
 def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -166,7 +153,6 @@ def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=Fals
     box = np.ascontiguousarray(np.concatenate([grid.lower, grid.upper]), dtype=np.float64)
     shape = np.ascontiguousarray(grid.shape, dtype=np.int64)
     prm = np.ascontiguousarray(params, dtype=np.float64)
-    open_edges = np.ascontiguousarray(_open_edges(F)) if open_boundaries else None
     handle = _VP()
     sizes = np.zeros(3, np.int64)
     err = _host.error_buffer()
@@ -175,11 +161,11 @@ def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=Fals
         len(V),
         F.ctypes.data_as(_I32),
         len(F),
-        None if open_edges is None else open_edges.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
+        None,
         box.ctypes.data_as(_D),
         shape.ctypes.data_as(_I64),
         prm.ctypes.data_as(_D),
-        int(flags),
+        int(flags) | (16 if open_boundaries else 0),
         _threads(threads),
         ctypes.byref(handle),
         sizes.ctypes.data_as(_I64),
