@@ -145,8 +145,12 @@ inline void decode_rows(const DecodeInput& in, const CellTable& table, int64_t r
       const int64_t node[3] = {cell[0] + o[0], cell[1] + o[1], cell[2] + o[2]};
       bool owner = true, complete = true;
       int64_t first[4];
-      for (int q = 0; q < 4 && complete; ++q) {
-        L[q].clear();
+      // Positions in increasing order of their cells' indices (0, 3, 1, 2), so that a row
+      // that does not own the edge usually finds a lower voting row at the first lookup.
+      static constexpr int kOrder[4] = {0, 3, 1, 2};
+      for (int q = 0; q < 4; ++q) L[q].clear();
+      for (int t = 0; t < 4 && complete && owner; ++t) {
+        const int q = kOrder[t];
         // The cell at position q has this edge as its edge a * 4 + (q + 2) % 4.
         const int slot = a * 4 + (q + 2) % 4;
         int64_t qo[3];
@@ -166,7 +170,10 @@ inline void decode_rows(const DecodeInput& in, const CellTable& table, int64_t r
         first[q] = lo;
         for (int64_t x = lo; x < hi; ++x)
           if (in.S[12 * x + slot] != 0) {
-            if (x < r) owner = false;
+            if (x < r) {
+              owner = false;
+              break;
+            }
             L[q].push_back(x);
           }
       }
