@@ -12,18 +12,23 @@ The anchor of a cell minimizes, in cell-local coordinates `u = (x - centre) / h`
 
     sum_i w_i [lambda_n (n_i . (u - c_i))^2 + lambda_d |u - c_i|^2],   w_i = A_i^p / sum A^p
 
-over the cell's pieces `i` (area `A_i`, area centroid `c_i`, the triangle's normal `n_i`).
-When the minimizer leaves the cell, it is clamped to the cell and moved to the closest
-point of the cell's own pieces. With `anchors_per_cell="components"` every connected
-component of a cell's pieces (faces joined by mesh edges) gets its own anchor, so nearby
-sheets are no longer merged into one vertex.
+over the cell's pieces `i` (area `A_i`, area centroid `c_i`, the triangle's normal `n_i`,
+normals taken in local coordinates). When the minimizer leaves the cell, it is clamped to
+the cell and moved to the closest point of the cell's own pieces. Beyond the paper: open
+boundaries of the mesh add their lines to the QEF (`open_boundaries=True`), so open sheets
+keep their extent; with `anchors_per_cell="components"` every connected component of a
+cell's pieces (faces joined by mesh edges) gets its own anchor, so nearby sheets are no
+longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
+thinner than a cell) to the surface.
 
 Edge signs are the net flux of the surface through each lattice edge: the sum over the
-crossings of the edge (exact, from [`voxax.raster.line_crossings`][voxax.raster.line_crossings]
-through the grid nodes) of +1 where the surface normal points along the edge's axis and -1
-where it points against it (int8, clipped to [-127, 127]; the decoder uses its sign). For
-a closed mesh it is the winding number at the edge's lower end minus the one at its upper
-end (the lines' tie rule decides for nodes on the surface, consistently for all three axes).
+crossings of the edge (exact, from `voxax.raster.line_crossings` through the grid nodes)
+of +1 where the surface normal points along the edge's axis and -1 where it points against
+it (int8, clipped to [-127, 127]; the decoder uses its sign). For a closed mesh it is the
+winding number at the edge's lower end minus the one at its upper end. Nodes on the
+surface are decided exactly as if every node were moved to `p + (e_x, e_y, e_z)` with
+`e_x >> e_y >> e_z > 0` (the perturbation that the lines' tie rule applies), the same for
+all three axes, so meshes through grid nodes still decode closed.
 
 Edge order in a token: edges 0-3 run along x through the cell's corners at (y, z) offsets
 (0, 0), (1, 0), (1, 1), (0, 1); edges 4-7 along y at (x, z) offsets in the same order;
@@ -1136,9 +1141,9 @@ class RoundtripReport:
     - `grid`, `tokens` (number of rows), `encode_seconds`, `decode_seconds`;
     - `hausdorff`: two-sided Hausdorff distance ([`voxax.metrics.hausdorff`][voxax.metrics.hausdorff]);
     - `chamfer_g2p`: Faithful Contouring's Chamfer (input to output, mean squared);
-    - `f_score`: F-score at `threshold` (0.01 of the grid's longest side by default, as
-      the paper's F@0.01 on [-1, 1]^3 is 0.005 of the side... see `threshold`);
-    - `threshold`: the F-score's distance threshold;
+    - `f_score`: F-score at `threshold`, a fraction in [0, 1];
+    - `threshold`: the F-score's distance (by default 0.005 of the grid's longest side: the
+      paper's F@0.01 measured on the cube [-1, 1]^3);
     - `manifold`: the output's [`ManifoldReport`][voxax.metrics.ManifoldReport].
     """
 
