@@ -43,49 +43,40 @@ struct DecodeInput {
   int split = 0;  // 0 normal, 1 short, 2 none
 };
 
-// An open-addressing hash table from a cell index to its first row (rows of one cell
-// are consecutive in the sorted index).
-class CellTable {
- public:
-  explicit CellTable(const int64_t* index, int64_t K) : index_(index), K_(K) {
-    size_t cap = 16;
-    while (cap < static_cast<size_t>(2 * K + 1)) cap *= 2;
-    mask_ = cap - 1;
-    slots_.assign(cap, -1);
-    for (int64_t r = 0; r < K; ++r) {
-      if (r > 0 && index[r] == index[r - 1]) continue;
-      size_t h = hash(index[r]);
-      while (slots_[h] >= 0) h = (h + 1) & mask_;
-      slots_[h] = r;
+// Rows [lo, hi) of cell c (empty when absent), by an exponential search from row `hint`:
+// the cells around an edge lie near the hint's cell in the sorted index, so the search
+// touches memory near the hint.
+inline void rows_near(const DecodeInput& in, int64_t c, int64_t hint, int64_t* lo, int64_t* hi) {
+  const int64_t* I = in.index;
+  const int64_t K = in.K;
+  int64_t a, b;  // lower_bound(c) lies in (a, b]
+  if (I[hint] < c) {
+    a = hint;
+    int64_t step = 1;
+    b = hint + 1;
+    while (b < K && I[b] < c) {
+      a = b;
+      step *= 2;
+      b = hint + step;
     }
-  }
-  // Rows [lo, hi) of cell c (empty when absent).
-  void rows(int64_t c, int64_t* lo, int64_t* hi) const {
-    size_t h = hash(c);
-    while (slots_[h] >= 0) {
-      const int64_t r = slots_[h];
-      if (index_[r] == c) {
-        int64_t e = r + 1;
-        while (e < K_ && index_[e] == c) ++e;
-        *lo = r;
-        *hi = e;
-        return;
-      }
-      h = (h + 1) & mask_;
+    b = std::min(b, K);
+  } else {
+    b = hint;
+    int64_t step = 1;
+    a = hint - 1;
+    while (a >= 0 && I[a] >= c) {
+      b = a;
+      step *= 2;
+      a = hint - step;
     }
-    *lo = *hi = 0;
+    a = std::max<int64_t>(a, -1);
   }
-
- private:
-  size_t hash(int64_t c) const {
-    uint64_t x = static_cast<uint64_t>(c) * 0x9E3779B97F4A7C15ULL;
-    return static_cast<size_t>(x ^ (x >> 29)) & mask_;
-  }
-  const int64_t* index_;
-  int64_t K_;
-  size_t mask_ = 0;
-  std::vector<int64_t> slots_;
-};
+  const int64_t l = std::lower_bound(I + a + 1, I + b, c) - I;
+  int64_t h = l;
+  while (h < K && I[h] == c) ++h;
+  *lo = l;
+  *hi = h;
+}
 
 inline double tri_deviation(const DecodeInput& in, int64_t a, int64_t b, int64_t c) {
   const double* pa = in.P + 3 * a;
@@ -130,8 +121,7 @@ inline void emit_quad(const DecodeInput& in, const int64_t q[4], std::vector<int
 }
 
 // Triangles (as row triples) of the edges owned by rows [r0, r1).
-inline void decode_rows(const DecodeInput& in, const CellTable& table, int64_t r0, int64_t r1,
-                        std::vector<int64_t>* out) {
+inline void decode_rows(const DecodeInput& in, int64_t r0, int64_t r1, std::vector<int64_t>* out) {
   const int64_t ny = in.n[1], nz = in.n[2];
   std::vector<int64_t> L[4];
   for (int64_t r = r0; r < r1; ++r) {
@@ -162,7 +152,7 @@ inline void decode_rows(const DecodeInput& in, const CellTable& table, int64_t r
         }
         if (!complete) break;
         int64_t lo, hi;
-        table.rows((qc[0] * ny + qc[1]) * nz + qc[2], &lo, &hi);
+        rows_near(in, (qc[0] * ny + qc[1]) * nz + qc[2], r, &lo, &hi);
         if (lo == hi) {
           complete = false;
           break;

@@ -240,9 +240,8 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
     constexpr int64_t kChunk = 4096;
     const int64_t chunks = (K + kChunk - 1) / kChunk;
     std::vector<std::vector<int64_t>> parts(chunks);
-    const voxax::fc::CellTable table(index, K);
     voxax::spatial::parallel_chunks(K, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
-      voxax::fc::decode_rows(in, table, b, e, &parts[c]);
+      voxax::fc::decode_rows(in, b, e, &parts[c]);
     });
     auto* out = new std::vector<int64_t>();
     try {
