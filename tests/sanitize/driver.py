@@ -948,8 +948,7 @@ def run_fc(rng, n_inputs):
                 fail(f"{label}: a closed mesh on grid nodes decodes with a boundary")
         COUNTS["fc"] += 1
     lib = _host.declare(fc._SIGNATURES)
-    v, f = _spatial_soup(rng, "random")
-    v, f = np.ascontiguousarray(v[:30]), np.arange(30, dtype=np.int32).reshape(10, 3)
+    v, f = np.ascontiguousarray(rng.uniform(-1, 1, (30, 3))), np.arange(30, dtype=np.int32).reshape(10, 3)
 
     def raw_encode(nv, nf, box, shape, params, flags=1):
         err, handle = _host.error_buffer(), _host.VP()
