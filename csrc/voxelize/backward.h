@@ -15,6 +15,7 @@
 
 #include "common/grid.h"
 #include "voxelize/clip.h"
+#include "voxelize/splat.h"
 
 namespace voxax {
 
@@ -28,39 +29,14 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
   const double inv_vol = 1.0 / g.cell_volume();
   const int64_t ny = g.n[1], nz = g.n[2];
   Poly<3> P;
+  TriangleFrame frame;
   for (int64_t t = t0; t < t1; ++t) {
-    const int32_t* f = F + 3 * t;
-    double p[3][3];
-    for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < 3; ++a) p[c][a] = static_cast<double>(V[3 * int64_t(f[c]) + a]);
-    double e1[3], e2[3], N[3];
-    for (int a = 0; a < 3; ++a) {
-      e1[a] = p[1][a] - p[0][a];
-      e2[a] = p[2][a] - p[0][a];
-    }
-    N[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    N[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    N[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    const double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
     T* o = out + t * 9;
-    if (!(len > 0) || !std::isfinite(len)) {
+    if (!frame.load(V, F + 3 * t)) {
       for (int c = 0; c < 9; ++c) o[c] = static_cast<T>(0);
       continue;
     }
-    const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
-    // Rows of the barycentric map: beta_1 = r1 . (p - a), beta_2 = r2 . (p - a),
-    // r1 = (e2 x N) / |N|^2 and r2 = (N x e1) / |N|^2 (exact for slivers too).
-    const double inv_nn = 1.0 / (len * len);
-    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn,
-                          (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
-                          (e2[0] * N[1] - e2[1] * N[0]) * inv_nn};
-    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn,
-                          (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
-                          (N[0] * e1[1] - N[1] * e1[0]) * inv_nn};
-    const double* a0 = p[0];
-    P.count = 3;
-    for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < 3; ++a) P.v[c][a] = p[c][a];
+    frame.to_poly(&P);
     // Integrals over the surface of g * beta_m / |voxel|, m = 0, 1, 2.
     double acc[3] = {0, 0, 0};
     int64_t i0, i1, j0, j1, k0, k1;
@@ -76,36 +52,16 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
           sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) {
             const double gv = static_cast<double>(Gcol[k]);
             if (gv == 0.0) return;
-            // Area and first moment (relative to a) of the piece, by a fan.
-            double A = 0, M[3] = {0, 0, 0};
-            const double* q0 = Q.v[0];
-            for (int m = 1; m + 1 < Q.count; ++m) {
-              const double* q1 = Q.v[m];
-              const double* q2 = Q.v[m + 1];
-              double u[3], w[3];
-              for (int a = 0; a < 3; ++a) {
-                u[a] = q1[a] - q0[a];
-                w[a] = q2[a] - q0[a];
-              }
-              const double area =
-                  0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                         nh[2] * (u[0] * w[1] - u[1] * w[0]));
-              A += area;
-              for (int a = 0; a < 3; ++a)
-                M[a] += area * ((q0[a] - a0[a]) + (q1[a] - a0[a]) + (q2[a] - a0[a])) * (1.0 / 3.0);
-            }
-            const double B1 = r1[0] * M[0] + r1[1] * M[1] + r1[2] * M[2];
-            const double B2 = r2[0] * M[0] + r2[1] * M[1] + r2[2] * M[2];
+            double beta[3];
+            frame.piece_integrals(Q, beta);
             const double s = gv * inv_vol;
-            acc[0] += s * (A - B1 - B2);
-            acc[1] += s * B1;
-            acc[2] += s * B2;
+            for (int m = 0; m < 3; ++m) acc[m] += s * beta[m];
           });
         });
       });
     }
     for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < 3; ++a) o[c * 3 + a] = static_cast<T>(acc[c] * nh[a]);
+      for (int a = 0; a < 3; ++a) o[c * 3 + a] = static_cast<T>(acc[c] * frame.nh[a]);
   }
 }
 

@@ -272,6 +272,25 @@ struct TileScratch {
   }
 };
 
+// Clips P (whose cells along x are [i0, i1]) into the columns (i, j) of the tile
+// [ia, ib) x [ja, jb) that it overlaps, sweeping slabs in x, then in y, and calls
+// fn(i, j, piece) for each.
+template <typename Fn>
+void sweep_tile_columns(const GridSpec& g, const Poly<3>& P, int64_t i0, int64_t i1, int64_t ia,
+                        int64_t ib, int64_t ja, int64_t jb, Fn&& fn) {
+  i0 = std::max(i0, ia);
+  i1 = std::min(i1, ib - 1);
+  if (i0 > i1) return;
+  sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
+    int64_t ya, yb;
+    if (!g.span(1, Px.min(1), Px.max(1), &ya, &yb)) return;
+    ya = std::max(ya, ja);
+    yb = std::min(yb, jb - 1);
+    if (ya > yb) return;
+    sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Q) { fn(i, j, Q); });
+  });
+}
+
 template <typename T>
 void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
                      const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
@@ -315,19 +334,9 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       }
     }
     // Sweep the slabs of this tile in x, then in y, splitting off one cell at a time.
-    i0 = std::max(i0, ia);
-    i1 = std::min(i1, ib - 1);
-    if (i0 > i1) continue;
-    sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
-      int64_t ya, yb;
-      if (!g.span(1, Px.min(1), Px.max(1), &ya, &yb)) return;
-      ya = std::max(ya, ja);
-      yb = std::min(yb, jb - 1);
-      if (ya > yb) return;
-      sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Q) {
-        add_column_3d(g, Q, g.plane(0, i), g.plane(1, j),
-                      scratch.column((i - ia) * wy + (j - ja), nz));
-      });
+    sweep_tile_columns(g, P, i0, i1, ia, ib, ja, jb, [&](int64_t i, int64_t j, const Poly<3>& Q) {
+      add_column_3d(g, Q, g.plane(0, i), g.plane(1, j),
+                    scratch.column((i - ia) * wy + (j - ja), nz));
     });
   }
   for (int64_t i = ia; i < ib; ++i) {

@@ -25,9 +25,9 @@
 #include "common/grid.h"
 #include "common/parallel.h"
 #include "common/validate.h"
-#include "voxelize/backward.h"
 #include "voxelize/clip.h"
 #include "voxelize/forward.h"
+#include "voxelize/splat.h"
 
 namespace voxax {
 
@@ -73,23 +73,11 @@ void tangent_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
   const int64_t nz = g.n[2], wy = jb - ja;
   const double inv_vol = 1.0 / g.cell_volume();
   Poly<3> P;
+  TriangleFrame frame;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     const int64_t t = bins.items[e];
-    const int32_t* f = F + 3 * t;
-    double p[3][3];
-    for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < 3; ++a) p[c][a] = static_cast<double>(V[3 * int64_t(f[c]) + a]);
-    double e1[3], e2[3], N[3];
-    for (int a = 0; a < 3; ++a) {
-      e1[a] = p[1][a] - p[0][a];
-      e2[a] = p[2][a] - p[0][a];
-    }
-    N[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    N[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    N[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    const double len = std::sqrt(N[0] * N[0] + N[1] * N[1] + N[2] * N[2]);
-    if (!(len > 0) || !std::isfinite(len)) continue;
-    const double nh[3] = {N[0] / len, N[1] / len, N[2] / len};
+    if (!frame.load(V, F + 3 * t)) continue;
+    const double* nh = frame.nh;
     // Normal velocity of each corner.
     double c[3];
     const T* tc = TC + 9 * t;
@@ -97,57 +85,19 @@ void tangent_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       c[m] = nh[0] * static_cast<double>(tc[3 * m]) + nh[1] * static_cast<double>(tc[3 * m + 1]) +
              nh[2] * static_cast<double>(tc[3 * m + 2]);
     if (c[0] == 0.0 && c[1] == 0.0 && c[2] == 0.0) continue;
-    const double inv_nn = 1.0 / (len * len);
-    const double r1[3] = {(e2[1] * N[2] - e2[2] * N[1]) * inv_nn,
-                          (e2[2] * N[0] - e2[0] * N[2]) * inv_nn,
-                          (e2[0] * N[1] - e2[1] * N[0]) * inv_nn};
-    const double r2[3] = {(N[1] * e1[2] - N[2] * e1[1]) * inv_nn,
-                          (N[2] * e1[0] - N[0] * e1[2]) * inv_nn,
-                          (N[0] * e1[1] - N[1] * e1[0]) * inv_nn};
-    const double* a0 = p[0];
-    P.count = 3;
-    for (int q = 0; q < 3; ++q)
-      for (int a = 0; a < 3; ++a) P.v[q][a] = p[q][a];
+    frame.to_poly(&P);
     int64_t i0, i1, j0, j1, k0, k1;
     if (!g.span(0, P.min(0), P.max(0), &i0, &i1) || !g.span(1, P.min(1), P.max(1), &j0, &j1) ||
         !g.span(2, P.min(2), P.max(2), &k0, &k1))
       continue;
-    i0 = std::max(i0, ia);
-    i1 = std::min(i1, ib - 1);
-    if (i0 > i1) continue;
-    sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
-      int64_t ya, yb;
-      if (!g.span(1, Px.min(1), Px.max(1), &ya, &yb)) return;
-      ya = std::max(ya, ja);
-      yb = std::min(yb, jb - 1);
-      if (ya > yb) return;
-      sweep<3>(g, Px, 1, ya, yb, [&](int64_t j, const Poly<3>& Pxy) {
-        int64_t ka, kb;
-        if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
-        double* col = acc + ((i - ia) * wy + (j - ja)) * nz;
-        sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) {
-          // Area and first moment (relative to a) of the piece, by a fan.
-          double A = 0, M[3] = {0, 0, 0};
-          const double* q0 = Q.v[0];
-          for (int m = 1; m + 1 < Q.count; ++m) {
-            const double* q1 = Q.v[m];
-            const double* q2 = Q.v[m + 1];
-            double u[3], w[3];
-            for (int a = 0; a < 3; ++a) {
-              u[a] = q1[a] - q0[a];
-              w[a] = q2[a] - q0[a];
-            }
-            const double area =
-                0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                       nh[2] * (u[0] * w[1] - u[1] * w[0]));
-            A += area;
-            for (int a = 0; a < 3; ++a)
-              M[a] += area * ((q0[a] - a0[a]) + (q1[a] - a0[a]) + (q2[a] - a0[a])) * (1.0 / 3.0);
-          }
-          const double B1 = r1[0] * M[0] + r1[1] * M[1] + r1[2] * M[2];
-          const double B2 = r2[0] * M[0] + r2[1] * M[1] + r2[2] * M[2];
-          col[k] += inv_vol * ((A - B1 - B2) * c[0] + B1 * c[1] + B2 * c[2]);
-        });
+    sweep_tile_columns(g, P, i0, i1, ia, ib, ja, jb, [&](int64_t i, int64_t j, const Poly<3>& Pxy) {
+      int64_t ka, kb;
+      if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
+      double* col = acc + ((i - ia) * wy + (j - ja)) * nz;
+      sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) {
+        double beta[3];
+        frame.piece_integrals(Q, beta);
+        col[k] += inv_vol * (beta[0] * c[0] + beta[1] * c[1] + beta[2] * c[2]);
       });
     });
   }

@@ -316,15 +316,14 @@ def _cell_points(idx, grid: Grid):
 def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
     """Vertex positions and the conditioning figure; differentiable in `values`."""
     ft = _float()
-    if isinstance(values, np.ndarray) and not isinstance(edges, jax.core.Tracer):
-        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))  # a view
-        e = np.asarray(edges)
-        fa = jnp.asarray(np.take_along_axis(flat, e[..., 0], axis=-1), ft)
-        fb = jnp.asarray(np.take_along_axis(flat, e[..., 1], axis=-1), ft)
-    else:
-        flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))
-        fa = jnp.take_along_axis(flat, edges[..., 0], axis=-1).astype(ft)
-        fb = jnp.take_along_axis(flat, edges[..., 1], axis=-1).astype(ft)
+    flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))
+    fa = jnp.take_along_axis(flat, edges[..., 0], axis=-1).astype(ft)
+    fb = jnp.take_along_axis(flat, edges[..., 1], axis=-1).astype(ft)
+    return _from_samples(fa, fb, edges, n_vertices, grid, level)
+
+
+def _from_samples(fa, fb, edges, n_vertices, grid: Grid, level):
+    """`_interpolate` after the samples at the edge ends, `fa` and `fb`, are gathered."""
     ia, ib = edges[..., 0], edges[..., 1]
     valid = jnp.arange(edges.shape[-2]) < n_vertices[..., None]
     gap = fb - fa
@@ -339,6 +338,26 @@ def _interpolate(values, edges, n_vertices, grid: Grid, level: float):
         initial=jnp.inf,
     )
     return v, min_gap
+
+
+_from_samples_jit = jax.jit(_from_samples, static_argnames=("grid",))
+
+
+def _interpolate_eager(values: np.ndarray, edges: np.ndarray, grid: Grid, level: float):
+    """`_interpolate` of concrete samples: gathered in NumPy, computed by one compiled
+    function for vertex counts rounded up to a power of two (so a loop of eager calls with
+    varying vertex counts compiles a handful of times, not once per call)."""
+    ft = _float()
+    n = edges.shape[-2]
+    bucket = max(64, 1 << max(n - 1, 0).bit_length())
+    flat = values.reshape(values.shape[: values.ndim - grid.dim] + (-1,))  # a view
+    padded = np.zeros(edges.shape[:-2] + (bucket, 2), edges.dtype)
+    padded[..., :n, :] = edges
+    fa = jnp.asarray(np.take_along_axis(flat, padded[..., 0], axis=-1), ft)
+    fb = jnp.asarray(np.take_along_axis(flat, padded[..., 1], axis=-1), ft)
+    nv = jnp.full(edges.shape[:-2], n, jnp.int32)
+    v, min_gap = _from_samples_jit(fa, fb, jnp.asarray(padded), nv, grid, jnp.asarray(level, ft))
+    return v[..., :n, :], min_gap
 
 
 def isosurface_vertices(
@@ -525,7 +544,10 @@ def isosurface(
         nf = jnp.minimum(nf, fcap)
     if inside == "above":
         faces = faces[..., ::-1] if d == 2 else faces[..., jnp.array([0, 2, 1])]
-    vertices, min_gap = _interpolate(values, edges, nv, grid, level)
+    if caps is None and not isinstance(values, jax.core.Tracer):
+        vertices, min_gap = _interpolate_eager(np.asarray(values), edges, grid, level)
+    else:
+        vertices, min_gap = _interpolate(values, jnp.asarray(edges), nv, grid, level)
     return IsoMesh(vertices, faces, jnp.asarray(edges), nv, nf, min_gap)
 
 
