@@ -1,15 +1,17 @@
 // Exact crossings of a triangle mesh with axis-aligned lines ("dexels").
 //
-// A line parallel to axis `a` is given by its coordinates (p_u, p_v) on the two other
-// axes u = (a + 1) % 3, v = (a + 2) % 3. It crosses a triangle when the point lies inside
-// the triangle's projection onto the (u, v) plane. The inside test uses the exact orient2d
-// predicate with one simulation-of-simplicity rule: the line through (p_u, p_v) is treated
-// as passing through (p_u + d, p_v + d^2) for an infinitesimal d > 0. The perturbed line
-// never meets an edge or a vertex, so a line through an edge or a vertex shared by
-// consistently oriented triangles crosses exactly one of them, and triangles whose
-// projection has zero area are never crossed. The sign of a crossing is the sign of the
-// triangle normal's component along `a`: +1 where the line leaves a closed outward-oriented
-// solid, -1 where it enters.
+// A line parallel to axis `a` is given by its coordinates on the two other axes. It
+// crosses a triangle when that point lies inside the triangle's projection onto the plane
+// of the two axes. The inside test uses the exact orient2d predicate with one
+// simulation-of-simplicity rule for all three families of lines: every point p is treated
+// as p + (d, d^2, d^3) for an infinitesimal d > 0 (x moves most, then y, then z), so a
+// line through (b, c) on its two other axes, in increasing axis order, passes through
+// (b + d^i, c + d^j) with i < j. The perturbed line never meets an edge or a vertex, so a
+// line through an edge or a vertex shared by consistently oriented triangles crosses
+// exactly one of them, triangles whose projection has zero area are never crossed, and
+// lines of different axes through one grid node agree on which side of the surface the
+// node lies. The sign of a crossing is the sign of the triangle normal's component along
+// `a`: +1 where the line leaves a closed outward-oriented solid, -1 where it enters.
 #pragma once
 
 #include <algorithm>
@@ -20,17 +22,19 @@
 namespace voxax {
 namespace raster {
 
-// The sign of orient2d(a, b, q) with q perturbed to (q_u + d, q_v + d^2).
-// orient2d(a, b, q) = (b_u - a_u)(q_v - a_v) - (b_v - a_v)(q_u - a_u); the perturbation adds
-// -(b_v - a_v) d + (b_u - a_u) d^2, so on an exact zero the first non-zero term decides.
-// Swapping a and b negates every term, so a shared edge is seen with opposite signs from
-// its two triangles.
-inline int orient_perturbed(const double* a, const double* b, const double* q) {
+// The sign of orient2d(a, b, q) in the (u, v) plane with q perturbed to (q_u + d, q_v + d^2)
+// when u_first (u is the lower axis, which moves most), to (q_u + d^2, q_v + d) otherwise.
+// orient2d(a, b, q) = (b_u - a_u)(q_v - a_v) - (b_v - a_v)(q_u - a_u); the perturbation
+// adds -(b_v - a_v) e_u + (b_u - a_u) e_v, so on an exact zero the term of the larger
+// perturbation decides, then the other. Swapping a and b negates every term, so a shared
+// edge is seen with opposite signs from its two triangles.
+inline int orient_perturbed(const double* a, const double* b, const double* q, bool u_first) {
   const int s = exact::orient2d(a, b, q);
   if (s != 0) return s;
-  if (b[1] != a[1]) return b[1] < a[1] ? 1 : -1;
-  if (b[0] != a[0]) return b[0] > a[0] ? 1 : -1;
-  return 0;  // a == b: only in a triangle of zero projected area, which is skipped
+  const int du = b[0] > a[0] ? 1 : (b[0] < a[0] ? -1 : 0);  // sign of b_u - a_u
+  const int dv = b[1] > a[1] ? 1 : (b[1] < a[1] ? -1 : 0);  // sign of b_v - a_v
+  if (u_first) return dv != 0 ? -dv : du;
+  return du != 0 ? du : -dv;  // 0 only when a == b: a triangle of zero projected area
 }
 
 struct Crossing {
@@ -53,12 +57,12 @@ inline bool crossing_less(const Crossing& x, const Crossing& y) {
 // The depth is the barycentric interpolation of z with weights clamped to the triangle, so
 // it lies within the triangle's extent along the axis even where rounding would not.
 inline int cross_triangle(const double p[3][2], const double z[3], int orientation, const double* q,
-                          double* depth) {
-  const int s0 = orient_perturbed(p[1], p[2], q);
+                          bool u_first, double* depth) {
+  const int s0 = orient_perturbed(p[1], p[2], q, u_first);
   if (s0 != orientation) return 0;
-  const int s1 = orient_perturbed(p[2], p[0], q);
+  const int s1 = orient_perturbed(p[2], p[0], q, u_first);
   if (s1 != orientation) return 0;
-  const int s2 = orient_perturbed(p[0], p[1], q);
+  const int s2 = orient_perturbed(p[0], p[1], q, u_first);
   if (s2 != orientation) return 0;
   double w[3];
   for (int i = 0; i < 3; ++i) {

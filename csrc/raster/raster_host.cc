@@ -109,7 +109,7 @@ void cross_faces(const double* V, const int32_t* F, int64_t begin, int64_t end, 
       for (int64_t iv = iv0; iv < iv1; ++iv) {
         const double q[2] = {Lu[iu], Lv[iv]};
         double depth = 0.0;
-        const int s = voxax::raster::cross_triangle(p, z, orientation, q, &depth);
+        const int s = voxax::raster::cross_triangle(p, z, orientation, q, u_first, &depth);
         if (s == 0) continue;
         const int64_t line = u_first ? iu * nv + iv : iv * nu + iu;
         out->push_back({std::min(zmax, std::max(zmin, depth)), line, static_cast<int32_t>(f),

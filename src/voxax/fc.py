@@ -321,21 +321,10 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
     from . import raster
 
     edges, signs, faces, points = [], [], [], []
-    # The lines' tie rule moves a line along its axis a through (b + d, c + d^2) with (b, c)
-    # the other axes in cyclic order after a. For x and z that is increasing order, for y
-    # it is (z, x): y-lines are computed on the mesh with x and z swapped (a mirror, which
-    # negates the signs), so all three families move the lines as the single perturbation
-    # of every node p + (e_x, e_y, e_z), e_x >> e_y >> e_z, and agree on each node's side.
-    swap = [2, 1, 0]
-    Vs = np.ascontiguousarray(V[:, swap])
-    gs = Grid(
-        tuple(grid.lower[i] for i in swap), tuple(grid.upper[i] for i in swap), tuple(grid.shape[i] for i in swap)
-    )
+    # The lines' tie rule treats every node p as p + (e_x, e_y, e_z), e_x >> e_y >> e_z, for
+    # all three families of lines, so they agree on each node's side of the surface.
     for a in range(3):
-        if a == 1:
-            d = raster.line_crossings(Vs, F, gs, a, lines="nodes", threads=threads)
-        else:
-            d = raster.line_crossings(V, F, grid, a, lines="nodes", threads=threads)
+        d = raster.line_crossings(V, F, grid, a, lines="nodes", threads=threads)
         depth = np.asarray(d.depth)
         planes = grid.edges(a)
         slack = 1e-9 * (grid.spacing[a] + np.abs(planes[[0, -1]]))
@@ -346,8 +335,6 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
         seg = np.clip(np.searchsorted(planes, depth, side="right") - 1, 0, len(planes) - 2)
         nv = len(d.line_coords[1])
         iu, iv = np.divmod(line.astype(np.int64), nv)
-        if a == 1:  # lines indexed by (z, x)
-            iu, iv = iv, iu
         others = [b for b in range(3) if b != a]
         # Crossings within rounding distance of a node: which side of the node they lie
         # on is decided exactly, with the nodes perturbed as the lines are.
@@ -374,9 +361,9 @@ def _crossings(V, F, grid: Grid, threads) -> _Crossings:
         edges.append(_node_ids(grid, a, nodes))
         sign = np.asarray(d.sign, np.int8)[keep]
         pts = np.asarray(d.points(), np.float64)[keep]
-        signs.append(-sign if a == 1 else sign)
+        signs.append(sign)
         faces.append(face)
-        points.append(pts[:, swap] if a == 1 else pts)
+        points.append(pts)
     return _Crossings(np.concatenate(edges), np.concatenate(signs), np.concatenate(faces), np.concatenate(points))
 
 
