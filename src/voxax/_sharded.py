@@ -40,15 +40,7 @@ def slab_grids(grid: Grid, count: int) -> list[Grid]:
             f"{nx} cells along x; choose a grid whose x resolution is a multiple of the device count"
         )
     m = nx // count
-    edges = grid.edges(0)
-    return [
-        Grid(
-            lower=(float(edges[k * m]),) + tuple(grid.lower[1:]),
-            upper=(float(edges[(k + 1) * m]),) + tuple(grid.upper[1:]),
-            shape=(m,) + tuple(grid.shape[1:]),
-        )
-        for k in range(count)
-    ]
+    return [grid.slab(k * m, (k + 1) * m) for k in range(count)]
 
 
 def voxelize_sharded(vertices, faces, grid: Grid, mesh: Mesh, axis_name: str):
