@@ -38,7 +38,24 @@ struct GridSpec {
   double x_frame_lo = 0, x_frame_hi = 1;
   std::vector<double> planes[3];  // planes[a][i] = plane(a, i), i in [0, n]
 
-  double plane(int a, int64_t i) const { return planes[a][i]; }
+  // Plane i along axis a (i may lie outside [0, n] along x, within the frame).
+  double plane(int a, int64_t i) const { return a == 0 ? frame_plane(0, i) : planes[a][i]; }
+  // How many cells lie from this grid's first cell to the end of the frame along a.
+  int64_t cells_to_end(int a) const { return a == 0 ? x_frame_n - x_first : n[a]; }
+  // The first cell, relative to this grid, that an interval starting at mn touches along
+  // axis a, clamped to the frame rather than to the grid (it is negative when the
+  // interval starts left of a window). Sweeps along x start there, so that every cell's
+  // pieces are cut by the same sequence of planes whatever the window or the tile.
+  int64_t first_cell(int a, double mn) const {
+    if (a != 0) {
+      int64_t c0, c1;
+      span(a, mn, mn, &c0, &c1);
+      return c0;
+    }
+    const double u0 = (mn - x_frame_lo) * inv_h[0] - slack[0];
+    const double top = static_cast<double>(x_frame_n - 1);
+    return static_cast<int64_t>(std::min(std::max(u0, 0.0), top)) - x_first;
+  }
   // A conservative cell range [c0, c1] covering the interval [mn, mx] along
   // axis a, clamped to the grid: it may include one extra cell on each side
   // when a bound lies within rounding distance of a plane, never one less.
@@ -46,6 +63,17 @@ struct GridSpec {
   // empty piece. Returns false when the interval misses the grid.
   bool span(int a, double mn, double mx, int64_t* c0, int64_t* c1) const {
     if (mx < lo[a] || mn > hi[a]) return false;
+    if (a == 0 && (x_first != 0 || x_frame_n != n[0])) {
+      // A window: the frame's cells, shifted and clamped to the window.
+      const double top = static_cast<double>(x_frame_n - 1);
+      const double u0 = (mn - x_frame_lo) * inv_h[0] - slack[0];
+      const double u1 = (mx - x_frame_lo) * inv_h[0] + slack[0];
+      const int64_t f0 = static_cast<int64_t>(std::min(std::max(u0, 0.0), top)) - x_first;
+      const int64_t f1 = static_cast<int64_t>(std::min(std::max(u1, 0.0), top)) - x_first;
+      *c0 = std::min(std::max<int64_t>(f0, 0), n[0] - 1);
+      *c1 = std::min(std::max<int64_t>(f1, 0), n[0] - 1);
+      return true;
+    }
     double u0 = (mn - lo[a]) * inv_h[a] - slack[a];
     double u1 = (mx - lo[a]) * inv_h[a] + slack[a];
     const double top = static_cast<double>(n[a] - 1);
@@ -61,7 +89,7 @@ struct GridSpec {
 
   // Allocates and fills the plane tables (n[a] + 1 entries per axis).
   void build_planes() {
-    for (int a = 0; a < dim; ++a) {
+    for (int a = 1; a < dim; ++a) {  // x planes are computed when asked (see plane)
       planes[a].resize(n[a] + 1);
       for (int64_t i = 0; i <= n[a]; ++i) planes[a][i] = frame_plane(a, i);
     }
