@@ -48,7 +48,7 @@ def check(n):
     assert isinstance(W.sharding, NamedSharding) and W.sharding.spec[0] == "x", W.sharding
     assert len(W.addressable_shards) == n
     assert all(s.data.shape == (16 // n, 9, 11) for s in W.addressable_shards)
-    assert rel(W, W1) <= 1e-13, rel(W, W1)
+    np.testing.assert_array_equal(W, W1)  # the slabs hold the full grid's values bit for bit
     Wj = jax.jit(lambda x: voxax.voxelize_sharded(x, f, GRID, mesh, "x"))(v)
     np.testing.assert_array_equal(Wj, W)
     # Gradient of an energy of the sharded grid, under jit, with sharding annotations.
@@ -62,7 +62,7 @@ def check(n):
     t = jnp.asarray(np.cos(np.arange(v.size)).reshape(v.shape))
     d1 = jax.jvp(lambda x: voxax.voxelize(x, f, GRID), (v,), (t,))[1]
     dn = jax.jvp(lambda x: voxax.voxelize_sharded(x, f, GRID, mesh, "x"), (v,), (t,))[1]
-    assert rel(dn, d1) <= 1e-13, rel(dn, d1)
+    np.testing.assert_array_equal(dn, d1)
     # Inside the user's own shard_map.
     sm = jax.shard_map(lambda x: voxax.voxelize_slab(x, f, GRID, "x"), mesh=mesh, in_specs=P(),
                        out_specs=P("x"))
@@ -72,7 +72,8 @@ def check(n):
     # A batch of meshes.
     vb = jnp.stack([v, 0.9 * v])
     Wb = voxax.voxelize_sharded(vb, f, GRID, mesh, "x")
-    assert Wb.shape == (2,) + GRID.shape and rel(Wb[1], voxax.voxelize(vb[1], f, GRID)) <= 1e-13
+    assert Wb.shape == (2,) + GRID.shape
+    np.testing.assert_array_equal(Wb[1], voxax.voxelize(vb[1], f, GRID))
     return rel(W, W1), rel(gn, g1)
 
 

@@ -90,6 +90,14 @@ FORWARD_CASES = {
     # tables are allocated: nx = 2^31 would need 16 GiB).
     "nx = 2^31, output (6, 5, 4)": (dict(nx=np.int64(2**31)), r"output shape \(6, 5, 4\) does not match the grid"),
     "ny = 7, output (6, 5, 4)": (dict(ny=np.int64(7)), "does not match the grid"),
+    # Windows along x (the slabs of a sharded grid) must lie within the frame's cells.
+    "window past the end": (dict(x_first=np.int64(3), x_count=np.int64(6)), "does not fit the 6 cells along x"),
+    "negative window": (dict(x_first=np.int64(-1), x_count=np.int64(2)), "does not fit"),
+    "window start without a count": (dict(x_first=np.int64(2)), "does not fit"),
+    "window of 2^31 frame cells, output (6, 5, 4)": (
+        dict(nx=np.int64(2**31), x_first=np.int64(2**31 - 6), x_count=np.int64(5)),
+        r"output shape \(6, 5, 4\) does not match the grid",
+    ),
 }
 
 

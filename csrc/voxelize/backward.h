@@ -42,7 +42,8 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
     int64_t i0, i1, j0, j1, k0, k1;
     if (g.span(0, P.min(0), P.max(0), &i0, &i1) && g.span(1, P.min(1), P.max(1), &j0, &j1) &&
         g.span(2, P.min(2), P.max(2), &k0, &k1)) {
-      sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
+      sweep<3>(g, P, 0, g.first_cell(0, P.min(0)), i1, [&](int64_t i, const Poly<3>& Px) {
+        if (i < 0) return;  // left of a window
         int64_t ja, jb;
         if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
         sweep<3>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<3>& Pxy) {
@@ -92,7 +93,7 @@ void backward_segments_2d(const GridSpec& g, const T* V, const int32_t* F, const
       if (g.span(0, S.min(0), S.max(0), &i0, &i1)) {
         for (int64_t i = i0; i <= i1; ++i) {
           if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
-          if (i + 1 < g.n[0] && Sx.min(0) >= g.plane(0, i + 1)) continue;
+          if (i + 1 < g.cells_to_end(0) && Sx.min(0) >= g.plane(0, i + 1)) continue;
           if (!g.span(1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
           for (int64_t j = j0; j <= j1; ++j) {
             const double gv = static_cast<double>(G[i * ny + j]);

@@ -167,7 +167,7 @@ inline void sweep(const GridSpec& g, const Poly<N>& P, int a, int64_t c0, int64_
   for (int64_t i = c0; i <= c1 && cur->count >= 3; ++i) {
     const double hi = g.plane(a, i + 1);
     const double mn = cur->min(a), mx = cur->max(a);
-    if (mn >= hi && i + 1 < g.n[a]) continue;  // entirely in later cells
+    if (mn >= hi && i + 1 < g.cells_to_end(a)) continue;  // entirely in later cells
     if (mx <= hi) {
       visit(i, *cur);
       return;

@@ -273,15 +273,17 @@ struct TileScratch {
 };
 
 // Clips P (whose cells along x are [i0, i1]) into the columns (i, j) of the tile
-// [ia, ib) x [ja, jb) that it overlaps, sweeping slabs in x, then in y, and calls
+// [ia, ib) x [ja, jb) that it overlaps, sweeping slabs in x (from P's first cell, so
+// that the pieces are the same for any tiling and any window), then in y, and calls
 // fn(i, j, piece) for each.
 template <typename Fn>
 void sweep_tile_columns(const GridSpec& g, const Poly<3>& P, int64_t i0, int64_t i1, int64_t ia,
                         int64_t ib, int64_t ja, int64_t jb, Fn&& fn) {
-  i0 = std::max(i0, ia);
   i1 = std::min(i1, ib - 1);
-  if (i0 > i1) return;
-  sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
+  if (std::max(i0, ia) > i1) return;
+  // From P's own first cell, not the tile's: the pieces do not depend on the tiling.
+  sweep<3>(g, P, 0, g.first_cell(0, P.min(0)), i1, [&](int64_t i, const Poly<3>& Px) {
+    if (i < ia) return;
     int64_t ya, yb;
     if (!g.span(1, Px.min(1), Px.max(1), &ya, &yb)) return;
     ya = std::max(ya, ja);

@@ -26,6 +26,7 @@ struct GridAttributes {
   int64_t ny;
   double z0, z1;
   int64_t nz;
+  int64_t x_first, x_count;  // the window along x (x_count = 0: the whole axis)
 };
 
 struct Problem {
@@ -73,8 +74,8 @@ inline ffi::Error check_mesh_shapes(const ffi::AnyBuffer& vertices, const ffi::A
   pb->nf = fd[fd.size() - 2];
   if (pb->nv > INT32_MAX || pb->nf > INT32_MAX)
     return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 vertices and faces are supported");
-  ffi::Error err =
-      check_grid(pb->dim, at.x0, at.x1, at.nx, at.y0, at.y1, at.ny, at.z0, at.z1, at.nz, &pb->grid);
+  ffi::Error err = check_grid(pb->dim, at.x0, at.x1, at.nx, at.y0, at.y1, at.ny, at.z0, at.z1,
+                              at.nz, at.x_first, at.x_count, &pb->grid);
   if (err.failure()) return err;
   const size_t out_trailing = static_cast<size_t>(trailing > 0 ? trailing : pb->dim);
   return make_batch(vd, fd, out.dimensions(), out_trailing, &pb->batch);

@@ -137,7 +137,7 @@ void tangent_tile_2d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
     i1 = std::min(i1, ib - 1);
     for (int64_t i = i0; i <= i1; ++i) {
       if (!clip_segment(S, 0, g.plane(0, i), g.plane(0, i + 1), &Sx)) continue;
-      if (i + 1 < g.n[0] && Sx.min(0) >= g.plane(0, i + 1)) continue;
+      if (i + 1 < g.cells_to_end(0) && Sx.min(0) >= g.plane(0, i + 1)) continue;
       if (!g.span(1, Sx.min(1), Sx.max(1), &j0, &j1)) continue;
       double* col = acc + (i - ia) * ny;
       for (int64_t j = j0; j <= j1; ++j) {

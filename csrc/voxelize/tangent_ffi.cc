@@ -80,11 +80,12 @@ ffi::Error check_tangents(const T* TC, int64_t count) {
 
 ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer faces,
                    ffi::AnyBuffer tangents, ffi::Result<ffi::AnyBuffer> out, double x0, double x1,
-                   int64_t nx, double y0, double y1, int64_t ny, double z0, double z1, int64_t nz) {
+                   int64_t nx, double y0, double y1, int64_t ny, double z0, double z1, int64_t nz,
+                   int64_t x_first, int64_t x_count) {
   return guarded("the tangent kernel", [&]() {
     Problem pb;
-    ffi::Error err =
-        check_mesh_shapes(vertices, faces, *out, 0, {x0, x1, nx, y0, y1, ny, z0, z1, nz}, &pb);
+    ffi::Error err = check_mesh_shapes(vertices, faces, *out, 0,
+                                       {x0, x1, nx, y0, y1, ny, z0, z1, nz, x_first, x_count}, &pb);
     if (err.failure()) return err;
     const auto vt = vertices.element_type();
     if (tangents.element_type() != vt)

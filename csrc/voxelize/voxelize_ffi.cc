@@ -113,11 +113,12 @@ void backward_impl(ffi::ThreadPool* pool, const Problem& pb, const T* V, const i
 
 ffi::Error Forward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer faces,
                    ffi::Result<ffi::AnyBuffer> out, double x0, double x1, int64_t nx, double y0,
-                   double y1, int64_t ny, double z0, double z1, int64_t nz) {
+                   double y1, int64_t ny, double z0, double z1, int64_t nz, int64_t x_first,
+                   int64_t x_count) {
   return guarded("the forward kernel", [&]() {
     Problem pb;
-    ffi::Error err =
-        prepare(vertices, faces, nullptr, *out, {x0, x1, nx, y0, y1, ny, z0, z1, nz}, &pb);
+    ffi::Error err = prepare(vertices, faces, nullptr, *out,
+                             {x0, x1, nx, y0, y1, ny, z0, z1, nz, x_first, x_count}, &pb);
     if (err.failure()) return err;
     with_float_type(vertices, [&](auto zero) {
       using T = decltype(zero);
@@ -130,12 +131,12 @@ ffi::Error Forward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
 
 ffi::Error Backward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer faces,
                     ffi::AnyBuffer cotangent, ffi::Result<ffi::AnyBuffer> out, double x0, double x1,
-                    int64_t nx, double y0, double y1, int64_t ny, double z0, double z1,
-                    int64_t nz) {
+                    int64_t nx, double y0, double y1, int64_t ny, double z0, double z1, int64_t nz,
+                    int64_t x_first, int64_t x_count) {
   return guarded("the backward kernel", [&]() {
     Problem pb;
-    ffi::Error err =
-        prepare(vertices, faces, &cotangent, *out, {x0, x1, nx, y0, y1, ny, z0, z1, nz}, &pb);
+    ffi::Error err = prepare(vertices, faces, &cotangent, *out,
+                             {x0, x1, nx, y0, y1, ny, z0, z1, nz, x_first, x_count}, &pb);
     if (err.failure()) return err;
     with_float_type(vertices, [&](auto zero) {
       using T = decltype(zero);

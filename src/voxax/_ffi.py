@@ -99,4 +99,13 @@ def grid_attributes(grid) -> dict:
         attrs[f"{name}0"] = np.float64(lower[axis])
         attrs[f"{name}1"] = np.float64(upper[axis])
         attrs[f"n{name}"] = np.int64(shape[axis])
+    # A slab of a larger grid (`Grid.slab`) is passed as a window of its frame along x, so
+    # that its planes are the frame's bit for bit.
+    frame = getattr(grid, "frame", None)
+    if frame is None:
+        attrs["x_first"], attrs["x_count"] = np.int64(0), np.int64(0)
+    else:
+        (x0, x1, nx), first = frame
+        attrs["x0"], attrs["x1"], attrs["nx"] = np.float64(x0), np.float64(x1), np.int64(nx)
+        attrs["x_first"], attrs["x_count"] = np.int64(first), np.int64(grid.shape[0])
     return attrs

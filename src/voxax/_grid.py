@@ -10,7 +10,7 @@ import numpy as np
 
 from ._constants import MAX_CELL_VOLUME, MIN_CELL_VOLUME
 
-__all__ = ["Grid"]
+__all__ = ["Grid", "SlabGrid"]
 
 
 def _as_float_tuple(x, name: str) -> tuple[float, ...]:
@@ -204,6 +204,38 @@ class Grid:
         e[-1] = self.upper[axis]
         return e
 
+    def slab(self, start: int, stop: int) -> SlabGrid:
+        """The cells `[start, stop)` along x as a grid of their own.
+
+        Its planes along x are this grid's planes (`self.edges(0)[start:stop + 1]`) bit for
+        bit, also inside the kernels, so voxelizing on the slabs of a grid gives exactly the
+        values of the whole grid there (the sharded voxelization relies on it).
+
+        **Example:**
+
+        ```python
+        >>> g = voxax.Grid.cube(8)
+        >>> s = g.slab(2, 5)
+        >>> s.shape, bool((s.edges(0) == g.edges(0)[2:6]).all())
+        ((3, 8, 8), True)
+        ```
+        """
+        n = self.shape[0]
+        if isinstance(self, SlabGrid):
+            (x0, x1, nx), first = self.frame
+        else:
+            (x0, x1, nx), first = (self.lower[0], self.upper[0], n), 0
+        start, stop = operator_index(start), operator_index(stop)
+        if not 0 <= start < stop <= n:
+            raise ValueError(f"Grid.slab: need 0 <= start < stop <= {n}, got start={start}, stop={stop}")
+        edges = self.edges(0)
+        return SlabGrid(
+            lower=(float(edges[start]),) + tuple(self.lower[1:]),
+            upper=(float(edges[stop]),) + tuple(self.upper[1:]),
+            shape=(stop - start,) + tuple(self.shape[1:]),
+            frame=((x0, x1, nx), first + start),
+        )
+
     def centers(self, dtype=np.float64) -> np.ndarray:
         """The cell centres, an array of shape `(*shape, d)` in `W[i, j, k]` order.
 
@@ -245,3 +277,43 @@ def _broadcast_shape(n, dim: int) -> tuple[int, ...]:
     if len(shape) != dim:
         raise ValueError(f"Grid: expected {dim} cell counts, got {shape}")
     return shape
+
+
+@dataclasses.dataclass(frozen=True)
+class SlabGrid(Grid):
+    """Cells `[first, first + shape[0])` along x of a frame grid, made by
+    [`Grid.slab`][voxax.Grid.slab]: a grid whose x planes are the frame's.
+
+    - `frame`: `((x0, x1, nx), first)`, the frame's extent and cell count along x, and the
+      slab's first cell in it.
+    """
+
+    frame: tuple = ((0.0, 1.0, 1), 0)
+
+    def __post_init__(self):
+        super().__post_init__()
+        (x0, x1, nx), first = self.frame
+        frame = ((float(x0), float(x1), operator_index(nx)), operator_index(first))
+        if not (0 <= frame[1] and frame[1] + self.shape[0] <= frame[0][2]):
+            raise ValueError(f"SlabGrid: the slab does not fit its frame {frame}")
+        object.__setattr__(self, "frame", frame)
+
+    @property
+    def spacing(self) -> tuple[float, ...]:
+        (x0, x1, nx), _ = self.frame
+        return ((x1 - x0) / nx,) + tuple((u - lo) / n for lo, u, n in zip(self.lower[1:], self.upper[1:], self.shape[1:]))
+
+    def edges(self, axis: int) -> np.ndarray:
+        if axis != 0:
+            return super().edges(axis)
+        (x0, x1, nx), first = self.frame
+        k = first + np.arange(self.shape[0] + 1, dtype=np.float64)
+        e = x0 + k * ((x1 - x0) / nx)
+        if first + self.shape[0] == nx:
+            e[-1] = x1
+        return e
+
+    def __repr__(self) -> str:
+        (x0, x1, nx), first = self.frame
+        return (f"SlabGrid(lower={self.lower}, upper={self.upper}, shape={self.shape}, "
+                f"cells {first}:{first + self.shape[0]} of {nx} along x in [{x0}, {x1}])")
