@@ -110,6 +110,21 @@ def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
     return new, count
 
 
+def _lloyd_with_energy(seeds, frag: Fragments, weighted: bool):
+    """A Lloyd step that also returns the energy of the seeds it starts from (one search)."""
+    import jax
+    import jax.numpy as jnp
+
+    s, idx, mass, first = _moments(seeds, frag, weighted)
+    w = jnp.asarray(_w(frag, weighted))
+    x = jnp.asarray(frag.points)
+    d = x - s[idx]
+    e = jnp.sum(w * jnp.sum(d * d, axis=-1))
+    new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
+    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=s.shape[0])
+    return new, count, e
+
+
 def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
     """`n` seeds drawn at distinct fragments with probability proportional to their weight
     (so uniformly by area). `key`: an int seed or a `jax.random` key. **Returns:** `(n, 3)`."""
@@ -199,20 +214,22 @@ def optimize(frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, 
     if steps < 0:
         raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")
     if method == "lloyd":
-        step = jax.jit(lambda y: lloyd_step(y, frag, weighted=weighted))
+        step = jax.jit(lambda y: _lloyd_with_energy(y, frag, weighted))
         en = jax.jit(lambda y: energy(y, frag, weighted=weighted))
-        hist = [float(en(s))]
+        hist = []
         moved = 0
         taken = 0
         for _ in range(steps):
-            new, count = step(s)
+            new, count, e = step(s)
+            hist.append(float(e))
+            if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
+                hist.pop()
+                break
             new, m = respawn(np.asarray(new), frag, count)
             moved += m
             s = new
-            hist.append(float(en(s)))
             taken += 1
-            if tol > 0 and m == 0 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
-                break
+        hist.append(float(en(s)))
         return CVTResult(s, np.array(hist), taken, moved, "lloyd")
     if method == "lbfgs":
         from ._minimize import StopRules, minimize
