@@ -53,7 +53,7 @@ from ._spatial import (
     first_hits,
     nearest_neighbors,
 )
-from . import fields, metrics
+from . import fields, metrics, raster
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
 from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
@@ -96,6 +96,7 @@ __all__ = [
     "nearest_neighbors",
     "fields",
     "metrics",
+    "raster",
     "export_safety_checks",
     "least_squares",
     "voxelize_sharded",
