@@ -125,7 +125,7 @@ def _assemble(parts, grid: Grid) -> Fragments:
 
 
 def _mesh_fragments(mesh: Mesh, grid: Grid, threads) -> Fragments:
-    from . import _spatial
+    from .raster import line_crossings
 
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.faces, np.int64)
@@ -134,23 +134,12 @@ def _mesh_fragments(mesh: Mesh, grid: Grid, threads) -> Fragments:
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     norm = np.linalg.norm(fn, axis=1, keepdims=True)
     fn = fn / np.where(norm > 0, norm, 1.0)
-    bvh = _spatial.BVH(v, f.astype(np.int32))
-    lo_all = min(float(v.min()), min(grid.lower)) - 1.0
-    span = max(float(v.max()), max(grid.upper)) - lo_all + 1.0
     parts = []
     for axis in range(3):
-        u, w, cu, cv = _line_coords(grid, axis)
-        U, W = np.meshgrid(cu, cv, indexing="ij")
-        origins = np.zeros((U.size, 3))
-        origins[:, u] = U.ravel()
-        origins[:, w] = W.ravel()
-        origins[:, axis] = lo_all
-        direction = np.zeros((U.size, 3))
-        direction[:, axis] = 1.0
-        hits = bvh.all_hits(origins, direction, t_min=0.0, t_max=span, threads=threads)
-        depth = lo_all + hits.t
-        normals = fn[hits.face]
-        parts.append((axis, hits.ray, depth, normals))
+        dx = line_crossings(mesh, grid=grid, axis=axis, lines="centers", threads=threads)
+        parts.append((axis, dx.line_index(), dx.depth, fn[dx.face]))
+    if sum(len(p[1]) for p in parts) == 0:
+        raise ValueError("cvt.fragments: no grid line crosses the mesh (empty surface on this grid)")
     return _assemble(parts, grid)
 
 
@@ -169,19 +158,48 @@ def _crossing_pairs(values: np.ndarray, axis: int):
     return iu, iv, i
 
 
-def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
+def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
     import jax
     import jax.numpy as jnp
 
-    f = jax.jit(lambda p: jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0]))
+    f = _compiled("values", fn, lambda: jax.jit(lambda p: jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])))
     out = np.empty(len(points), np.float64)
-    for s in range(0, len(points), chunk):
-        out[s : s + chunk] = np.asarray(f(jnp.asarray(points[s : s + chunk], jnp.float64)))
+    size = min(chunk, 1 << int(np.ceil(np.log2(max(len(points), 1)))))
+    buf = np.zeros((size, 3))
+    for s in range(0, len(points), size):
+        part = points[s : s + size]
+        buf[: len(part)] = part
+        buf[len(part) :] = part[0]
+        out[s : s + len(part)] = np.asarray(f(jnp.asarray(buf)))[: len(part)]
+    return out
+
+
+_COMPILED: dict = {}
+
+
+def _compiled(kind: str, fn: Callable, build: Callable):
+    """A jitted function per (kind, field), kept for the last few fields (shapes are padded
+    to powers of two, so repeated calls on the same field reuse the compilations)."""
+    key = (kind, id(fn))
+    hit = _COMPILED.get(key)
+    if hit is not None and hit[0] is fn:
+        return hit[1]
+    if len(_COMPILED) >= 8:
+        _COMPILED.pop(next(iter(_COMPILED)))
+    out = build()
+    _COMPILED[key] = (fn, out)
     return out
 
 
 def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
     """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64)."""
+    import jax.numpy as jnp
+
+    run = _compiled(f"refine{iterations}", fn, lambda: _build_refine(fn, iterations))
+    return run(jnp.asarray(x0), jnp.asarray(x1), jnp.asarray(f0), jnp.asarray(f1))
+
+
+def _build_refine(fn: Callable, iterations: int):
     import jax
     import jax.numpy as jnp
 
@@ -219,7 +237,7 @@ def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
         g = jax.vmap(jax.grad(lambda q: evaluate(q[None])[0]))(p)
         return p, g
 
-    return run(jnp.asarray(x0), jnp.asarray(x1), jnp.asarray(f0), jnp.asarray(f1))
+    return run
 
 
 def _unit(g: np.ndarray, what: str) -> np.ndarray:
@@ -239,24 +257,32 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
     values = _field_values(fn, centers).reshape(grid.shape)
     if not np.all(np.isfinite(values)):
         raise ValueError("cvt.fragments: the field is not finite at some cell centres")
-    parts = []
     shape = grid.shape
+    flat = values.ravel()
+    segs = []
     for axis in range(3):
-        u, v, cu, cv = _line_coords(grid, axis)
+        u, v, _, _ = _line_coords(grid, axis)
         iu, iv, i = _crossing_pairs(values, axis)
-        if len(i) == 0:
-            continue
         idx0 = [None] * 3
         idx0[axis], idx0[u], idx0[v] = i, iu, iv
         idx1 = list(idx0)
         idx1[axis] = i + 1
-        flat0 = np.ravel_multi_index(tuple(idx0), shape)
-        flat1 = np.ravel_multi_index(tuple(idx1), shape)
-        p, g = _refine_roots(fn, centers[flat0], centers[flat1], values.ravel()[flat0], values.ravel()[flat1], iterations)
-        p, g = np.asarray(p), np.asarray(g)
-        parts.append((axis, iu.astype(np.int64) * shape[v] + iv, p[:, axis], _unit(g, "field")))
-    if not parts:
+        segs.append((axis, iu.astype(np.int64) * shape[v] + iv, np.ravel_multi_index(tuple(idx0), shape), np.ravel_multi_index(tuple(idx1), shape)))
+    total = sum(len(s[1]) for s in segs)
+    if total == 0:
         raise ValueError("cvt.fragments: the field has no zero crossing on the grid (empty surface)")
+    f0 = np.concatenate([s[2] for s in segs])
+    f1 = np.concatenate([s[3] for s in segs])
+    size = 1 << int(np.ceil(np.log2(total)))  # padded: few distinct shapes to compile
+    pad = np.concatenate([np.arange(total), np.zeros(size - total, np.int64)])
+    p, g = _refine_roots(fn, centers[f0[pad]], centers[f1[pad]], flat[f0[pad]], flat[f1[pad]], iterations)
+    p, g = np.asarray(p)[:total], np.asarray(g)[:total]
+    parts, at = [], 0
+    for axis, line, _, _ in segs:
+        n = len(line)
+        if n:
+            parts.append((axis, line, p[at : at + n, axis], _unit(g[at : at + n], "field")))
+        at += n
     return _assemble(parts, grid)
 
 
