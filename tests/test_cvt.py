@@ -228,7 +228,7 @@ def test_rdt_bad_input(sphere_rdt):
 
 def test_remesh_torus_field():
     g = voxax.Grid.cube(24, half_width=0.9)
-    m, rep = cvt.remesh(lambda p: fields.torus(p, 0.55, 0.25), 500, grid=g, steps=40)
+    m, rep = cvt.remesh(lambda p: fields.torus(p, 0.55, 0.25), 500, grid=g, method="lloyd", steps=60)
     assert rep["closed"] and rep["manifold"]
     assert rep["euler_characteristic"] == 0
     assert rep["quality_min"] >= 0.3
@@ -238,7 +238,7 @@ def test_remesh_torus_field():
 
 def test_remesh_mesh_and_open_mesh_error():
     mesh = voxax.data.icosphere(3)
-    m, rep = cvt.remesh(mesh, 300, steps=30)
+    m, rep = cvt.remesh(mesh, 300, method="lloyd", steps=40)
     assert rep["closed"] and rep["euler_characteristic"] == 2
     assert metrics.hausdorff(m, mesh) < 0.05
     open_mesh = voxax.Mesh(mesh.vertices, mesh.faces[:-5])
@@ -246,3 +246,14 @@ def test_remesh_mesh_and_open_mesh_error():
         cvt.remesh(open_mesh, 100)
     with pytest.raises(ValueError, match="fragments"):
         cvt.remesh(mesh, 10**6, alpha=0.001)
+
+
+def test_cli_remesh(tmp_path, capsys):
+    from voxax.cli import main
+
+    out = tmp_path / "r.ply"
+    assert main(["remesh", "icosphere", "--seeds", "200", "--method", "lloyd", "--steps", "10", "-o", str(out)]) == 0
+    assert "closed 2-manifold" in capsys.readouterr().out
+    m = voxax.io.load(str(out))
+    assert metrics.euler_characteristic(m) == 2
+    assert main(["remesh", "icosphere", "--seeds", "2"]) == 2

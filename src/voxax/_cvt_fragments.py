@@ -158,13 +158,13 @@ def _crossing_pairs(values: np.ndarray, axis: int):
     return iu, iv, i
 
 
-def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
+def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
     import jax
     import jax.numpy as jnp
 
     f = _compiled("values", fn, lambda: jax.jit(lambda p: jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])))
     out = np.empty(len(points), np.float64)
-    size = min(chunk, 1 << int(np.ceil(np.log2(max(len(points), 1)))))
+    size = chunk  # one shape: one compilation per field
     buf = np.zeros((size, 3))
     for s in range(0, len(points), size):
         part = points[s : s + size]
@@ -273,10 +273,16 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
         raise ValueError("cvt.fragments: the field has no zero crossing on the grid (empty surface)")
     f0 = np.concatenate([s[2] for s in segs])
     f1 = np.concatenate([s[3] for s in segs])
-    size = 1 << int(np.ceil(np.log2(total)))  # padded: few distinct shapes to compile
-    pad = np.concatenate([np.arange(total), np.zeros(size - total, np.int64)])
-    p, g = _refine_roots(fn, centers[f0[pad]], centers[f1[pad]], flat[f0[pad]], flat[f1[pad]], iterations)
-    p, g = np.asarray(p)[:total], np.asarray(g)[:total]
+    chunk = 1 << 14  # one shape: one compilation per field
+    p = np.empty((total, 3))
+    g = np.empty((total, 3))
+    for s in range(0, total, chunk):
+        sel = np.arange(s, s + chunk)
+        sel[sel >= total] = s
+        pc, gc = _refine_roots(fn, centers[f0[sel]], centers[f1[sel]], flat[f0[sel]], flat[f1[sel]], iterations)
+        n = min(chunk, total - s)
+        p[s : s + n] = np.asarray(pc)[:n]
+        g[s : s + n] = np.asarray(gc)[:n]
     parts, at = [], 0
     for axis, line, _, _ in segs:
         n = len(line)
