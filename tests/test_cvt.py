@@ -257,3 +257,38 @@ def test_cli_remesh(tmp_path, capsys):
     m = voxax.io.load(str(out))
     assert metrics.euler_characteristic(m) == 2
     assert main(["remesh", "icosphere", "--seeds", "2"]) == 2
+
+
+def test_ball_fragments_and_union_are_exact():
+    from voxax._cvt_fragments import ball_fragments, union_all
+
+    g = voxax.Grid.cube(40, half_width=1.0)
+    c = np.array([[0.1, 0.0, 0.0], [0.5, 0.1, 0.0]])
+    r = np.array([0.4, 0.3])
+    balls = ball_fragments(c, r, g)
+    # each crossing lies on one of the spheres
+    d = np.abs(np.linalg.norm(balls.points[:, None] - c[None], axis=2) - r[None])
+    assert d.min(axis=1).max() < 1e-12
+    u = union_all([balls])
+    # survivors are outside the other ball, and the union is closed on every line
+    inside_any = (np.linalg.norm(u.points[:, None] - c[None], axis=2) < r[None] - 1e-9).any(axis=1)
+    assert not inside_any.any() and cvt._open_lines(u) == 0
+    # and every crossing outside the other ball survives (an independent count)
+    dist = np.linalg.norm(balls.points[:, None] - c[None], axis=2)
+    outside = ((dist > r[None] - 1e-9)).all(axis=1)
+    assert len(u) == int(outside.sum())
+
+
+def test_problem_edges_match_manifold_report():
+    mesh = voxax.data.icosphere(2)
+    assert len(cvt._problem_edges(np.asarray(mesh.faces), mesh.n_vertices)) == 0
+    holed = np.asarray(mesh.faces[1:])
+    bad = cvt._problem_edges(holed, mesh.n_vertices)
+    assert len(bad) == metrics.manifold_report(voxax.Mesh(mesh.vertices, holed)).n_boundary_edges == 3
+    # two tetrahedra sharing one vertex: a non-manifold vertex, all its edges reported
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1.0]])
+    t = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    f = np.concatenate([t, np.where(t == 0, 0, t + 3)])
+    bad = cvt._problem_edges(f, len(v))
+    assert metrics.manifold_report(voxax.Mesh(v, f)).n_nonmanifold_vertices == 1
+    assert len(bad) == 6 and np.all((bad == 0).any(axis=1))

@@ -368,6 +368,63 @@ def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
     )
 
 
+def union_all(parts: list) -> Fragments:
+    """The union of several closed solids' fragments on the same grid (dexel merge)."""
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        raise ValueError("cvt: the union is empty")
+    grid = parts[0].grid
+    pts = np.concatenate([p.points for p in parts])
+    nrm = np.concatenate([p.normals for p in parts])
+    axis = np.concatenate([p.axis for p in parts]).astype(np.int64)
+    line = np.concatenate([p.line for p in parts])
+    sign = np.concatenate([p.sign for p in parts]).astype(np.int64)
+    depth = pts[np.arange(len(pts)), axis]
+    order = np.lexsort((depth, line, axis))
+    pts, nrm, axis, line, sign = (x[order] for x in (pts, nrm, axis, line, sign))
+    group = np.concatenate([[True], (axis[1:] != axis[:-1]) | (line[1:] != line[:-1])])
+    gid = np.cumsum(group) - 1
+    cum = np.cumsum(-sign)
+    start = np.concatenate([[0], cum[:-1]])[group]
+    inside = (cum - start[gid]) > 0  # inside at least one solid after the event
+    prev = np.concatenate([[False], inside[:-1]])
+    prev[group] = False
+    k = np.nonzero(inside != prev)[0]
+    return Fragments(pts[k], nrm[k], _weights(nrm[k], grid), axis[k].astype(np.int8), line[k], sign[k].astype(np.int8), grid)
+
+
+def ball_fragments(centers, radii, grid: Grid) -> Fragments:
+    """Exact crossings of the cell-centre lines of `grid` with balls (each ball separately)."""
+    centers = np.asarray(centers, np.float64).reshape(-1, 3)
+    radii = np.asarray(radii, np.float64).reshape(-1)
+    parts = []
+    for axis in range(3):
+        u, v, cu, cv = _line_coords(grid, axis)
+        lines, depth, nrm = [], [], []
+        for c, r in zip(centers, radii):
+            iu = np.nonzero(np.abs(cu - c[u]) < r)[0]
+            iv = np.nonzero(np.abs(cv - c[v]) < r)[0]
+            if len(iu) == 0 or len(iv) == 0:
+                continue
+            U, V = np.meshgrid(iu, iv, indexing="ij")
+            du, dv = cu[U.ravel()] - c[u], cv[V.ravel()] - c[v]
+            h2 = r * r - du * du - dv * dv
+            ok = h2 > 0
+            h = np.sqrt(h2[ok])
+            ln = U.ravel()[ok].astype(np.int64) * len(cv) + V.ravel()[ok]
+            for side in (-1.0, 1.0):
+                p = np.empty((len(h), 3))
+                p[:, axis] = c[axis] + side * h
+                p[:, u] = cu[U.ravel()[ok]]
+                p[:, v] = cv[V.ravel()[ok]]
+                lines.append(ln)
+                depth.append(p[:, axis])
+                nrm.append((p - c) / r)
+        if lines:
+            parts.append((axis, np.concatenate(lines), np.concatenate(depth), np.concatenate(nrm)))
+    return _assemble(parts, grid)
+
+
 def _check_grid(grid) -> Grid:
     if not isinstance(grid, Grid):
         raise TypeError(f"cvt.fragments: grid must be a voxax.Grid, got {type(grid).__name__}")

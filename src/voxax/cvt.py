@@ -73,6 +73,87 @@ def _mesh_source(source):
     return None
 
 
+def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
+    """Undirected edges `(E, 2)` with other than two triangles, and the edges at vertices
+    whose triangles do not form one fan."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(faces) == 0:
+        return np.zeros((0, 2), np.int64)
+    f = faces.astype(np.int64)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    bad = [uniq[count != 2]]
+    # fans: nodes (face, corner); corners of one vertex joined across shared edges
+    nf = len(f)
+    corner_v = f.ravel()
+    node = np.arange(3 * nf)
+    pairs = []
+    for c in range(3):
+        for d in (1, 2):  # the two edges at corner c: (v, f[:, c + d])
+            other = f[:, (c + d) % 3]
+            key = corner_v[c::3] * n + other
+            pairs.append((key, node[c::3]))
+    key = np.concatenate([p[0] for p in pairs])
+    nd = np.concatenate([p[1] for p in pairs])
+    order = np.argsort(key, kind="stable")
+    key, nd = key[order], nd[order]
+    same = key[1:] == key[:-1]
+    a, b = nd[:-1][same], nd[1:][same]
+    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * nf, 3 * nf))
+    _, label = connected_components(g, directed=False)
+    fans = np.unique(np.stack([corner_v, label], axis=1), axis=0)
+    per_vertex = np.bincount(fans[:, 0], minlength=n)
+    nonmanifold = np.nonzero(per_vertex > 1)[0]
+    if len(nonmanifold):
+        bad.append(uniq[np.isin(uniq[:, 0], nonmanifold) | np.isin(uniq[:, 1], nonmanifold)])
+    return np.unique(np.concatenate(bad), axis=0) if sum(len(b) for b in bad) else np.zeros((0, 2), np.int64)
+
+
+class _Balls:
+    """Regularisation balls: placed on problem edges, grown when hit again (paper 4.4)."""
+
+    def __init__(self):
+        self.center = np.zeros((0, 3))
+        self.radius = np.zeros(0)
+        self.rmax = np.zeros(0)
+        self.rinc = np.zeros(0)
+
+    def add(self, seeds: np.ndarray, edges: np.ndarray, d: float) -> None:
+        growing = self.radius < self.rmax
+        new_c, new_r, new_max = [], [], []
+        grown = np.zeros(len(self.radius), bool)
+        for i, j in edges:
+            a, b = seeds[i], seeds[j]
+            length = float(np.linalg.norm(b - a))
+            if length == 0:
+                continue
+            if growing.any():
+                # distance from the segment to the growing balls' centres
+                ab = b - a
+                t = np.clip((self.center - a) @ ab / (ab @ ab), 0, 1)
+                dist = np.linalg.norm(a + t[:, None] * ab - self.center, axis=1)
+                hit = growing & (dist < self.radius)
+                if hit.any():
+                    grown |= hit
+                    continue
+            count = max(1, int(np.ceil(0.5 * np.min(np.abs(b - a)) / d)))
+            for k in range(count):
+                new_c.append(a + (k + 0.5) / count * (b - a))
+                new_r.append(length / 2)
+                new_max.append(length)
+        self.radius = np.where(grown, np.minimum(self.radius + self.rinc, self.rmax), self.radius)
+        if new_c:
+            self.center = np.concatenate([self.center, np.array(new_c)])
+            self.radius = np.concatenate([self.radius, new_r])
+            self.rmax = np.concatenate([self.rmax, new_max])
+            self.rinc = np.concatenate([self.rinc, np.array(new_max) / 20])
+
+    def __len__(self):
+        return len(self.radius)
+
+
 def _project(points: np.ndarray, frag: Fragments) -> np.ndarray:
     from ._spatial import nearest_neighbors
 
@@ -93,6 +174,8 @@ def remesh(
     orient: bool = True,
     project: bool = True,
     weighted: bool = True,
+    max_rounds: int = 10,
+    round_steps: int = 20,
     inside: str = "below",
     key=0,
     threads=None,
@@ -116,6 +199,13 @@ def remesh(
       (triangles still oriented consistently per component, direction unspecified).
     - `project`: move each vertex onto the tangent plane of its nearest fragment.
     - `weighted`: use area weights (uniform density).
+    - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
+      has other than two triangles or some vertex more than one fan, balls are placed on
+      those edges (radius half the edge, at most the edge; a ball hit again grows by a
+      twentieth of it), the solid is replaced by its union with the balls on the grid's
+      rays, and the seeds take `round_steps` Lloyd steps before the triangulation is read
+      again; at most `max_rounds` times. The report says how many rounds ran, how many balls
+      were placed, and whether the result is a closed 2-manifold.
     - `inside`: for `(values, level)` sources, `"below"` or `"above"` the level.
     - `key`: seed of the random seeding.
     - `threads`: threads for the C++ passes.
@@ -148,7 +238,14 @@ def remesh(
         if grid is None:
             if mesh is None:
                 raise ValueError("cvt.remesh: fields, grids and CSG expressions need a grid")
-            grid = Grid.around(mesh.vertices, 64)
+            # a margin of about two edge lengths, room for the regularisation balls
+            v, f = mesh.vertices, mesh.faces
+            area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+            margin = 2.0 * np.sqrt(4.0 * area / (np.sqrt(3.0) * n_seeds))
+            lo, hi = v.min(axis=0) - margin, v.max(axis=0) + margin
+            h = float(np.max(hi - lo)) / 64
+            shape = tuple(int(max(1, np.ceil(e / h))) for e in hi - lo)
+            grid = Grid(tuple(lo), tuple(lo + np.asarray(shape) * h), shape)
         frag = fragments(source, grid, inside=inside, threads=threads)
         if not fixed:
             for _ in range(3):
@@ -157,9 +254,11 @@ def remesh(
                     break
                 scale = 1.0 / np.sqrt(ratio)
                 h = max(grid.spacing) / scale
-                ext = np.asarray(grid.upper) - np.asarray(grid.lower)
-                shape = tuple(int(max(1, np.ceil(e / h))) for e in ext)
-                grid = Grid(grid.lower, tuple(np.asarray(grid.lower) + np.asarray(shape) * h), shape)
+                lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+                shape = np.maximum(1, np.ceil((hi - lo) / h)).astype(int)
+                mid = 0.5 * (lo + hi)
+                half = 0.5 * shape * h
+                grid = Grid(tuple(mid - half), tuple(mid + half), tuple(int(n) for n in shape))
                 frag = fragments(source, grid, inside=inside, threads=threads)
     times["fragments"] = time.perf_counter() - t0
     if len(frag) < n_seeds:
@@ -178,12 +277,28 @@ def remesh(
     res = optimize(frag, seeds0, method=method, steps=steps, weighted=weighted)
     times["optimize"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    faces, rep = rdt(frag, res.seeds, threads=threads)
+    seeds = res.seeds
+    faces, rep = rdt(frag, seeds, threads=threads)
+    rounds = 0
+    balls = _Balls()
+    base = frag
+    if orient and max_rounds > 0:
+        from ._cvt_fragments import ball_fragments, union_all
+
+        while rounds < max_rounds:
+            bad = _problem_edges(faces, len(seeds))
+            if len(bad) == 0:
+                break
+            balls.add(seeds, bad, frag.spacing)
+            frag = union_all([base, ball_fragments(balls.center, balls.radius, base.grid)])
+            seeds = optimize(frag, seeds, method="lloyd", steps=round_steps, weighted=weighted).seeds
+            faces, rep = rdt(frag, seeds, threads=threads)
+            rounds += 1
     times["rdt"] = time.perf_counter() - t2
     used = np.unique(faces)
-    remap = np.full(len(res.seeds), -1, np.int64)
+    remap = np.full(len(seeds), -1, np.int64)
     remap[used] = np.arange(len(used))
-    verts = res.seeds[used]
+    verts = seeds[used]
     if project:
         verts = _project(verts, frag)
     out = Mesh(verts, remap[faces].astype(np.int32))
@@ -201,6 +316,8 @@ def remesh(
         "respawned": res.respawned,
         "energy": float(res.energy[-1]),
         "rdt": rep,
+        "rounds": rounds,
+        "balls": len(balls),
         "closed": mr.closed,
         "manifold": mr.edge_manifold and mr.vertex_manifold,
         "euler_characteristic": mr.euler_characteristic,
