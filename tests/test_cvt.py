@@ -292,3 +292,20 @@ def test_problem_edges_match_manifold_report():
     bad = cvt._problem_edges(f, len(v))
     assert metrics.manifold_report(voxax.Mesh(v, f)).n_nonmanifold_vertices == 1
     assert len(bad) == 6 and np.all((bad == 0).any(axis=1))
+
+
+def _volume(m):
+    v, f = m.vertices, m.faces
+    return float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6)
+
+
+def test_remesh_csg_volume_against_manifold3d():
+    manifold3d = pytest.importorskip("manifold3d")
+    box_c, box_h = (0.5, 0.5, 0.5), 0.45
+    scene = cvt.CSG("difference", fields.sphere, lambda p: fields.box(p, box_h, box_c))
+    m, rep = cvt.remesh(scene, 600, grid=voxax.Grid.cube(24, half_width=1.1), steps=30)
+    assert rep["closed"] and rep["manifold"] and rep["euler_characteristic"] == 2
+    ball = manifold3d.Manifold.sphere(1.0, 512)
+    cube = manifold3d.Manifold.cube((2 * box_h,) * 3, center=True).translate(box_c)
+    exact = (ball - cube).volume()
+    assert abs(_volume(m) / exact - 1) < 0.02

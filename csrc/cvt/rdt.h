@@ -1,11 +1,14 @@
 // Restricted Delaunay triangles read off surface samples ("fragments") and seeds.
 //
-// Every fragment x reports the seeds near a Voronoi vertex: its four nearest seeds
-// s1..s4 (distances d1 <= ... <= d4) give the candidate triangles {si, sj, sk} whose
-// largest distance is within `tau` of d1, scored by that excess (a fragment on the
-// Voronoi vertex of a triangle of the restricted Delaunay triangulation scores 0; the
-// score grows about linearly with the distance from it). Each candidate keeps its best
-// score and the sum of its witnesses' normals, which orients it.
+// Every fragment x reports the seeds near a Voronoi vertex: of its four nearest seeds
+// s1..s4 (distances d1 <= ... <= d4), the triangles {s1, sj, sk} whose farthest seed is
+// within `tau` of d1 are candidates. A candidate's score at x is its spread (farthest
+// distance minus d1) minus its margin (the distance of the nearest seed outside it minus
+// its farthest distance): a fragment on the Voronoi vertex of a restricted Delaunay
+// triangle has spread 0 and a positive margin (an empty ball), so true triangles score
+// below the other triangles of nearly co-spherical seeds. Triangles without s1 are never
+// proposed (s1 would lie inside their ball). Each candidate keeps its best score and the
+// sum of its witnesses' normals, which orients it.
 //
 // The triangles are then taken greedily by (score, seeds): a triangle is accepted when
 // none of its three directed edges is used yet, so every edge has at most two incident
@@ -95,7 +98,7 @@ class Rdt {
  public:
   // S: (ns, 3) seeds; X, N: (np, 3) fragments and unit normals.
   void run(const double* S, int64_t ns, const double* X, const double* N, int64_t np, double tau,
-           double eps, int max_hole, int threads) {
+           int max_hole, int threads) {
     S_ = S;
     ns_ = ns;
     spatial::PointGrid grid;
@@ -104,19 +107,15 @@ class Rdt {
     constexpr int64_t kChunk = 4096;
     const int64_t chunks = (np + kChunk - 1) / kChunk;
     std::vector<std::vector<Candidate>> per(static_cast<size_t>(chunks));
-    std::vector<std::vector<uint64_t>> edges_per(static_cast<size_t>(chunks));
     spatial::parallel_chunks(np, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
       std::vector<Candidate>& out = per[static_cast<size_t>(c)];
-      std::vector<uint64_t>& ed = edges_per[static_cast<size_t>(c)];
       int32_t idx[spatial::kMaxNeighbours];
       double dist[spatial::kMaxNeighbours];
       for (int64_t i = b; i < e; ++i) {
         grid.query(X + 3 * i, k, idx, dist);
         if (k < 3) continue;
-        if (dist[1] - dist[0] <= eps)
-          ed.push_back(dir_key(std::min(idx[0], idx[1]), std::max(idx[0], idx[1])));
-        for (int a = 0; a < 1; ++a)
-          for (int bb = a + 1; bb < k; ++bb)
+        const int a = 0;  // triangles with the nearest seed only
+        for (int bb = a + 1; bb < k; ++bb)
             for (int cc = bb + 1; cc < k; ++cc) {
               const double spread = dist[cc] - dist[0];
               if (!(spread <= tau)) continue;
@@ -134,8 +133,6 @@ class Rdt {
             }
       }
     });
-    for (auto& v : edges_per) delaunay_.insert(v.begin(), v.end());
-    edges_per.clear();
     std::vector<Candidate> all;
     for (auto& v : per) all.insert(all.end(), v.begin(), v.end());
     per.clear();
@@ -187,11 +184,6 @@ class Rdt {
   int64_t ns_ = 0;
   std::unordered_set<uint64_t> used_;
   std::unordered_set<uint64_t> tris_;
-  std::unordered_set<uint64_t> delaunay_;
-
-  bool delaunay(int32_t a, int32_t b) const {
-    return delaunay_.count(dir_key(std::min(a, b), std::max(a, b))) > 0;
-  }
   std::vector<std::array<double, 3>> normals_;
 
   bool try_add(int32_t a, int32_t b, int32_t c) {

@@ -45,7 +45,7 @@ bool finite_coords(const double* x, int64_t count, const char* what, std::string
 }  // namespace
 
 VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, const double* N,
-                               int64_t np, double tau, double eps, int32_t max_hole, int32_t threads,
+                               int64_t np, double tau, int32_t max_hole, int32_t threads,
                                void** handle, char* err, int64_t errlen) {
   *handle = nullptr;
   try {
@@ -54,8 +54,8 @@ VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, con
     if (ns >= (int64_t{1} << 21))
       return fail(err, errlen, "voxax: the RDT takes fewer than 2^21 seeds");
     if (np < 1) return fail(err, errlen, "voxax: the RDT needs fragments (empty surface)");
-    if (!(tau >= 0.0) || !std::isfinite(tau) || !(eps >= 0.0) || !std::isfinite(eps))
-      return fail(err, errlen, "voxax: the RDT tolerances must be finite and >= 0");
+    if (!(tau >= 0.0) || !std::isfinite(tau))
+      return fail(err, errlen, "voxax: the RDT tolerance must be finite and >= 0");
     if (max_hole < 3 || max_hole > 64)
       return fail(err, errlen, "voxax: max_hole must lie in [3, 64]");
     if (!finite_coords(S, 3 * ns, "seeds", &msg)) return fail(err, errlen, msg);
@@ -63,7 +63,7 @@ VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, con
     if (!finite_coords(N, 3 * np, "normals", &msg)) return fail(err, errlen, msg);
     auto* rdt = new voxax::cvt::Rdt();
     try {
-      rdt->run(S, ns, X, N, np, tau, eps, max_hole, threads);
+      rdt->run(S, ns, X, N, np, tau, max_hole, threads);
     } catch (...) {
       delete rdt;
       throw;

@@ -169,7 +169,7 @@ def remesh(
     *,
     grid: Grid | None = None,
     alpha: float = 50.0,
-    method: str = "lbfgs",
+    method: str = "lloyd",
     steps: int = 100,
     orient: bool = True,
     project: bool = True,
@@ -193,14 +193,17 @@ def remesh(
       `alpha` fragments per seed; for a mesh the default box is the mesh's bounding box.
       A `(values, level)` source is sampled on its own grid as given.
     - `alpha`: fragments per seed (the paper uses > 50).
-    - `method`, `steps`: the optimiser (`"lbfgs"` or `"lloyd"`) and its step budget.
+    - `method`, `steps`: the optimiser (`"lloyd"`, or `"lbfgs"`: fewer steps to the same
+      energy, but each costs about three nearest-seed passes against Lloyd's one) and its
+      step budget.
     - `orient`: require a closed surface (every grid line enters and exits the solid
       alternately) and orient the result outward; `False` meshes open surfaces too
       (triangles still oriented consistently per component, direction unspecified).
     - `project`: move each vertex onto the tangent plane of its nearest fragment.
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
-      has other than two triangles or some vertex more than one fan, balls are placed on
+      has other than two triangles or some vertex more than one fan, the seeds first take
+      `round_steps` more Lloyd steps; if that does not help, balls are placed on
       those edges (radius half the edge, at most the edge; a ball hit again grows by a
       twentieth of it), the solid is replaced by its union with the balls on the grid's
       rays, and the seeds take `round_steps` Lloyd steps before the triangulation is read
@@ -289,8 +292,9 @@ def remesh(
             bad = _problem_edges(faces, len(seeds))
             if len(bad) == 0:
                 break
-            balls.add(seeds, bad, frag.spacing)
-            frag = union_all([base, ball_fragments(balls.center, balls.radius, base.grid)])
+            if rounds > 0:  # the first round only optimises further: most defects are unconverged seeds
+                balls.add(seeds, bad, frag.spacing)
+                frag = union_all([base, ball_fragments(balls.center, balls.radius, base.grid)])
             seeds = optimize(frag, seeds, method="lloyd", steps=round_steps, weighted=weighted).seeds
             faces, rep = rdt(frag, seeds, threads=threads)
             rounds += 1
