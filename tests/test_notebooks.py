@@ -23,7 +23,7 @@ CELL_TIMEOUT = 300  # seconds per cell
 SMALL = {
     "01_quickstart": {"RESOLUTION": 24},
     "02_gradients": {"RESOLUTION": 16},
-    "03_self_intersections": {"RESOLUTION": 32, "MAX_STEPS": 40},
+    "03_self_intersections": {"RESOLUTION": 32, "MAX_STEPS": 40, "MAX_ROUNDS": 1},
     "04_bandsaw": {"RESOLUTION": 24, "MAX_STEPS": 15},
     "05_tiling": {"RESOLUTION": 24, "MAX_STEPS": 10},
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "common/constants.h"
+#include "common/host_errors.h"
 #include "raster/line_crossings.h"
 #include "spatial/host_pool.h"
 
@@ -41,15 +42,6 @@ struct Crossings {
   std::vector<int64_t> offsets;
   std::vector<Crossing> items;
 };
-
-int fail(char* err, int64_t errlen, const std::string& msg) {
-  if (err && errlen > 0) {
-    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
-    std::memcpy(err, msg.data(), n);
-    err[n] = '\0';
-  }
-  return 1;
-}
 
 bool check_value(double x, const char* what, int64_t row, std::string* msg) {
   const double m = std::fabs(x);
@@ -80,21 +72,6 @@ bool check_lines(const double* L, int64_t n, const char* what, std::string* msg)
     }
   }
   return true;
-}
-
-template <typename Body>
-int guarded(char* err, int64_t errlen, Body&& body) {
-  try {
-    std::string msg;
-    if (!body(&msg)) return fail(err, errlen, msg);
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return fail(err, errlen, "voxax: out of memory in line_crossings");
-  } catch (const std::exception& e) {
-    return fail(err, errlen, std::string("voxax: line_crossings error: ") + e.what());
-  } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in line_crossings");
-  }
 }
 
 // The crossings of faces [begin, end) with every line, appended to `out`.
@@ -149,7 +126,7 @@ VOXAX_EXPORT int voxax_line_crossings(const double* V, int64_t nv, const int32_t
                                       int64_t n1, int32_t threads, void** handle, char* err,
                                       int64_t errlen) {
   *handle = nullptr;
-  return guarded(err, errlen, [&](std::string* msg) {
+  return voxax::host_guarded("line_crossings", err, errlen, [&](std::string* msg) {
     if (axis < 0 || axis > 2) {
       *msg = "voxax: line_crossings: axis must be 0, 1 or 2, got " + std::to_string(axis);
       return false;

@@ -373,6 +373,18 @@ def _equal_3d(ax, v):
     ax.set_zlabel("z")
 
 
+def _equal_2d(ax, points=None):
+    """Equal axes labelled x, y; limits fitted to `points` (with a margin) when given."""
+    if points is not None:
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        pad = 0.05 * max(float(np.max(hi - lo)), 1e-12)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+
+
 def _shading(tri: np.ndarray, light=(0.4, -0.6, 0.7)) -> np.ndarray:
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -478,13 +490,7 @@ def mesh(
 
         coll = LineCollection(segments, colors=rgba, linewidths=2.0)
         ax.add_collection(coll)
-        lo2, hi2 = v.min(axis=0), v.max(axis=0)
-        pad = 0.05 * max(float(np.max(hi2 - lo2)), 1e-12)
-        ax.set_xlim(lo2[0] - pad, hi2[0] + pad)
-        ax.set_ylim(lo2[1] - pad, hi2[1] + pad)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x")
-        ax.set_ylabel("y")
+        _equal_2d(ax, v)
     if values is not None and colorbar:
         sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
         sm.set_array(face_q)
@@ -580,15 +586,7 @@ def gradient_field(
         ax.add_collection(LineCollection(v[f], colors="k", linewidths=1.2))
         ax.quiver(v[:, 0], v[:, 1], d[:, 0], d[:, 1], color=color, angles="xy", scale_units="xy", scale=1.0,
                   width=0.004)
-        pts = np.concatenate([v, v + d])
-        if W is None or grid is None:
-            lo, hi = pts.min(axis=0), pts.max(axis=0)
-            pad = 0.05 * max(float(np.max(hi - lo)), 1e-12)
-            ax.set_xlim(lo[0] - pad, hi[0] + pad)
-            ax.set_ylim(lo[1] - pad, hi[1] + pad)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x")
-        ax.set_ylabel("y")
+        _equal_2d(ax, np.concatenate([v, v + d]) if W is None or grid is None else None)
     if title:
         ax.set_title(title)
     if path is not None:

@@ -771,8 +771,7 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
-    v, f = _spatial_soup(rng, "random")
-    v, f = v[:30], np.arange(30, dtype=np.int32).reshape(10, 3)
+    v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     bad = {
         "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
         "Inf origin": (lambda: voxax.first_hits((v, f), [[np.inf, 0, 0]], [[1, 0, 0]]), "NaN or Inf"),
@@ -922,8 +921,7 @@ def run_line_crossings(rng, n_inputs):
         if kind == "closed" and np.bincount(line, weights=d.sign, minlength=1).any():
             fail(f"{label}: a closed mesh has unbalanced crossings on a line")
         COUNTS["line_crossings"] += 1
-    v, f = _spatial_soup(rng, "random")
-    v, f = v[:30], np.arange(30, dtype=np.int32).reshape(10, 3)
+    v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     g = voxax.Grid.cube(4)
     lib = _host.declare(raster._SIGNATURES)
 
