@@ -59,7 +59,7 @@ def test_field_fragments_on_sphere_with_gradient_normals():
                 idx = (fr.points[sel, b] - g.lower[b]) / g.spacing[b] - 0.5
                 assert np.abs(idx - np.round(idx)).max() < 1e-9
     assert abs(fr.weights.sum() / (4 * np.pi) - 1) < 0.01
-    assert np.all(fr.sign == np.where(fr.normals[np.arange(len(fr)), fr.axis] > 0, 1, -1))
+    assert np.all(fr.sign == np.where(fr.normals[np.arange(fr.size), fr.axis] > 0, 1, -1))
 
 
 def test_grid_fragments_match_the_field():
@@ -164,7 +164,7 @@ def test_init_seeds_and_respawn(small):
     s = cvt.init_seeds(fr, 50, key=3)
     assert s.shape == (50, 3) and np.all(np.isin(s.view("f8,f8,f8"), fr.points.view("f8,f8,f8")))
     with pytest.raises(ValueError, match="fragments"):
-        cvt.init_seeds(fr, len(fr) + 1)
+        cvt.init_seeds(fr, fr.size + 1)
     far = np.concatenate([s, [[10.0, 10.0, 10.0]]])  # an empty region
     _, count = cvt.lloyd_step(far, fr)
     assert int(count[-1]) == 0
@@ -276,7 +276,7 @@ def test_ball_fragments_and_union_are_exact():
     # and every crossing outside the other ball survives (an independent count)
     dist = np.linalg.norm(balls.points[:, None] - c[None], axis=2)
     outside = ((dist > r[None] - 1e-9)).all(axis=1)
-    assert len(u) == int(outside.sum())
+    assert u.size == int(outside.sum())
 
 
 def test_problem_edges_match_manifold_report():
@@ -299,13 +299,38 @@ def _volume(m):
     return float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6)
 
 
+@pytest.mark.slow
 def test_remesh_csg_volume_against_manifold3d():
     manifold3d = pytest.importorskip("manifold3d")
     box_c, box_h = (0.5, 0.5, 0.5), 0.45
     scene = cvt.CSG("difference", fields.sphere, lambda p: fields.box(p, box_h, box_c))
-    m, rep = cvt.remesh(scene, 600, grid=voxax.Grid.cube(24, half_width=1.1), steps=30)
+    m, rep = cvt.remesh(scene, 1200, grid=voxax.Grid.cube(24, half_width=1.1), steps=20)
     assert rep["closed"] and rep["manifold"] and rep["euler_characteristic"] == 2
     ball = manifold3d.Manifold.sphere(1.0, 512)
     cube = manifold3d.Manifold.cube((2 * box_h,) * 3, center=True).translate(box_c)
     exact = (ball - cube).volume()
     assert abs(_volume(m) / exact - 1) < 0.02
+
+
+@pytest.mark.slow
+def test_remesh_hand_is_manifold():
+    m, rep = cvt.remesh(voxax.data.hand(), 3000, max_rounds=30)
+    assert rep["closed"] and rep["manifold"] and rep["rounds"] <= 30
+    assert rep["euler_characteristic"] == metrics.euler_characteristic(voxax.data.hand())
+
+
+@pytest.mark.slow
+def test_sphere_4k_seeds():
+    from scipy.spatial import ConvexHull
+
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(160, half_width=1.1))
+    res = cvt.optimize(fr, cvt.init_seeds(fr, 4000, key=0), method="lbfgs", steps=100)
+    faces, rep = cvt.rdt(fr, res.seeds)
+    m = voxax.Mesh(res.seeds, faces)
+    mr = metrics.manifold_report(m)
+    assert mr.closed and mr.edge_manifold and mr.vertex_manifold and mr.euler_characteristic == 2
+    q = metrics.triangle_quality(m)
+    assert q.mean() >= 0.85 and q.min() >= 0.5
+    hull = ConvexHull(res.seeds / np.linalg.norm(res.seeds, axis=1, keepdims=True))
+    ours = {tuple(sorted(f)) for f in faces.tolist()}
+    assert len(ours & {tuple(sorted(f)) for f in hull.simplices.tolist()}) >= 0.99 * len(hull.simplices)

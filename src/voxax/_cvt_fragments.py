@@ -51,7 +51,9 @@ class Fragments(NamedTuple):
     sign: np.ndarray
     grid: Grid
 
-    def __len__(self) -> int:  # type: ignore[override]
+    @property
+    def size(self) -> int:
+        """The number of fragments `P`."""
         return int(self.points.shape[0])
 
     @property
@@ -332,13 +334,13 @@ def _grid_fragments(values, level: float, inside: str, grid: Grid) -> Fragments:
 
 
 def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
-    n_a = len(a)
+    n_a = a.size
     pts = np.concatenate([a.points, b.points])
     nrm = np.concatenate([a.normals, b.normals])
     axis = np.concatenate([a.axis, b.axis]).astype(np.int64)
     line = np.concatenate([a.line, b.line])
     sign = np.concatenate([a.sign, b.sign]).astype(np.int64)
-    src = np.concatenate([np.zeros(n_a, np.int64), np.ones(len(b), np.int64)])
+    src = np.concatenate([np.zeros(n_a, np.int64), np.ones(b.size, np.int64)])
     depth = pts[np.arange(len(pts)), axis]
     order = np.lexsort((src, depth, line, axis))
     pts, nrm, axis, line, sign, src, depth = (x[order] for x in (pts, nrm, axis, line, sign, src, depth))
@@ -370,7 +372,7 @@ def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
 
 def union_all(parts: list) -> Fragments:
     """The union of several closed solids' fragments on the same grid (dexel merge)."""
-    parts = [p for p in parts if len(p)]
+    parts = [p for p in parts if p.size]
     if not parts:
         raise ValueError("cvt: the union is empty")
     grid = parts[0].grid

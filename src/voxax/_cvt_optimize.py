@@ -22,7 +22,7 @@ __all__ = ["CVTResult", "assign", "energy", "energy_gradient", "init_seeds", "ll
 def _frag(frag) -> Fragments:
     if not isinstance(frag, Fragments):
         raise TypeError(f"cvt: expected Fragments (from voxax.cvt.fragments), got {type(frag).__name__}")
-    if len(frag) == 0:
+    if frag.size == 0:
         raise ValueError("cvt: there are no fragments (empty surface)")
     return frag
 
@@ -39,7 +39,7 @@ def _seeds(seeds, where: str):
 
 
 def _w(frag: Fragments, weighted: bool):
-    return frag.weights if weighted else np.ones(len(frag))
+    return frag.weights if weighted else np.ones(frag.size)
 
 
 def assign(seeds, frag: Fragments):
@@ -132,11 +132,11 @@ def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
     n = int(n)
     if n < 1:
         raise ValueError(f"cvt.init_seeds: n must be >= 1, got {n}")
-    if n > len(frag):
-        raise ValueError(f"cvt.init_seeds: {n} seeds but only {len(frag)} fragments; use a finer grid or fewer seeds")
+    if n > frag.size:
+        raise ValueError(f"cvt.init_seeds: {n} seeds but only {frag.size} fragments; use a finer grid or fewer seeds")
     rng = np.random.default_rng(_int_key(key))
     p = frag.weights / frag.weights.sum()
-    pick = rng.choice(len(frag), size=n, replace=False, p=p)
+    pick = rng.choice(frag.size, size=n, replace=False, p=p)
     return frag.points[np.sort(pick)].copy()
 
 
@@ -208,8 +208,8 @@ def optimize(frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, 
     if not jax.config.jax_enable_x64:
         raise ValueError("cvt.optimize computes in float64: enable jax_enable_x64")
     s = np.array(_seeds(seeds, "cvt.optimize"), np.float64)
-    if len(s) > len(frag):
-        raise ValueError(f"cvt.optimize: {len(s)} seeds but only {len(frag)} fragments")
+    if len(s) > frag.size:
+        raise ValueError(f"cvt.optimize: {len(s)} seeds but only {frag.size} fragments")
     steps = int(steps)
     if steps < 0:
         raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")

@@ -51,7 +51,7 @@ __all__ = [
 
 def _open_lines(frag: Fragments) -> int:
     """Lines whose crossings do not alternate enter/exit starting with an entry."""
-    if len(frag) == 0:
+    if frag.size == 0:
         return 0
     key = frag.axis.astype(np.int64) * (1 << 40) + frag.line
     start = np.concatenate([[True], key[1:] != key[:-1]])
@@ -252,7 +252,7 @@ def remesh(
         frag = fragments(source, grid, inside=inside, threads=threads)
         if not fixed:
             for _ in range(3):
-                ratio = len(frag) / (alpha * n_seeds)
+                ratio = frag.size / (alpha * n_seeds)
                 if 0.8 <= ratio:
                     break
                 scale = 1.0 / np.sqrt(ratio)
@@ -264,9 +264,9 @@ def remesh(
                 grid = Grid(tuple(mid - half), tuple(mid + half), tuple(int(n) for n in shape))
                 frag = fragments(source, grid, inside=inside, threads=threads)
     times["fragments"] = time.perf_counter() - t0
-    if len(frag) < n_seeds:
+    if frag.size < n_seeds:
         raise ValueError(
-            f"cvt.remesh: {n_seeds} seeds but only {len(frag)} fragments; use fewer seeds or a finer grid"
+            f"cvt.remesh: {n_seeds} seeds but only {frag.size} fragments; use fewer seeds or a finer grid"
         )
     if orient:
         bad = _open_lines(frag)
@@ -310,10 +310,10 @@ def remesh(
     q = metrics.triangle_quality(out)
     times["total"] = time.perf_counter() - t0
     report = {
-        "n_fragments": len(frag),
+        "n_fragments": frag.size,
         "n_seeds": n_seeds,
         "n_vertices": len(verts),
-        "alpha": len(frag) / n_seeds,
+        "alpha": frag.size / n_seeds,
         "grid": frag.grid,
         "method": res.method,
         "steps": res.steps,
