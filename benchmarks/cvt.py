@@ -5,7 +5,7 @@ Measures the nearest-seed pass and a Lloyd step at 20k seeds / ~1M fragments, th
 reference, time), marching cubes at the same vertex count, marching cubes followed by
 pymeshlab's isotropic remeshing, and the time ratio t(40k) / t(20k).
 
-    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 100] [--method lloyd] [--quick]
+    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--method lbfgs|lloyd] [--quick]
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ def summary(m, ref, diag):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20000)
-    ap.add_argument("--steps", type=int, default=100)
-    ap.add_argument("--method", default="lloyd")
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--method", default="lbfgs")
     ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
     args = ap.parse_args()
     n = args.seeds
@@ -116,7 +116,9 @@ def main():
         out["mc_pymeshlab"] = {"time_s": time.perf_counter() - t, "mc_cells": 120, **summary(rm, ref, diag)}
 
         t = time.perf_counter()
-        m2, rep2 = cvt.remesh(octic, 2 * n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps)
+        m2, rep2 = cvt.remesh(
+            octic, 2 * n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps
+        )
         out["remesh_2x_s"] = time.perf_counter() - t
         out["t2x_over_t"] = out["remesh_2x_s"] / out["remesh_s"]
         out["cvt_2x"] = {"fragments": rep2["n_fragments"], **summary(m2, ref, diag)}

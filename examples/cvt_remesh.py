@@ -24,9 +24,11 @@ def describe(name, mesh, report=None):
     q = metrics.triangle_quality(mesh)
     mr = metrics.manifold_report(mesh)
     extra = f", {report['n_fragments']} samples, {report['time']['total']:.1f} s" if report else ""
-    print(f"{name:>24}: {mesh.n_vertices:6d} vertices, chi {mr.euler_characteristic:4d}, "
-          f"closed 2-manifold {mr.closed and mr.edge_manifold and mr.vertex_manifold}, "
-          f"quality min {q.min():.3f} mean {q.mean():.3f}{extra}")
+    print(
+        f"{name:>24}: {mesh.n_vertices:6d} vertices, chi {mr.euler_characteristic:4d}, "
+        f"closed 2-manifold {mr.closed and mr.edge_manifold and mr.vertex_manifold}, "
+        f"quality min {q.min():.3f} mean {q.mean():.3f}{extra}"
+    )
 
 
 def main():

@@ -76,7 +76,7 @@ def test_grid_fragments_match_the_field():
 
 
 def test_dexel_csg_against_the_fields():
-    g = voxax.Grid.cube(40, half_width=1.2)
+    g = voxax.Grid.cube(32, half_width=1.2)
     a = fields.sphere
 
     def b(p):
@@ -151,11 +151,11 @@ def test_energy_gradient_is_eq2_and_brute_force(small):
 
 def test_lloyd_monotone_and_lbfgs_faster(small):
     fr, s = small
-    lloyd = cvt.optimize(fr, s, method="lloyd", steps=60)
+    lloyd = cvt.optimize(fr, s, method="lloyd", steps=40)
     assert np.all(np.diff(lloyd.energy) <= 1e-13 * lloyd.energy[0])
-    lb = cvt.optimize(fr, s, method="lbfgs", steps=30)
+    lb = cvt.optimize(fr, s, method="lbfgs", steps=20)
     # the energy L-BFGS reaches within half the iterations is at most Lloyd's
-    assert lb.steps <= 30
+    assert lb.steps <= 20
     assert lb.energy.min() <= lloyd.energy[-1]
 
 
@@ -228,7 +228,7 @@ def test_rdt_bad_input(sphere_rdt):
 
 def test_remesh_torus_field():
     g = voxax.Grid.cube(24, half_width=0.9)
-    m, rep = cvt.remesh(lambda p: fields.torus(p, 0.55, 0.25), 500, grid=g, method="lloyd", steps=60)
+    m, rep = cvt.remesh(lambda p: fields.torus(p, 0.55, 0.25), 400, grid=g, method="lloyd", steps=40)
     assert rep["closed"] and rep["manifold"]
     assert rep["euler_characteristic"] == 0
     assert rep["quality_min"] >= 0.3
@@ -275,7 +275,7 @@ def test_ball_fragments_and_union_are_exact():
     assert not inside_any.any() and cvt._open_lines(u) == 0
     # and every crossing outside the other ball survives (an independent count)
     dist = np.linalg.norm(balls.points[:, None] - c[None], axis=2)
-    outside = ((dist > r[None] - 1e-9)).all(axis=1)
+    outside = (dist > r[None] - 1e-9).all(axis=1)
     assert u.size == int(outside.sum())
 
 

@@ -116,21 +116,21 @@ class Rdt {
         if (k < 3) continue;
         const int a = 0;  // triangles with the nearest seed only
         for (int bb = a + 1; bb < k; ++bb)
-            for (int cc = bb + 1; cc < k; ++cc) {
-              const double spread = dist[cc] - dist[0];
-              if (!(spread <= tau)) continue;
-              // the margin of the first seed outside the triple (none: k == 3)
-              int outside = -1;
-              for (int o = 0; o < k && outside < 0; ++o)
-                if (o != a && o != bb && o != cc) outside = o;
-              const double margin = outside >= 0 ? dist[outside] - dist[cc] : tau;
-              const double score = spread - margin;
-              Candidate cand;
-              cand.key = tri_key(idx[a], idx[bb], idx[cc]);
-              cand.score = score;
-              for (int j = 0; j < 3; ++j) cand.n[j] = N[3 * i + j];
-              out.push_back(cand);
-            }
+          for (int cc = bb + 1; cc < k; ++cc) {
+            const double spread = dist[cc] - dist[0];
+            if (!(spread <= tau)) continue;
+            // the margin of the first seed outside the triple (none: k == 3)
+            int outside = -1;
+            for (int o = 0; o < k && outside < 0; ++o)
+              if (o != a && o != bb && o != cc) outside = o;
+            const double margin = outside >= 0 ? dist[outside] - dist[cc] : tau;
+            const double score = spread - margin;
+            Candidate cand;
+            cand.key = tri_key(idx[a], idx[bb], idx[cc]);
+            cand.score = score;
+            for (int j = 0; j < 3; ++j) cand.n[j] = N[3 * i + j];
+            out.push_back(cand);
+          }
       }
     });
     std::vector<Candidate> all;

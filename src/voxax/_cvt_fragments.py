@@ -12,7 +12,8 @@ integrals: the three families of lines sample a surface patch with normal `n` wi
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -230,9 +231,7 @@ def _build_refine(fn: Callable, iterations: int):
             side2 = jnp.where(left, 1, -1).astype(jnp.int32)
             return a2, b2, fa2, fb2, side2
 
-        a, b, fa, fb, _ = jax.lax.fori_loop(
-            0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32))
-        )
+        a, b, fa, fb, _ = jax.lax.fori_loop(0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32)))
         t = (a * fb - b * fa) / (fb - fa)
         t = jnp.where(jnp.isfinite(t), jnp.clip(t, a, b), 0.5 * (a + b))
         p = x0 + t[:, None] * (x1 - x0)
@@ -269,7 +268,14 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
         idx0[axis], idx0[u], idx0[v] = i, iu, iv
         idx1 = list(idx0)
         idx1[axis] = i + 1
-        segs.append((axis, iu.astype(np.int64) * shape[v] + iv, np.ravel_multi_index(tuple(idx0), shape), np.ravel_multi_index(tuple(idx1), shape)))
+        segs.append(
+            (
+                axis,
+                iu.astype(np.int64) * shape[v] + iv,
+                np.ravel_multi_index(tuple(idx0), shape),
+                np.ravel_multi_index(tuple(idx1), shape),
+            )
+        )
     total = sum(len(s[1]) for s in segs)
     if total == 0:
         raise ValueError("cvt.fragments: the field has no zero crossing on the grid (empty surface)")
@@ -365,9 +371,7 @@ def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
     if len(k) == 0:
         raise ValueError(f"cvt.fragments: the {op} is empty on this grid")
     out_sign = new_sign[k].astype(np.int8)
-    return Fragments(
-        pts[k], nrm[k], _weights(nrm[k], a.grid), axis[k].astype(np.int8), line[k], out_sign, a.grid
-    )
+    return Fragments(pts[k], nrm[k], _weights(nrm[k], a.grid), axis[k].astype(np.int8), line[k], out_sign, a.grid)
 
 
 def union_all(parts: list) -> Fragments:
@@ -392,7 +396,9 @@ def union_all(parts: list) -> Fragments:
     prev = np.concatenate([[False], inside[:-1]])
     prev[group] = False
     k = np.nonzero(inside != prev)[0]
-    return Fragments(pts[k], nrm[k], _weights(nrm[k], grid), axis[k].astype(np.int8), line[k], sign[k].astype(np.int8), grid)
+    return Fragments(
+        pts[k], nrm[k], _weights(nrm[k], grid), axis[k].astype(np.int8), line[k], sign[k].astype(np.int8), grid
+    )
 
 
 def ball_fragments(centers, radii, grid: Grid) -> Fragments:
@@ -435,7 +441,9 @@ def _check_grid(grid) -> Grid:
     return grid
 
 
-def fragments(source, grid: Grid | None = None, *, inside: str = "below", iterations: int = 30, threads=None) -> Fragments:
+def fragments(
+    source, grid: Grid | None = None, *, inside: str = "below", iterations: int = 30, threads=None
+) -> Fragments:
     """Surface samples where the cell-centre lines of `grid` along x, y and z cross a surface.
 
     **Arguments:**

@@ -184,7 +184,9 @@ class CVTResult:
     info: Any = None
 
 
-def optimize(frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, weighted: bool = True, tol: float = 0.0) -> CVTResult:
+def optimize(
+    frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, weighted: bool = True, tol: float = 0.0
+) -> CVTResult:
     """Optimises the seeds towards a restricted CVT of the fragments.
 
     **Arguments:**

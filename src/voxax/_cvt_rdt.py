@@ -15,8 +15,19 @@ __all__ = ["RdtReport", "rdt"]
 _SIGNATURES = {
     "voxax_rdt_run": (
         ctypes.c_int,
-        [_host.D, ctypes.c_int64, _host.D, _host.D, ctypes.c_int64, ctypes.c_double,
-         ctypes.c_int32, ctypes.c_int32, ctypes.POINTER(_host.VP), ctypes.c_char_p, ctypes.c_int64],
+        [
+            _host.D,
+            ctypes.c_int64,
+            _host.D,
+            _host.D,
+            ctypes.c_int64,
+            ctypes.c_double,
+            ctypes.c_int32,
+            ctypes.c_int32,
+            ctypes.POINTER(_host.VP),
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
     ),
     "voxax_rdt_size": (ctypes.c_int64, [_host.VP]),
     "voxax_rdt_copy": (None, [_host.VP, _host.I32, _host.I64]),
@@ -84,8 +95,17 @@ def rdt(frag: Fragments, seeds, *, tau: float | None = None, max_hole: int = 8, 
     handle = _host.VP()
     err = _host.error_buffer()
     status = lib.voxax_rdt_run(
-        _host.pointer(s, _host.D), len(s), _host.pointer(x, _host.D), _host.pointer(nrm, _host.D), len(x),
-        float(tau), int(max_hole), _host.threads(threads), ctypes.byref(handle), err, _host.ERRLEN,
+        _host.pointer(s, _host.D),
+        len(s),
+        _host.pointer(x, _host.D),
+        _host.pointer(nrm, _host.D),
+        len(x),
+        float(tau),
+        int(max_hole),
+        _host.threads(threads),
+        ctypes.byref(handle),
+        err,
+        _host.ERRLEN,
     )
     _host.check(status, err)
     try:

@@ -582,8 +582,8 @@ def _remesh_arguments(p) -> None:
                    help="number of seeds, about the number of output vertices (default 20000)")
     p.add_argument("--alpha", type=_positive, default=50.0, metavar="A",
                    help="surface samples per seed (default 50)")
-    p.add_argument("--method", choices=("lloyd", "lbfgs"), default="lloyd", help="the CVT optimiser (default lloyd)")
-    p.add_argument("--steps", type=_at_least(0), default=100, metavar="K", help="optimiser steps (default 100)")
+    p.add_argument("--method", choices=("lbfgs", "lloyd"), default="lbfgs", help="the CVT optimiser (default lbfgs)")
+    p.add_argument("--steps", type=_at_least(0), default=60, metavar="K", help="optimiser steps (default 60)")
     p.add_argument("--output", "-o", default="remeshed.ply", metavar="FILE",
                    help="output mesh file, any format trimesh writes (default remeshed.ply)")
 

@@ -12,7 +12,7 @@ runs it all.
 ```python
 >>> import jax; jax.config.update("jax_enable_x64", True)
 >>> import voxax
->>> mesh, report = voxax.cvt.remesh(voxax.data.icosphere(3), 300, steps=20)
+>>> mesh, report = voxax.cvt.remesh(voxax.data.icosphere(3), 300, method="lloyd", steps=20)
 >>> report["closed"], report["euler_characteristic"]
 (True, 2)
 
@@ -169,8 +169,8 @@ def remesh(
     *,
     grid: Grid | None = None,
     alpha: float = 50.0,
-    method: str = "lloyd",
-    steps: int = 100,
+    method: str = "lbfgs",
+    steps: int = 60,
     orient: bool = True,
     project: bool = True,
     weighted: bool = True,
@@ -193,9 +193,9 @@ def remesh(
       `alpha` fragments per seed; for a mesh the default box is the mesh's bounding box.
       A `(values, level)` source is sampled on its own grid as given.
     - `alpha`: fragments per seed (the paper uses > 50).
-    - `method`, `steps`: the optimiser (`"lloyd"`, or `"lbfgs"`: fewer steps to the same
-      energy, but each costs about three nearest-seed passes against Lloyd's one) and its
-      step budget.
+    - `method`, `steps`: the optimiser (`"lbfgs"`, or `"lloyd"`: cheaper steps, one
+      nearest-seed pass each against about three, but slower convergence) and its step
+      budget.
     - `orient`: require a closed surface (every grid line enters and exits the solid
       alternately) and orient the result outward; `False` meshes open surfaces too
       (triangles still oriented consistently per component, direction unspecified).
@@ -265,9 +265,7 @@ def remesh(
                 frag = fragments(source, grid, inside=inside, threads=threads)
     times["fragments"] = time.perf_counter() - t0
     if frag.size < n_seeds:
-        raise ValueError(
-            f"cvt.remesh: {n_seeds} seeds but only {frag.size} fragments; use fewer seeds or a finer grid"
-        )
+        raise ValueError(f"cvt.remesh: {n_seeds} seeds but only {frag.size} fragments; use fewer seeds or a finer grid")
     if orient:
         bad = _open_lines(frag)
         if bad:
