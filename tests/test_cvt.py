@@ -323,7 +323,7 @@ def test_remesh_hand_is_manifold():
 def test_sphere_4k_seeds():
     from scipy.spatial import ConvexHull
 
-    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(160, half_width=1.1))
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(256, half_width=1.1))  # alpha ~ 64
     res = cvt.optimize(fr, cvt.init_seeds(fr, 4000, key=0), method="lbfgs", steps=100)
     faces, rep = cvt.rdt(fr, res.seeds)
     m = voxax.Mesh(res.seeds, faces)

@@ -10,11 +10,10 @@
 
 #include <cmath>
 #include <cstdint>
-#include <cstring>
-#include <exception>
-#include <new>
+#include <memory>
 #include <string>
 
+#include "common/host_errors.h"
 #include "cvt/rdt.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
@@ -22,15 +21,6 @@
 namespace {
 
 constexpr double kMaxAbs = 1e75;
-
-int fail(char* err, int64_t errlen, const std::string& msg) {
-  if (err && errlen > 0) {
-    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
-    std::memcpy(err, msg.data(), n);
-    err[n] = '\0';
-  }
-  return 1;
-}
 
 bool finite_coords(const double* x, int64_t count, const char* what, std::string* msg) {
   for (int64_t i = 0; i < count; ++i)
@@ -48,35 +38,35 @@ VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, con
                                int64_t np, double tau, int32_t max_hole, int32_t threads,
                                void** handle, char* err, int64_t errlen) {
   *handle = nullptr;
-  try {
-    std::string msg;
-    if (ns < 3) return fail(err, errlen, "voxax: the RDT needs at least 3 seeds");
-    if (ns >= (int64_t{1} << 21))
-      return fail(err, errlen, "voxax: the RDT takes fewer than 2^21 seeds");
-    if (np < 1) return fail(err, errlen, "voxax: the RDT needs fragments (empty surface)");
-    if (!(tau >= 0.0) || !std::isfinite(tau))
-      return fail(err, errlen, "voxax: the RDT tolerance must be finite and >= 0");
-    if (max_hole < 3 || max_hole > 64)
-      return fail(err, errlen, "voxax: max_hole must lie in [3, 64]");
-    if (!finite_coords(S, 3 * ns, "seeds", &msg)) return fail(err, errlen, msg);
-    if (!finite_coords(X, 3 * np, "fragments", &msg)) return fail(err, errlen, msg);
-    if (!finite_coords(N, 3 * np, "normals", &msg)) return fail(err, errlen, msg);
-    auto* rdt = new voxax::cvt::Rdt();
-    try {
-      rdt->run(S, ns, X, N, np, tau, max_hole, threads);
-    } catch (...) {
-      delete rdt;
-      throw;
+  return voxax::host_guarded("the RDT", err, errlen, [&](std::string* msg) {
+    if (ns < 3) {
+      *msg = "voxax: the RDT needs at least 3 seeds";
+      return false;
     }
-    *handle = rdt;
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return fail(err, errlen, "voxax: out of memory in the RDT");
-  } catch (const std::exception& e) {
-    return fail(err, errlen, std::string("voxax: RDT error: ") + e.what());
-  } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in the RDT");
-  }
+    if (ns >= (int64_t{1} << 21)) {
+      *msg = "voxax: the RDT takes fewer than 2^21 seeds";
+      return false;
+    }
+    if (np < 1) {
+      *msg = "voxax: the RDT needs fragments (empty surface)";
+      return false;
+    }
+    if (!(tau >= 0.0) || !std::isfinite(tau)) {
+      *msg = "voxax: the RDT tolerance must be finite and >= 0";
+      return false;
+    }
+    if (max_hole < 3 || max_hole > 64) {
+      *msg = "voxax: max_hole must lie in [3, 64]";
+      return false;
+    }
+    if (!finite_coords(S, 3 * ns, "seeds", msg)) return false;
+    if (!finite_coords(X, 3 * np, "fragments", msg)) return false;
+    if (!finite_coords(N, 3 * np, "normals", msg)) return false;
+    auto rdt = std::make_unique<voxax::cvt::Rdt>();
+    rdt->run(S, ns, X, N, np, tau, max_hole, threads);
+    *handle = rdt.release();
+    return true;
+  });
 }
 
 VOXAX_EXPORT int64_t voxax_rdt_size(void* handle) {
