@@ -110,19 +110,48 @@ def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
     return new, count
 
 
-def _lloyd_with_energy(seeds, frag: Fragments, weighted: bool):
-    """A Lloyd step that also returns the energy of the seeds it starts from (one search)."""
+def _lloyd_arrays(s, x, w):
+    """A Lloyd step on plain arrays (fragments passed as arguments, not as constants, so
+    one compilation serves every call of the same shapes); also returns the energy of the
+    seeds it starts from (one nearest-seed search)."""
     import jax
     import jax.numpy as jnp
 
-    s, idx, mass, first = _moments(seeds, frag, weighted)
-    w = jnp.asarray(_w(frag, weighted))
-    x = jnp.asarray(frag.points)
+    from ._spatial import nearest_neighbors
+
+    n = s.shape[0]
+    idx = nearest_neighbors(s, x, k=1)[1][:, 0]
+    mass = jax.ops.segment_sum(w, idx, num_segments=n)
+    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
     d = x - s[idx]
     e = jnp.sum(w * jnp.sum(d * d, axis=-1))
     new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
-    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=s.shape[0])
+    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=n)
     return new, count, e
+
+
+def _energy_arrays(s, args):
+    """`scale * sum_j w_j |x_j - s_a(j)|^2` with `args = (x, w, scale)` (traced arrays)."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._spatial import nearest_neighbors
+
+    x, w, scale = args
+    idx = nearest_neighbors(jax.lax.stop_gradient(s), x, k=1)[1][:, 0]
+    d = x - s[idx]
+    return scale * jnp.sum(w * jnp.sum(d * d, axis=-1))
+
+
+_JITTED: dict = {}
+
+
+def _jitted(name: str, fn):
+    import jax
+
+    if name not in _JITTED:
+        _JITTED[name] = jax.jit(fn)
+    return _JITTED[name]
 
 
 def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
@@ -216,13 +245,16 @@ def optimize(
     if steps < 0:
         raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")
     if method == "lloyd":
-        step = jax.jit(lambda y: _lloyd_with_energy(y, frag, weighted))
-        en = jax.jit(lambda y: energy(y, frag, weighted=weighted))
+        step = _jitted("lloyd", _lloyd_arrays)
+        en = _jitted("energy", _energy_arrays)
+        x = jnp.asarray(frag.points)
+        w = jnp.asarray(_w(frag, weighted))
+        one = jnp.asarray(1.0)
         hist = []
         moved = 0
         taken = 0
         for _ in range(steps):
-            new, count, e = step(s)
+            new, count, e = step(jnp.asarray(s), x, w)
             hist.append(float(e))
             if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
                 hist.pop()
@@ -231,20 +263,19 @@ def optimize(
             moved += m
             s = new
             taken += 1
-        hist.append(float(en(s)))
+        hist.append(float(en(jnp.asarray(s), (x, w, one))))
         return CVTResult(s, np.array(hist), taken, moved, "lloyd")
     if method == "lbfgs":
         from ._minimize import StopRules, minimize
 
-        scale = 1.0 / float(np.sum(_w(frag, weighted)))
-
-        def fn(y, args):
-            return scale * energy(y, frag, weighted=weighted)
-
-        e0 = float(fn(jnp.asarray(s), None)) / scale
+        w = _w(frag, weighted)
+        args = (jnp.asarray(frag.points), jnp.asarray(w), jnp.asarray(1.0 / float(np.sum(w))))
+        scale = float(args[2])
+        e0 = float(_jitted("energy", _energy_arrays)(jnp.asarray(s), args)) / scale
         res = minimize(
-            fn,
+            _energy_arrays,
             jnp.asarray(s),
+            args,
             solver="lbfgs",
             stop=StopRules(max_steps=steps),
             progress=False,
