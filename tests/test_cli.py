@@ -150,7 +150,8 @@ def _subparsers(parser):
 def test_every_option_of_every_command_has_help():
     parser = cli.build_parser()
     subparsers = _subparsers(parser)
-    assert list(subparsers) == [c.name for c in cli.COMMANDS] == ["demo", "voxelize", "resolve", "bandsaw", "tile", "mesh", "fc"]
+    assert list(subparsers) == [c.name for c in cli.COMMANDS] == ["demo", "voxelize", "resolve", "bandsaw", "tile", "mesh", "fc",
+                                                                  "remesh"]
     for name, sub in {"voxax": parser, **subparsers}.items():
         for action in sub._actions:
             assert action.help and action.help.strip(), (name, action.dest)

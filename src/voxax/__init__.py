@@ -37,6 +37,7 @@ from ._mesh import Mesh
 from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
+from . import cvt
 from ._filters import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._winding import winding_number
 from ._minimize import MinimizeResult, StopReason, StopRules, minimize

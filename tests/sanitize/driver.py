@@ -811,6 +811,69 @@ def run_spatial(rng, n_inputs):
         else:
             fail(f"spatial '{name}': no error raised")
         COUNTS["spatial_invalid"] += 1
+def run_rdt(rng, n_inputs):
+    """Restricted Delaunay extraction on random, duplicated, coplanar and clustered seeds:
+    valid indices, every directed edge used once, thread-count determinism, hostile inputs."""
+    from voxax import cvt
+
+    g = voxax.Grid.cube(4)
+    for i in range(n_inputs):
+        kind = ("random", "duplicates", "coplanar", "cluster", "sphere")[i % 5]
+        ns, n_frag = int(rng.integers(3, 60)), int(rng.integers(1, 400))
+        s = rng.uniform(-1, 1, (ns, 3))
+        if kind == "duplicates":
+            s[1::2] = s[0]
+        elif kind == "coplanar":
+            s[:, 2] = 0.0
+        elif kind == "cluster":
+            s = s * 1e-9
+        elif kind == "sphere":
+            s /= np.linalg.norm(s, axis=1, keepdims=True)
+        x = rng.uniform(-1, 1, (n_frag, 3))
+        n = rng.normal(size=(n_frag, 3))
+        frag = cvt.Fragments(x, n, np.ones(n_frag), np.zeros(n_frag, np.int8), np.zeros(n_frag, np.int64),
+                             np.ones(n_frag, np.int8), g)
+        label = f"rdt/{kind}/{i}"
+        try:
+            f1, _ = cvt.rdt(frag, s, tau=float(rng.uniform(0, 3)), threads=1)
+            f2, _ = cvt.rdt(frag, s, tau=1.0, threads=3)
+            f3, _ = cvt.rdt(frag, s, tau=1.0, threads=1)
+            CALLS["rdt"] += 3
+        except Exception:  # noqa: BLE001
+            fail(f"{label}: raised\n" + traceback.format_exc())
+            continue
+        if f2.tobytes() != f3.tobytes():
+            fail(f"{label}: results depend on the thread count")
+        for f in (f1, f2):
+            if len(f) and (f.min() < 0 or f.max() >= ns):
+                fail(f"{label}: face index out of range")
+            d = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+            if len(np.unique(d, axis=0)) != len(d):
+                fail(f"{label}: a directed edge is used twice")
+        COUNTS["rdt"] += 1
+    s = rng.uniform(-1, 1, (10, 3))
+    x = rng.uniform(-1, 1, (20, 3))
+    frag = cvt.Fragments(x, x, np.ones(20), np.zeros(20, np.int8), np.zeros(20, np.int64), np.ones(20, np.int8), g)
+    bad = {
+        "two seeds": (lambda: cvt.rdt(frag, s[:2]), "3 seeds"),
+        "NaN seed": (lambda: cvt.rdt(frag, np.where(np.arange(30).reshape(10, 3) == 4, np.nan, s)), "finite"),
+        "huge seed": (lambda: cvt.rdt(frag, s * 1e80), "1e75"),
+        "negative tau": (lambda: cvt.rdt(frag, s, tau=-1.0), "tolerance"),
+        "no fragments": (lambda: cvt.rdt(frag._replace(points=np.zeros((0, 3)), normals=np.zeros((0, 3))), s), "fragments"),
+        "max_hole": (lambda: cvt.rdt(frag, s, max_hole=100), "max_hole"),
+    }
+    for name, (call, match) in bad.items():
+        try:
+            call()
+        except (ValueError, TypeError) as err:
+            if not re.search(match, str(err)):
+                fail(f"rdt '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"rdt '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"rdt '{name}': no error raised")
+
+
 def run_line_crossings(rng, n_inputs):
     """Exact line crossings (dexels) on adversarial soups and closed meshes snapped onto
     the grid lines: structural checks, thread-count determinism, and hostile inputs."""
@@ -1306,6 +1369,7 @@ def main(argv=None):
         run_spatial(rng, args.spatial_inputs)
         run_line_crossings(rng, max(40, args.spatial_inputs // 2))
         run_fc(rng, max(28, args.spatial_inputs // 4))
+        run_rdt(rng, max(20, args.spatial_inputs // 4))
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
         run_intersections(rng)

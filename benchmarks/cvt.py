@@ -1,0 +1,200 @@
+"""CVT meshing benchmark: the Chebyshev octic with 20k seeds (about 1M fragments).
+
+Measures the nearest-seed pass and a Lloyd step at 20k seeds / ~1M fragments, the end-to-end
+`voxax.cvt.remesh` (topology, triangle quality, Hausdorff distance to a fine marching-cubes
+reference, time), marching cubes at the same vertex count, marching cubes followed by
+pymeshlab's isotropic remeshing, and the time ratio t(40k) / t(20k).
+
+    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--method lbfgs|lloyd] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import voxax  # noqa: E402
+from voxax import cvt, fields, metrics  # noqa: E402
+
+HALF = 1.05  # the octic lies in [-1.0136, 1.0136]^3: leave a margin of cells
+
+
+def octic(p):
+    return fields.chebyshev(p, 8)
+
+
+def best_of(fn, repeat=3):
+    best = np.inf
+    out = None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def mc_mesh(n_cells: int):
+    g = voxax.Grid.cube(n_cells, half_width=HALF)
+    w = np.asarray(octic(g.centers().reshape(-1, 3))).reshape(g.shape)
+    t = time.perf_counter()
+    iso = voxax.isosurface(w, g, 0.0)
+    dt = time.perf_counter() - t
+    return voxax.Mesh(np.asarray(iso.vertices), np.asarray(iso.faces)), dt
+
+
+def summary(m, ref, diag):
+    q = metrics.triangle_quality(m)
+    mr = metrics.manifold_report(m)
+    return {
+        "vertices": len(m.vertices),
+        "faces": len(m.faces),
+        "chi": int(mr.euler_characteristic),
+        "manifold": bool(mr.edge_manifold and mr.vertex_manifold and mr.closed),
+        "q_min": float(q.min()),
+        "q_mean": float(q.mean()),
+        "hausdorff_pct": 100.0 * metrics.hausdorff(m, ref, n=200_000) / diag,
+    }
+
+
+def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
+    """Random 3-primitive scenes (spheres and boxes; union, intersection, difference) meshed
+    at `seeds` seeds: closed 2-manifold?, volume against manifold3d's exact boolean, and
+    Hausdorff distance against manifold3d's mesh in units of the CVT mesh's mean edge."""
+    import manifold3d
+
+    rng = np.random.default_rng(rng_seed)
+    rows = []
+    for i in range(count):
+        prims = []
+        for _ in range(3):
+            c = tuple(rng.uniform(-0.35, 0.35, 3))
+            if rng.random() < 0.5:
+                r = float(rng.uniform(0.3, 0.55))
+                prims.append(
+                    (lambda p, r=r, c=c: fields.sphere(p, r, c), manifold3d.Manifold.sphere(r, 256).translate(c))
+                )
+            else:
+                h = tuple(rng.uniform(0.2, 0.45, 3))
+                prims.append(
+                    (
+                        lambda p, h=h, c=c: fields.box(p, h, c),
+                        manifold3d.Manifold.cube(tuple(2 * x for x in h), center=True).translate(c),
+                    )
+                )
+        ops = [str(rng.choice(["union", "intersection", "difference"])) for _ in range(2)]
+        expr, solid = prims[0]
+        for op, (f, m) in zip(ops, prims[1:]):
+            expr = cvt.CSG(op, expr, f)
+            solid = {"union": solid + m, "intersection": solid ^ m, "difference": solid - m}[op]
+        if solid.volume() < 0.02:
+            continue  # (nearly) empty scene
+        try:
+            mesh, rep = cvt.remesh(expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40)
+        except ValueError as err:
+            rows.append({"scene": i, "ops": ops, "error": str(err)})
+            continue
+        v, f = mesh.vertices, mesh.faces
+        vol = float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6)
+        ref = solid.to_mesh()
+        refm = voxax.Mesh(np.asarray(ref.vert_properties)[:, :3], np.asarray(ref.tri_verts))
+        edge = float(np.mean(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
+        rows.append(
+            {
+                "scene": i,
+                "ops": ops,
+                "manifold": bool(rep["closed"] and rep["manifold"]),
+                "rounds": rep["rounds"],
+                "volume_err": vol / solid.volume() - 1,
+                "hausdorff_edges": metrics.hausdorff(mesh, refm, n=50_000) / edge,
+                "q_min": rep["quality_min"],
+                "time_s": rep["time"]["total"],
+            }
+        )
+    ok = [r for r in rows if "error" not in r]
+    return {
+        "scenes": len(rows),
+        "manifold": sum(r["manifold"] for r in ok),
+        "volume_within_2pct": sum(abs(r["volume_err"]) <= 0.02 for r in ok),
+        "hausdorff_within_1.5_edges": sum(r["hausdorff_edges"] <= 1.5 for r in ok),
+        "errors": [r for r in rows if "error" in r],
+        "worst_volume_err": max((abs(r["volume_err"]) for r in ok), default=None),
+        "worst_hausdorff_edges": max((r["hausdorff_edges"] for r in ok), default=None),
+        "rows": rows,
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=20000)
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--method", default="lbfgs")
+    ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
+    ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
+    args = ap.parse_args()
+    if args.csg:
+        print(json.dumps(csg_scenes(args.csg, 2000), indent=1, default=str))
+        return
+    n = args.seeds
+    diag = 2 * HALF * np.sqrt(3)
+    out = {"seeds": n, "cores": jax.device_count("cpu"), "threads": "all"}
+    ref, _ = mc_mesh(300)  # fine reference surface
+    out["reference_vertices"] = len(ref.vertices)
+
+    # fragments, nearest-seed pass, Lloyd step at n seeds
+    t = time.perf_counter()
+    mesh, rep = cvt.remesh(octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps)
+    out["remesh_s"] = time.perf_counter() - t
+    out["remesh_times"] = rep["time"]
+    out["fragments"] = rep["n_fragments"]
+    out["alpha"] = rep["alpha"]
+    out["optimizer_steps"] = rep["steps"]
+    out["rdt"] = rep["rdt"]._asdict()
+    out["cvt"] = summary(mesh, ref, diag)
+    frag = cvt.fragments(octic, rep["grid"])
+    seeds = cvt.init_seeds(frag, n, 0)
+    out["nearest_seed_s"], _ = best_of(lambda: voxax.nearest_neighbors(seeds, frag.points, k=1))
+    step = jax.jit(lambda y: cvt.lloyd_step(y, frag))
+    jax.block_until_ready(step(seeds))
+    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(step(seeds)))
+
+    # marching cubes at about the same vertex count
+    best = None
+    for cells in range(36, 60, 2):
+        m, dt = mc_mesh(cells)
+        if best is None or abs(len(m.vertices) - len(mesh.vertices)) < abs(len(best[0].vertices) - len(mesh.vertices)):
+            best = (m, dt, cells)
+    mc, mc_t, cells = best
+    out["mc"] = {"cells": cells, "time_s": mc_t, **summary(mc, ref, diag)}
+    out["cvt_vs_mc_qmin"] = out["cvt"]["q_min"] / max(out["mc"]["q_min"], 1e-12)
+
+    if not args.quick:
+        import pymeshlab
+
+        fine, _ = mc_mesh(120)
+        t = time.perf_counter()
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(fine.vertices, fine.faces))
+        edge = float(np.mean(np.linalg.norm(mesh.vertices[mesh.faces[:, 0]] - mesh.vertices[mesh.faces[:, 1]], axis=1)))
+        ms.meshing_isotropic_explicit_remeshing(targetlen=pymeshlab.PureValue(edge), iterations=10)
+        pm = ms.current_mesh()
+        rm = voxax.Mesh(pm.vertex_matrix(), pm.face_matrix())
+        out["mc_pymeshlab"] = {"time_s": time.perf_counter() - t, "mc_cells": 120, **summary(rm, ref, diag)}
+
+        t = time.perf_counter()
+        m2, rep2 = cvt.remesh(
+            octic, 2 * n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps
+        )
+        out["remesh_2x_s"] = time.perf_counter() - t
+        out["t2x_over_t"] = out["remesh_2x_s"] / out["remesh_s"]
+        out["cvt_2x"] = {"fragments": rep2["n_fragments"], **summary(m2, ref, diag)}
+    print(json.dumps(out, indent=1, default=str))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,290 @@
+"""The discrete restricted centroidal Voronoi tessellation of fragments: energy, Lloyd, L-BFGS.
+
+Each fragment `x_j` (weight `w_j`) belongs to the region of its nearest seed `s_a(j)`; the
+energy is `F(S) = sum_j w_j |x_j - s_a(j)|^2` and, the assignment being piecewise constant
+(and the energy continuous across its switches), its gradient is
+`dF/ds_i = 2 (W_i s_i - sum_{j in region i} w_j x_j)` with `W_i` the region's weight
+(Eq. 2 with weights). Lloyd's step moves every seed to its region's weighted centroid.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from ._cvt_fragments import Fragments
+
+__all__ = ["CVTResult", "assign", "energy", "energy_gradient", "init_seeds", "lloyd_step", "optimize"]
+
+
+def _frag(frag) -> Fragments:
+    if not isinstance(frag, Fragments):
+        raise TypeError(f"cvt: expected Fragments (from voxax.cvt.fragments), got {type(frag).__name__}")
+    if frag.size == 0:
+        raise ValueError("cvt: there are no fragments (empty surface)")
+    return frag
+
+
+def _seeds(seeds, where: str):
+    import jax.numpy as jnp
+
+    s = jnp.asarray(seeds)
+    if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 1:
+        raise ValueError(f"{where}: seeds must have shape (n, 3) with n >= 1, got {s.shape}")
+    if not jnp.issubdtype(s.dtype, jnp.floating):
+        s = s.astype(jnp.float64)
+    return s
+
+
+def _w(frag: Fragments, weighted: bool):
+    return frag.weights if weighted else np.ones(frag.size)
+
+
+def assign(seeds, frag: Fragments):
+    """The index of each fragment's nearest seed (ties: the smaller index), `(P,)` int32.
+
+    Exact (uniform-grid k-nearest-neighbour search); under `jax.jit` it runs as an FFI
+    kernel (float64: needs `jax_enable_x64`).
+    """
+    from ._spatial import nearest_neighbors
+
+    frag = _frag(frag)
+    _, idx = nearest_neighbors(seeds, frag.points, k=1)
+    return idx[:, 0]
+
+
+def energy(seeds, frag: Fragments, *, weighted: bool = True):
+    """The CVT energy `sum_j w_j |x_j - s_a(j)|^2` of `seeds (n, 3)` over the fragments.
+
+    Pure JAX (the assignment is a constant of the autodiff), so `jax.grad(energy)` is
+    Eq. 2, `2 (W_i s_i - sum_j w_j x_j)`; works under `jit`. `weighted=False` gives every
+    fragment weight 1 (the paper's energy).
+
+    **Returns:** scalar float64.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    s = _seeds(seeds, "cvt.energy")
+    idx = assign(jax.lax.stop_gradient(s), frag)
+    x = jnp.asarray(frag.points)
+    w = jnp.asarray(_w(frag, weighted))
+    d = x - s[idx]
+    return jnp.sum(w * jnp.sum(d * d, axis=-1))
+
+
+def _moments(seeds, frag: Fragments, weighted: bool):
+    import jax
+    import jax.numpy as jnp
+
+    s = _seeds(seeds, "cvt")
+    idx = assign(jax.lax.stop_gradient(s), frag)
+    w = jnp.asarray(_w(frag, weighted))
+    x = jnp.asarray(frag.points)
+    n = s.shape[0]
+    mass = jax.ops.segment_sum(w, idx, num_segments=n)
+    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+    return s, idx, mass, first
+
+
+def energy_gradient(seeds, frag: Fragments, *, weighted: bool = True):
+    """Eq. 2 in closed form: `2 (W_i s_i - sum_{j in region i} w_j x_j)`, `(n, 3)`."""
+    frag = _frag(frag)
+    s, _, mass, first = _moments(seeds, frag, weighted)
+    return 2.0 * (mass[:, None] * s - first)
+
+
+def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
+    """One Lloyd step: every seed moves to its region's (weighted) centroid; seeds with an
+    empty region stay. **Returns:** `(seeds (n, 3), region sizes (n,) int)`."""
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    s, idx, mass, first = _moments(seeds, frag, weighted)
+    new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
+    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=s.shape[0])
+    return new, count
+
+
+def _lloyd_arrays(s, x, w):
+    """A Lloyd step on plain arrays (fragments passed as arguments, not as constants, so
+    one compilation serves every call of the same shapes); also returns the energy of the
+    seeds it starts from (one nearest-seed search)."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._spatial import nearest_neighbors
+
+    n = s.shape[0]
+    idx = nearest_neighbors(s, x, k=1)[1][:, 0]
+    mass = jax.ops.segment_sum(w, idx, num_segments=n)
+    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+    d = x - s[idx]
+    e = jnp.sum(w * jnp.sum(d * d, axis=-1))
+    new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
+    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=n)
+    return new, count, e
+
+
+def _energy_arrays(s, args):
+    """`scale * sum_j w_j |x_j - s_a(j)|^2` with `args = (x, w, scale)` (traced arrays)."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._spatial import nearest_neighbors
+
+    x, w, scale = args
+    idx = nearest_neighbors(jax.lax.stop_gradient(s), x, k=1)[1][:, 0]
+    d = x - s[idx]
+    return scale * jnp.sum(w * jnp.sum(d * d, axis=-1))
+
+
+_JITTED: dict = {}
+
+
+def _jitted(name: str, fn):
+    import jax
+
+    if name not in _JITTED:
+        _JITTED[name] = jax.jit(fn)
+    return _JITTED[name]
+
+
+def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
+    """`n` seeds drawn at distinct fragments with probability proportional to their weight
+    (so uniformly by area). `key`: an int seed or a `jax.random` key. **Returns:** `(n, 3)`."""
+    frag = _frag(frag)
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"cvt.init_seeds: n must be >= 1, got {n}")
+    if n > frag.size:
+        raise ValueError(f"cvt.init_seeds: {n} seeds but only {frag.size} fragments; use a finer grid or fewer seeds")
+    rng = np.random.default_rng(_int_key(key))
+    p = frag.weights / frag.weights.sum()
+    pick = rng.choice(frag.size, size=n, replace=False, p=p)
+    return frag.points[np.sort(pick)].copy()
+
+
+def _int_key(key) -> int:
+    if isinstance(key, (int, np.integer)):
+        return int(key)
+    k = np.asarray(key)
+    if k.dtype.kind == "V" or str(k.dtype).startswith("key"):
+        import jax
+
+        k = np.asarray(jax.random.key_data(key))
+    return int(np.sum(k.astype(np.uint64)) % (2**63))
+
+
+def respawn(seeds, frag: Fragments, count) -> tuple[np.ndarray, int]:
+    """Moves the seeds with empty regions onto the fragments farthest from their own seed
+    (largest first, ties by index): deterministic. **Returns:** `(seeds, moved)`."""
+    s = np.array(seeds, np.float64)
+    empty = np.nonzero(np.asarray(count) == 0)[0]
+    if len(empty) == 0:
+        return s, 0
+    idx = np.asarray(assign(s, frag))
+    d = np.sum((frag.points - s[idx]) ** 2, axis=1)
+    far = np.lexsort((np.arange(len(d)), -d))[: len(empty)]
+    s[empty[: len(far)]] = frag.points[far]
+    return s, len(empty)
+
+
+@dataclasses.dataclass(frozen=True)
+class CVTResult:
+    """What [`optimize`][voxax.cvt.optimize] returns.
+
+    - `seeds`: `(n, 3)` float64, the optimised seeds.
+    - `energy`: `(steps + 1,)` float64, the energy before the first step and after each.
+    - `steps`: int, steps taken.
+    - `respawned`: int, seeds moved out of empty regions.
+    - `method`: `"lloyd"` or `"lbfgs"`.
+    """
+
+    seeds: np.ndarray
+    energy: np.ndarray
+    steps: int
+    respawned: int
+    method: str
+    info: Any = None
+
+
+def optimize(
+    frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, weighted: bool = True, tol: float = 0.0
+) -> CVTResult:
+    """Optimises the seeds towards a restricted CVT of the fragments.
+
+    **Arguments:**
+
+    - `frag`: [`Fragments`][voxax.cvt.Fragments].
+    - `seeds`: `(n, 3)` float initial seeds (e.g. [`init_seeds`][voxax.cvt.init_seeds]).
+    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step) or
+      `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy] through
+      [`voxax.minimize`][voxax.minimize]; empty regions are respawned at the end, followed by
+      a Lloyd step).
+    - `steps`: maximum number of steps.
+    - `weighted`: use the fragment weights (uniform density by area).
+    - `tol`: stop when the relative energy decrease of a step is below this.
+
+    **Returns:** [`CVTResult`][voxax.cvt.CVTResult].
+    """
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    if not jax.config.jax_enable_x64:
+        raise ValueError("cvt.optimize computes in float64: enable jax_enable_x64")
+    s = np.array(_seeds(seeds, "cvt.optimize"), np.float64)
+    if len(s) > frag.size:
+        raise ValueError(f"cvt.optimize: {len(s)} seeds but only {frag.size} fragments")
+    steps = int(steps)
+    if steps < 0:
+        raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")
+    if method == "lloyd":
+        step = _jitted("lloyd", _lloyd_arrays)
+        en = _jitted("energy", _energy_arrays)
+        x = jnp.asarray(frag.points)
+        w = jnp.asarray(_w(frag, weighted))
+        one = jnp.asarray(1.0)
+        hist = []
+        moved = 0
+        taken = 0
+        for _ in range(steps):
+            new, count, e = step(jnp.asarray(s), x, w)
+            hist.append(float(e))
+            if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
+                hist.pop()
+                break
+            new, m = respawn(np.asarray(new), frag, count)
+            moved += m
+            s = new
+            taken += 1
+        hist.append(float(en(jnp.asarray(s), (x, w, one))))
+        return CVTResult(s, np.array(hist), taken, moved, "lloyd")
+    if method == "lbfgs":
+        from ._minimize import StopRules, minimize
+
+        w = _w(frag, weighted)
+        args = (jnp.asarray(frag.points), jnp.asarray(w), jnp.asarray(1.0 / float(np.sum(w))))
+        scale = float(args[2])
+        e0 = float(_jitted("energy", _energy_arrays)(jnp.asarray(s), args)) / scale
+        res = minimize(
+            _energy_arrays,
+            jnp.asarray(s),
+            args,
+            solver="lbfgs",
+            stop=StopRules(max_steps=steps),
+            progress=False,
+            rtol=max(tol, 1e-12),
+            atol=0.0,
+        )
+        y = np.asarray(res.y, np.float64)
+        _, count = lloyd_step(y, frag, weighted=weighted)
+        y, moved = respawn(y, frag, count)
+        hist = np.concatenate([[e0], np.asarray(res.history["energy"]) / scale])
+        return CVTResult(y, hist, int(res.steps), moved, "lbfgs", info=res.stop_reason)
+    raise ValueError(f'cvt.optimize: method must be "lloyd" or "lbfgs", got {method!r}')
