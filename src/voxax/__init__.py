@@ -98,6 +98,7 @@ __all__ = [
     "fields",
     "metrics",
     "raster",
+    "cvt",
     "fc",
     "export_safety_checks",
     "least_squares",
