@@ -53,7 +53,7 @@ from ._spatial import (
     nearest_neighbors,
 )
 from . import fields, metrics
-from . import esi
+from . import esi, nesi
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
 from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
@@ -97,6 +97,7 @@ __all__ = [
     "fields",
     "metrics",
     "esi",
+    "nesi",
     "export_safety_checks",
     "least_squares",
     "voxelize_sharded",

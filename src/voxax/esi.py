@@ -42,6 +42,9 @@ __all__ = [
     "depth_map",
     "energy",
     "fibonacci_sphere",
+    "frame_for",
+    "height_field_solid",
+    "intersect_solids",
     "occupancy",
     "select",
     "to_mesh",
@@ -901,17 +904,28 @@ def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -
     c, rad = bounding_sphere(mesh)
     bvh = BVH(mesh)
     normals = _face_normals(mesh)
-    out = None
     maps = {}
+    solids = []
     for d in [d0, -d0, *hfa]:
-        lk, s = _canonical(d)
+        lk, sg = _canonical(d)
         if lk not in maps:
             maps[lk] = _depth_map(bvh, frame_for(np.asarray(lk), c, rad, res), normals, threads)
         dm = maps[lk]
         if not dm.mask.any():
             raise ValueError(f"{where}: the depth map along {d.tolist()} is empty; raise the resolution")
-        solid = _to_manifold(height_field_solid(dm, s)[0])
+        solids.append(height_field_solid(dm, sg)[0])
+    return intersect_solids(solids)
+
+
+def intersect_solids(solids) -> Mesh:
+    """The manifold3d intersection of closed, outward meshes (e.g. height-field solids
+    from [`height_field_solid`][voxax.esi.height_field_solid]), as a float64 `Mesh`."""
+    out = None
+    for m in solids:
+        solid = _to_manifold(m)
         out = solid if out is None else out ^ solid
+    if out is None:
+        raise ValueError("intersect_solids needs at least one solid")
     mg = out.to_mesh64()
     v = np.asarray(mg.vert_properties, dtype=np.float64)[:, :3]
     f = np.asarray(mg.tri_verts, dtype=np.int64)
