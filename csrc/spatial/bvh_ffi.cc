@@ -65,22 +65,11 @@ ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S
   return ffi::Error::Success();
 }
 
-template <typename Body>
-ffi::Error guarded(Body&& body) {
-  try {
-    return body();
-  } catch (const std::bad_alloc&) {
-    return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the BVH");
-  } catch (...) {
-    return ffi::Error(ffi::ErrorCode::kInternal, "voxax: unexpected error in the BVH");
-  }
-}
-
 ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
                          ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::F64> points,
                          ffi::ResultBuffer<ffi::F64> dist, ffi::ResultBuffer<ffi::S32> face,
                          ffi::ResultBuffer<ffi::F64> bary, ffi::ResultBuffer<ffi::F64> point) {
-  return guarded([&]() -> ffi::Error {
+  return guarded("the BVH", [&]() -> ffi::Error {
     int64_t n = 0;
     ffi::Error err = check_rows3(points, "points", &n);
     if (err.failure()) return err;
@@ -120,7 +109,7 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
                      ffi::Buffer<ffi::F64> directions, ffi::ResultBuffer<ffi::F64> t,
                      ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
                      ffi::ResultBuffer<ffi::S32> sign, double t_min, double t_max) {
-  return guarded([&]() -> ffi::Error {
+  return guarded("the BVH", [&]() -> ffi::Error {
     int64_t n = 0, nd = 0;
     ffi::Error err = check_rows3(origins, "ray origins", &n);
     if (err.failure()) return err;

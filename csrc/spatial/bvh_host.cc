@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "common/host_errors.h"
 #include "spatial/bvh.h"
 #include "spatial/host_pool.h"
 
@@ -33,15 +34,6 @@ using voxax::spatial::RayHit;
 
 constexpr double kMaxAbs = 1e75;  // the package's coordinate bound
 constexpr int64_t kChunk = 256;   // queries per task: fixed, so results do not depend on threads
-
-int fail(char* err, int64_t errlen, const std::string& msg) {
-  if (err && errlen > 0) {
-    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
-    std::memcpy(err, msg.data(), n);
-    err[n] = '\0';
-  }
-  return 1;
-}
 
 bool check_coords(const double* x, int64_t count, const char* what, std::string* msg) {
   for (int64_t i = 0; i < count; ++i) {
@@ -101,21 +93,6 @@ struct Hits {
   std::vector<RayHit> hits;
 };
 
-template <typename Body>
-int guarded(char* err, int64_t errlen, Body&& body) {
-  try {
-    std::string msg;
-    if (!body(&msg)) return fail(err, errlen, msg);
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return fail(err, errlen, "voxax: out of memory in the BVH");
-  } catch (const std::exception& e) {
-    return fail(err, errlen, std::string("voxax: BVH error: ") + e.what());
-  } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in the BVH");
-  }
-}
-
 bool check_rays(const double* O, const double* D, int64_t n, double tmin, double tmax,
                 std::string* msg) {
   if (!check_coords(O, 3 * n, "ray origins", msg)) return false;
@@ -139,7 +116,7 @@ bool check_rays(const double* O, const double* D, int64_t n, double tmin, double
 VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, int64_t nf,
                                  void** handle, char* err, int64_t errlen) {
   *handle = nullptr;
-  return guarded(err, errlen, [&](std::string* msg) {
+  return voxax::host_guarded("the BVH", err, errlen, [&](std::string* msg) {
     if (nv < 0 || nf < 0 || nf > INT32_MAX / 2) {
       *msg = "voxax: the BVH takes at most 2^30 faces";
       return false;
@@ -175,7 +152,7 @@ VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
 VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int32_t threads,
                                    double* dist, int32_t* face, double* bary, double* point,
                                    char* err, int64_t errlen) {
-  return guarded(err, errlen, [&](std::string* msg) {
+  return voxax::host_guarded("the BVH", err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
       *msg = "voxax: the BVH has been freed";
@@ -205,7 +182,7 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
                                      double tmin, double tmax, int32_t any, int32_t threads,
                                      double* t, int32_t* face, double* bary, int8_t* sign,
                                      char* err, int64_t errlen) {
-  return guarded(err, errlen, [&](std::string* msg) {
+  return voxax::host_guarded("the BVH", err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
       *msg = "voxax: the BVH has been freed";
@@ -239,7 +216,7 @@ VOXAX_EXPORT int voxax_bvh_all_hits(void* handle, const double* O, const double*
                                     double tmin, double tmax, int32_t threads, int64_t* counts,
                                     void** out, char* err, int64_t errlen) {
   *out = nullptr;
-  return guarded(err, errlen, [&](std::string* msg) {
+  return voxax::host_guarded("the BVH", err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
       *msg = "voxax: the BVH has been freed";

@@ -13,6 +13,7 @@
 #include "common/constants.h"
 #include "common/errors.h"
 #include "common/grid.h"
+#include "common/host_errors.h"
 #include "common/parallel.h"
 #include "common/validate.h"
 #include "spatial/host_pool.h"
@@ -35,7 +36,7 @@ bool finite_rows(const double* x, int64_t count, const char* what, std::string* 
 
 ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<ffi::F64> queries,
                ffi::ResultBuffer<ffi::S32> idx, ffi::ResultBuffer<ffi::F64> dist) {
-  try {
+  return guarded("the kNN kernel", [&]() -> ffi::Error {
     auto pd = points.dimensions(), qd = queries.dimensions(), od = idx->dimensions();
     if (pd.size() != 2 || pd[1] != 3)
       return ffi::Error::InvalidArgument("voxax: points must have shape (N, 3)");
@@ -64,11 +65,7 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
         grid.query(Q + 3 * i, static_cast<int>(k), I + k * i, D + k * i);
     });
     return ffi::Error::Success();
-  } catch (const std::bad_alloc&) {
-    return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax: out of memory in the kNN kernel");
-  } catch (...) {
-    return ffi::Error(ffi::ErrorCode::kInternal, "voxax: unexpected error in the kNN kernel");
-  }
+  });
 }
 
 }  // namespace
@@ -79,21 +76,18 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
                                                                      int32_t k, int32_t threads,
                                                                      int32_t* idx, double* dist,
                                                                      char* err, int64_t errlen) {
-  auto fail = [&](const std::string& msg) {
-    if (err && errlen > 0) {
-      const size_t len = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
-      std::memcpy(err, msg.data(), len);
-      err[len] = '\0';
+  return voxax::host_guarded("the kNN kernel", err, errlen, [&](std::string* msg) {
+    if (k < 1 || k > voxax::spatial::kMaxNeighbours) {
+      *msg = "voxax: k must lie in [1, 32]";
+      return false;
     }
-    return 1;
-  };
-  try {
-    if (k < 1 || k > voxax::spatial::kMaxNeighbours) return fail("voxax: k must lie in [1, 32]");
-    if (n < 0 || n > INT32_MAX || m < 0) return fail("voxax: at most 2^31 - 1 points");
-    std::string msg;
-    if (!voxax::finite_rows(S, 3 * n, "points", &msg) ||
-        !voxax::finite_rows(Q, 3 * m, "queries", &msg))
-      return fail(msg);
+    if (n < 0 || n > INT32_MAX || m < 0) {
+      *msg = "voxax: at most 2^31 - 1 points";
+      return false;
+    }
+    if (!voxax::finite_rows(S, 3 * n, "points", msg) ||
+        !voxax::finite_rows(Q, 3 * m, "queries", msg))
+      return false;
     voxax::spatial::PointGrid grid;
     grid.build(S, n);
     voxax::spatial::parallel_chunks(
@@ -101,12 +95,8 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
           for (int64_t i = b; i < e; ++i)
             grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
         });
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return fail("voxax: out of memory in the kNN kernel");
-  } catch (...) {
-    return fail("voxax: unexpected error in the kNN kernel");
-  }
+    return true;
+  });
 }
 
 #pragma GCC visibility push(default)

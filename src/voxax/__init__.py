@@ -52,7 +52,7 @@ from ._spatial import (
     first_hits,
     nearest_neighbors,
 )
-from . import fields, metrics
+from . import fields, metrics, raster
 from . import esi, nesi
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
@@ -96,6 +96,7 @@ __all__ = [
     "nearest_neighbors",
     "fields",
     "metrics",
+    "raster",
     "esi",
     "nesi",
     "export_safety_checks",

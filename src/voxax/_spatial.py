@@ -21,14 +21,13 @@ vertex shared by consistently oriented triangles exactly once.
 from __future__ import annotations
 
 import ctypes
-import os
 import weakref
 from typing import NamedTuple
 
 import jax
 import numpy as np
 
-from . import _ffi
+from . import _ffi, _host
 from ._constants import MAX_ABS_COORDINATE
 from ._mesh import Mesh
 
@@ -43,95 +42,65 @@ __all__ = [
     "first_hits",
 ]
 
-_ERRLEN = 512
-_D = ctypes.POINTER(ctypes.c_double)
-_I32 = ctypes.POINTER(ctypes.c_int32)
-_I64 = ctypes.POINTER(ctypes.c_int64)
-_I8 = ctypes.POINTER(ctypes.c_int8)
-_VP = ctypes.c_void_p
-_SETUP = False
+_ERRLEN = _host.ERRLEN
+_D, _I32, _I64, _I8, _VP = _host.D, _host.I32, _host.I64, _host.I8, _host.VP
+_ptr, _check, _threads = _host.pointer, _host.check, _host.threads
 
 
 def _lib():
-    global _SETUP
-    lib = _ffi.library()
-    if not _SETUP:
-        i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
-        sig = {
-            "voxax_bvh_build": (
-                ctypes.c_int,
-                [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
-            ),
-            "voxax_bvh_free": (None, [_VP]),
-            "voxax_bvh_stats": (None, [_VP, _I64]),
-            "voxax_bvh_closest": (
-                ctypes.c_int,
-                [_VP, _D, i64, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
-            ),
-            "voxax_bvh_first_hit": (
-                ctypes.c_int,
-                [
-                    _VP,
-                    _D,
-                    _D,
-                    i64,
-                    dbl,
-                    dbl,
-                    i32,
-                    i32,
-                    _D,
-                    _I32,
-                    _D,
-                    _I8,
-                    ctypes.c_char_p,
-                    i64,
-                ],
-            ),
-            "voxax_bvh_all_hits": (
-                ctypes.c_int,
-                [
-                    _VP,
-                    _D,
-                    _D,
-                    i64,
-                    dbl,
-                    dbl,
-                    i32,
-                    _I64,
-                    ctypes.POINTER(_VP),
-                    ctypes.c_char_p,
-                    i64,
-                ],
-            ),
-            "voxax_hits_size": (i64, [_VP]),
-            "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
-            "voxax_hits_free": (None, [_VP]),
-            "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
-        }
-        for name, (res, args) in sig.items():
-            fn = getattr(lib, name)
-            fn.restype, fn.argtypes = res, args
-        _SETUP = True
-    return lib
-
-
-def _ptr(a: np.ndarray, kind):
-    return a.ctypes.data_as(kind)
-
-
-def _check(status: int, err) -> None:
-    if status != 0:
-        raise ValueError(err.value.decode("utf-8", "replace"))
-
-
-def _threads(threads) -> int:
-    if threads is None:
-        env = os.environ.get("VOXAX_NUM_THREADS")
-        return int(env) if env else 0
-    threads = int(threads)
-    if threads < 1:
-        raise ValueError(f"threads must be >= 1 (or None for all cores), got {threads}")
-    return threads
+    i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
+    sig = {
+        "voxax_bvh_build": (
+            ctypes.c_int,
+            [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
+        ),
+        "voxax_bvh_free": (None, [_VP]),
+        "voxax_bvh_stats": (None, [_VP, _I64]),
+        "voxax_bvh_closest": (
+            ctypes.c_int,
+            [_VP, _D, i64, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
+        ),
+        "voxax_bvh_first_hit": (
+            ctypes.c_int,
+            [
+                _VP,
+                _D,
+                _D,
+                i64,
+                dbl,
+                dbl,
+                i32,
+                i32,
+                _D,
+                _I32,
+                _D,
+                _I8,
+                ctypes.c_char_p,
+                i64,
+            ],
+        ),
+        "voxax_bvh_all_hits": (
+            ctypes.c_int,
+            [
+                _VP,
+                _D,
+                _D,
+                i64,
+                dbl,
+                dbl,
+                i32,
+                _I64,
+                ctypes.POINTER(_VP),
+                ctypes.c_char_p,
+                i64,
+            ],
+        ),
+        "voxax_hits_size": (i64, [_VP]),
+        "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
+        "voxax_hits_free": (None, [_VP]),
+        "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
+    }
+    return _host.declare(sig)
 
 
 def _coords(x, name: str) -> np.ndarray:

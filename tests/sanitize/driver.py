@@ -771,8 +771,7 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
-    v, f = _spatial_soup(rng, "random")
-    v, f = v[:30], np.arange(30, dtype=np.int32).reshape(10, 3)
+    v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     bad = {
         "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
         "Inf origin": (lambda: voxax.first_hits((v, f), [[np.inf, 0, 0]], [[1, 0, 0]]), "NaN or Inf"),
@@ -812,6 +811,94 @@ def run_spatial(rng, n_inputs):
         else:
             fail(f"spatial '{name}': no error raised")
         COUNTS["spatial_invalid"] += 1
+def run_line_crossings(rng, n_inputs):
+    """Exact line crossings (dexels) on adversarial soups and closed meshes snapped onto
+    the grid lines: structural checks, thread-count determinism, and hostile inputs."""
+    import ctypes
+
+    from voxax import _host, raster
+
+    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
+    for i in range(n_inputs):
+        kind = kinds[i % len(kinds)]
+        if kind == "closed":
+            m = voxax.data.icosphere(int(rng.integers(0, 3)))
+            v = np.round(np.asarray(m.vertices) * 4) / 4  # vertices on the node lines
+            f = np.asarray(m.faces)
+        else:
+            v, f = _spatial_soup(rng, kind)
+        scale = float(np.abs(v).max()) if v.size else 1.0
+        grid = voxax.Grid.cube(int(rng.integers(1, 9)), half_width=max(scale, 1e-40))
+        axis, lines = int(i % 3), ("centers", "nodes")[i % 2]
+        label = f"line_crossings/{kind}/{i}"
+        try:
+            d = raster.line_crossings(v, f, grid, axis, lines=lines, threads=1)
+            d2 = raster.line_crossings(v, f, grid, axis, lines=lines, threads=3)
+            CALLS["line_crossings"] += 2
+        except ValueError as err:
+            if kind == "tiny" and "1e-50" in str(err):
+                COUNTS["line_crossings_invalid"] += 1
+                continue
+            fail(f"{label}: raised\n" + traceback.format_exc())
+            continue
+        except Exception:  # noqa: BLE001
+            fail(f"{label}: raised\n" + traceback.format_exc())
+            continue
+        if any(a.tobytes() != b.tobytes() for a, b in zip(d[3:], d2[3:])):
+            fail(f"{label}: results depend on the thread count")
+        if len(d.face) and (d.face.min() < 0 or d.face.max() >= len(f) or not np.all(np.abs(d.sign) == 1)):
+            fail(f"{label}: bad face index or sign")
+        line = d.line_index()
+        if np.any((line[1:] == line[:-1]) & (d.depth[1:] < d.depth[:-1])):
+            fail(f"{label}: crossings not sorted along a line")
+        if len(d.face):
+            z = v[f[d.face]][:, :, axis]
+            if np.any(d.depth < z.min(axis=1)) or np.any(d.depth > z.max(axis=1)):
+                fail(f"{label}: a depth lies outside its face")
+        if kind == "closed" and np.bincount(line, weights=d.sign, minlength=1).any():
+            fail(f"{label}: a closed mesh has unbalanced crossings on a line")
+        COUNTS["line_crossings"] += 1
+    v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
+    g = voxax.Grid.cube(4)
+    lib = _host.declare(raster._SIGNATURES)
+
+    def raw(nv, nf, axis, n0, n1, lines0=None):
+        err = _host.error_buffer()
+        handle = _host.VP()
+        l0 = np.ascontiguousarray(lines0 if lines0 is not None else np.linspace(-1, 1, max(n0, 1)))
+        l1 = np.ascontiguousarray(np.linspace(-1, 1, min(max(n1, 1), 8)))  # only read when n1 <= 8
+        vv, ff = np.ascontiguousarray(v), np.ascontiguousarray(f)
+        status = lib.voxax_line_crossings(_host.pointer(vv, _host.D), nv, _host.pointer(ff, _host.I32), nf, axis,
+                                          _host.pointer(l0, _host.D), n0, _host.pointer(l1, _host.D), n1, 2,
+                                          ctypes.byref(handle), err, _host.ERRLEN)
+        lib.voxax_crossings_free(handle)
+        _host.check(status, err)
+
+    bad = {
+        "NaN vertex": (lambda: raster.line_crossings(np.where(np.arange(90).reshape(30, 3) == 7, np.nan, v), f, g, 0),
+                       "NaN"),
+        "index high": (lambda: raster.line_crossings(v, f + 1, g, 1), "range"),
+        "huge vertex": (lambda: raster.line_crossings(v * 1e80, f, g, 2), "1e75"),
+        "raw axis": (lambda: raw(30, 10, 7, 3, 3), "axis"),
+        "raw negative faces": (lambda: raw(30, -4, 0, 3, 3), "faces"),
+        "raw too few vertices": (lambda: raw(5, 10, 0, 3, 3), "range"),
+        "raw unsorted lines": (lambda: raw(30, 10, 0, 3, 3, np.array([0.0, -1.0, 1.0])), "increasing"),
+        "raw negative lines": (lambda: raw(30, 10, 0, -3, 3), "negative"),
+        "raw too many lines": (lambda: raw(30, 10, 0, 1, 1 << 40), "2\\^36"),
+    }
+    for name, (call, match) in bad.items():
+        try:
+            call()
+        except (ValueError, TypeError) as err:
+            if not re.search(match, str(err)):
+                fail(f"line_crossings '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"line_crossings '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"line_crossings '{name}': no error raised")
+        COUNTS["line_crossings_invalid"] += 1
+
+
 # -- marching cubes ------------------------------------------------------------------------
 
 
@@ -1112,6 +1199,7 @@ def main(argv=None):
                 run_zero_size(dim, dtype)
         run_raw_ffi(rng)
         run_spatial(rng, args.spatial_inputs)
+        run_line_crossings(rng, max(40, args.spatial_inputs // 2))
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
         run_intersections(rng)
@@ -1144,6 +1232,7 @@ def main(argv=None):
     print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size", "marching_cubes", "marching_cubes_invalid"]))
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
+    print(f"line crossings inputs: {COUNTS['line_crossings']}, invalid: {COUNTS['line_crossings_invalid']}")
     print("exact intersection test: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("intersections", "intersections_invalid", "intersections_raw")))
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
     print("kernel invocations: " + ", ".join(f"{k} {v}" for k, v in sorted(CALLS.items())) + f" (total {sum(CALLS.values())})")

@@ -156,12 +156,7 @@ def optimize_for_bandsaw(
         )
 
     cut0, waste0, _ = measure(rest)
-    h = grid.spacing[0]
-    checks = {
-        "fine": Grid.cube(2 * resolution),
-        "shifted": Grid(lower=tuple(lo + h / 2 for lo in grid.lower), upper=tuple(hi + h / 2 for hi in grid.upper),
-                        shape=grid.shape),
-    }  # fmt: skip
+    checks = _common.check_grids(grid, resolution)
 
     def cut_and_waste(v, g):
         W = voxelize(v, faces, g)
@@ -172,11 +167,7 @@ def optimize_for_bandsaw(
     result = _common.run_minimize(
         energy,
         rest,
-        solver=solver,
-        learning_rate=learning_rate,
-        progress=progress,
-        callback=callback,
-        max_steps=int(max_steps),
+        _common.Run(solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
     )
     v_final = jnp.asarray(result.y, dtype=dt)
@@ -193,11 +184,7 @@ def optimize_for_bandsaw(
     cut0, cut1 = float(cut0), float(cut1)
     s3 = scale**3
     report = BandsawReport(
-        energy_history=_common.energy_series(result),
-        history=_common.history_dict(result.history),
-        steps=int(result.steps),
-        stop_reason=str(result.stop_reason),
-        energy=float(result.energy),
+        **_common.result_fields(result),
         resolution=resolution,
         cut_initial=cut0,
         cut_final=cut1,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -164,25 +164,58 @@ def to_jax(x, dtype):
     return jnp.asarray(np.asarray(x), dtype=dtype)
 
 
-def run_minimize(fn, y0, *, solver, learning_rate, progress, callback, step_size_fn=None, **stop):
-    """Runs `voxax.minimize` on `fn(y, args) -> (energy, aux)` with the given stop rules.
+class Run(NamedTuple):
+    """The optimization options every application takes (see `voxax.minimize`)."""
+
+    solver: Any
+    learning_rate: float | None
+    progress: Any
+    callback: Any
+    max_steps: int
+
+
+def run_minimize(fn, y0, run: Run, *, step_size_fn=None, **stop):
+    """Runs `voxax.minimize` on `fn(y, args) -> (energy, aux)` with the options of `run`
+    and the given extra stop rules.
 
     Returns `voxax.MinimizeResult` (`y`, `steps`, `stop_reason`, `history`, `energy`).
     """
+    stop["max_steps"] = int(run.max_steps)
     rules = solve.StopRules(**{k: v for k, v in stop.items() if v is not None})
     kwargs = {} if step_size_fn is None else {"step_size_fn": step_size_fn}
     return solve.minimize(
         fn,
         y0,
         None,
-        solver=solver,
-        learning_rate=learning_rate,
+        solver=run.solver,
+        learning_rate=run.learning_rate,
         stop=rules,
         has_aux=True,
-        progress=progress,
-        callback=callback,
+        progress=run.progress,
+        callback=run.callback,
         **kwargs,
     )
+
+
+def result_fields(result) -> dict[str, Any]:
+    """The report fields every application takes from its `MinimizeResult`."""
+    return {
+        "energy_history": energy_series(result),
+        "history": history_dict(result.history),
+        "steps": int(result.steps),
+        "stop_reason": str(result.stop_reason),
+        "energy": float(result.energy),
+    }
+
+
+def check_grids(grid: Grid, resolution: int) -> dict[str, Grid]:
+    """The grids on which applications re-measure their results beyond the working grid:
+    twice as fine, and shifted by half a cell."""
+    h = grid.spacing[0]
+    shifted = Grid(
+        lower=tuple(lo + h / 2 for lo in grid.lower), upper=tuple(hi + h / 2 for hi in grid.upper), shape=grid.shape
+    )
+    return {"fine": Grid.cube(2 * resolution), "shifted": shifted}
 
 
 def energy_series(result) -> np.ndarray:

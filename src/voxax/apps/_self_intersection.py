@@ -252,11 +252,7 @@ def resolve_self_intersections(
     result = _common.run_minimize(
         energy,
         rest,
-        solver=solver,
-        learning_rate=learning_rate,
-        progress=progress,
-        callback=callback,
-        max_steps=int(max_steps),
+        _common.Run(solver, learning_rate, progress, callback, max_steps),
         max_w_threshold=threshold,
     )
     v_final = jnp.asarray(result.y, dtype=dt)
@@ -275,11 +271,7 @@ def resolve_self_intersections(
     out = Mesh(_common.restore(v_final, centre, scale), source.faces)
     s3 = scale**3
     report = SelfIntersectionReport(
-        energy_history=_common.energy_series(result),
-        history=_common.history_dict(result.history),
-        steps=int(result.steps),
-        stop_reason=str(result.stop_reason),
-        energy=float(result.energy),
+        **_common.result_fields(result),
         resolution=resolution,
         resolved=found.count == 0,
         intersections_initial=int(count0),

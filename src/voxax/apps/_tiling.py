@@ -371,12 +371,7 @@ def optimize_tiling(
     if deform:
         y0["offsets"] = jnp.zeros_like(rest_j)
     fill0, cell0, _ = measure(y0)
-    h = grid.spacing[0]
-    check_grids = {
-        "fine": Grid.cube(2 * resolution),
-        "shifted": Grid(lower=tuple(lo + h / 2 for lo in grid.lower), upper=tuple(hi + h / 2 for hi in grid.upper),
-                        shape=grid.shape),
-    }  # fmt: skip
+    check_grids = _common.check_grids(grid, resolution)
 
     def coverage_on(y, g):
         world, _ = placed(y)
@@ -387,11 +382,7 @@ def optimize_tiling(
     result = _common.run_minimize(
         energy,
         y0,
-        solver=solver,
-        learning_rate=learning_rate,
-        progress=progress,
-        callback=callback,
-        max_steps=int(max_steps),
+        _common.Run(solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
         step_size_fn=vertex_move,
     )
@@ -408,11 +399,7 @@ def optimize_tiling(
     coverage_after = {k: coverage_on(y1, g) for k, g in check_grids.items()}
     crossing = _instance_intersections(out, period)
     report = TilingReport(
-        energy_history=_common.energy_series(result),
-        history=_common.history_dict(result.history),
-        steps=int(result.steps),
-        stop_reason=str(result.stop_reason),
-        energy=float(result.energy),
+        **_common.result_fields(result),
         resolution=resolution,
         instances=B,
         mesh_index=mesh_index,

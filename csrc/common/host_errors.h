@@ -1,0 +1,56 @@
+// Error reporting of the eager host entry points: plain C functions called through
+// ctypes, which return 0 on success and 1 on failure with a message in a caller-owned
+// buffer. `host_guarded` runs the body and turns every exception into a message of the
+// same categories as the FFI handlers' `guarded` (common/errors.h), so no exception ever
+// crosses the C boundary.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+#include <cstring>
+#include <exception>
+#include <new>
+#include <stdexcept>
+#include <string>
+
+#include "common/errors.h"
+
+namespace voxax {
+
+// Copies `msg` (truncated) into err[0:errlen] and returns the failure status 1.
+inline int host_fail(char* err, int64_t errlen, const std::string& msg) noexcept {
+  if (err && errlen > 0) {
+    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
+    std::memcpy(err, msg.data(), n);
+    err[n] = '\0';
+  }
+  return 1;
+}
+
+// Runs body(&msg), which returns false with a message in msg for invalid input, and
+// reports any exception it throws; `where` names the entry point in messages.
+template <typename Body>
+int host_guarded(const char* where, char* err, int64_t errlen, Body&& body) noexcept {
+  try {
+    std::string msg;
+    if (!body(&msg)) return host_fail(err, errlen, msg);
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return host_fail(err, errlen, std::string("voxax: out of memory in ") + where);
+  } catch (const std::length_error&) {
+    return host_fail(err, errlen, std::string("voxax: out of memory in ") + where);
+  } catch (const InvalidInput& e) {
+    return host_fail(err, errlen, e.what());
+  } catch (const std::exception& e) {
+    try {
+      return host_fail(err, errlen,
+                       std::string("voxax: internal error in ") + where + ": " + e.what());
+    } catch (...) {
+      return host_fail(err, errlen, "");
+    }
+  } catch (...) {
+    return host_fail(err, errlen, "");
+  }
+}
+
+}  // namespace voxax
