@@ -126,11 +126,7 @@ def optimize_for_molding(
     result = _common.run_minimize(
         energy,
         rest,
-        solver=solver,
-        learning_rate=learning_rate,
-        progress=progress,
-        callback=callback,
-        max_steps=int(max_steps),
+        _common.Run(solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
     )
     v_final = jnp.asarray(result.y, dtype=dt)
@@ -138,11 +134,7 @@ def optimize_for_molding(
     out = Mesh(_common.restore(v_final, centre, scale), source.faces)
     gap0, gap1 = float(gap0), float(gap1)
     report = MoldingReport(
-        energy_history=_common.energy_series(result),
-        history=_common.history_dict(result.history),
-        steps=int(result.steps),
-        stop_reason=str(result.stop_reason),
-        energy=float(result.energy),
+        **_common.result_fields(result),
         resolution=resolution,
         axis=axis,
         gap_initial=gap0,
