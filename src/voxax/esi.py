@@ -92,22 +92,28 @@ def closed_mesh(where: str, vertices, faces=None) -> Mesh:
     a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)
     keep = a != b
     n = len(v)
-    fwd = a[keep] * n + b[keep]
-    rev = b[keep] * n + a[keep]
-    fs = np.sort(fwd)
-    dup = int(np.count_nonzero(fs[1:] == fs[:-1]))
-    unmatched = int(np.count_nonzero(~np.isin(fwd, rev)))
+    fwd = np.sort(a[keep] * n + b[keep])
+    rev = np.sort(b[keep] * n + a[keep])
+    dup = int(np.count_nonzero(fwd[1:] == fwd[:-1]))
+    # closed and consistently oriented: the directed edges are exactly their reverses
+    unmatched = int(np.count_nonzero(fwd != rev))
     if dup or unmatched:
         raise ValueError(
             f"{where}: needs a closed, consistently oriented triangle mesh "
-            f"({unmatched} edges without a reverse edge, {dup} repeated directed edges); "
+            f"({unmatched} edges without a matching reverse edge, {dup} repeated directed edges); "
             "open meshes have no inside"
         )
     mesh = Mesh(v, f.astype(np.int32))
-    used = v[np.unique(f)]
+    used = v[_used(len(v), f)]
     if not np.ptp(used, axis=0).max() > 0:
         raise ValueError(f"{where}: the mesh is a single point")
     return mesh
+
+
+def _used(n: int, faces) -> np.ndarray:
+    used = np.zeros(n, bool)
+    used[np.asarray(faces).ravel()] = True
+    return used
 
 
 def unit_direction(where: str, direction) -> np.ndarray:
@@ -212,7 +218,7 @@ class DepthMap(NamedTuple):
 
 def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
     """`(center (3,), radius)`: the bounding box centre and the largest vertex distance."""
-    used = mesh.vertices[np.unique(mesh.faces)]
+    used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
     c = 0.5 * (used.min(0) + used.max(0))
     r = float(np.sqrt(((used - c) ** 2).sum(1).max()))
     return c, r
@@ -415,7 +421,7 @@ class _Problem:
     def __init__(self, mesh: Mesh, dirs: np.ndarray, *, resolution, n_samples, seed, threads):
         from .metrics import sample_surface
 
-        used = mesh.vertices[np.unique(mesh.faces)]
+        used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
         lo, hi = used.min(0), used.max(0)
         self.center = 0.5 * (lo + hi)
         self.scale = (1.0 / 1.1) / float(0.5 * (hi - lo).max())
