@@ -102,7 +102,6 @@ def bench_select(shapes, max_hf):
 
 def bench_nesi(steps, lods):
     import jax
-
     from _esi_shapes import mug
 
     cases = [("torus", data.torus(), ((0.0, 0.0, 1.0), ()))]
