@@ -22,6 +22,7 @@ Cases (run from the repository root, `PYTHONPATH=src` when voxax is not installe
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -30,6 +31,8 @@ import numpy as np
 
 import voxax
 from voxax import data, esi, fabricate, metrics, nesi
+
+print = functools.partial(print, flush=True)  # noqa: A001
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
@@ -75,14 +78,14 @@ def bench_depth():
           f"{t_q:.3f} s for the ray casts alone; mask {dm.mask.mean():.3f}")
 
 
-def bench_select(shapes, max_hf):
+def bench_select(shapes, max_hf, n_dhf=50, n_hf=80):
     from _esi_shapes import mug
 
     cases = {"knot100k": lambda: data.large(100_000), "mug": lambda: mug(64)}
     for name in shapes:
         m = cases[name]()
         t = time.perf_counter()
-        r = esi.select(m, n_dhf=50, n_hf=80, max_hf=max_hf, n_samples=10_000, resolution=128)
+        r = esi.select(m, n_dhf=n_dhf, n_hf=n_hf, max_hf=max_hf, n_samples=10_000, resolution=128)
         t_sel = time.perf_counter() - t
         t = time.perf_counter()
         full = esi.to_mesh(r, m, resolution=256)
@@ -133,6 +136,8 @@ def main(argv=None) -> int:
     ap.add_argument("cases", nargs="*", default=["bvh", "depth", "select", "nesi"])
     ap.add_argument("--shapes", nargs="*", default=["mug", "knot100k"])
     ap.add_argument("--max-hf", type=int, default=3)
+    ap.add_argument("--n-dhf", type=int, default=50, help="Fibonacci DHF candidates (paper: 50)")
+    ap.add_argument("--n-hf", type=int, default=80, help="Fibonacci HF candidates (paper: 80)")
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--lods", type=int, nargs="*", default=[1, 2])
     args = ap.parse_args(argv)
@@ -141,7 +146,7 @@ def main(argv=None) -> int:
     if "depth" in args.cases:
         bench_depth()
     if "select" in args.cases:
-        bench_select(args.shapes, args.max_hf)
+        bench_select(args.shapes, args.max_hf, args.n_dhf, args.n_hf)
     if "nesi" in args.cases:
         bench_nesi(args.steps, args.lods)
     return 0
