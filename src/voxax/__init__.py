@@ -55,6 +55,7 @@ from ._spatial import (
 )
 from . import fields, metrics, raster
 from . import fc
+from . import esi, nesi
 from ._export import export_safety_checks, ffi_targets
 from ._least_squares import LeastSquaresResult, least_squares
 from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
@@ -100,6 +101,8 @@ __all__ = [
     "raster",
     "cvt",
     "fc",
+    "esi",
+    "nesi",
     "export_safety_checks",
     "least_squares",
     "voxelize_sharded",

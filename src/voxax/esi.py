@@ -1,0 +1,1038 @@
+"""Explicit surface intersections (ESI): a closed shape as the intersection of height fields.
+
+A *height field* along a unit direction `d` is the solid `HF(d)` of the points whose ray
+along `+d` hits the surface S: below the surface's top depth map seen from `+d`. A
+*double height field* hull `DHF(d) = HF(d) ∩ HF(-d)` is bounded by both depth maps along
+`d`. An ESI is `DHF(d_0) ∩ HF(d_1) ∩ ... ∩ HF(d_m)` (m <= 3); it always contains S, and for
+well-chosen axes it is close to S.
+
+- [`depth_map`][voxax.esi.depth_map]: first and last hits along `d` on an orthographic
+  pixel frame (exact BVH ray casts), with the mask and the hit faces' normals.
+- [`candidates`][voxax.esi.candidates]: the DHF axes (a half sphere, since `DHF(d) =
+  DHF(-d)`) and HF axes (the full sphere), spherical Fibonacci points plus the
+  coordinate axes.
+- [`select`][voxax.esi.select]: the DHF axis and up to three HF axes minimising the
+  energy `E = Dist + min(mu (Dist + eps1), eps2)` (Chamfer distance plus surface coverage)
+  by branch and bound.
+- [`occupancy`][voxax.esi.occupancy]: exact inside/outside of an ESI at points (ray casts
+  against the mesh).
+- [`to_mesh`][voxax.esi.to_mesh]: a watertight mesh of the ESI, as the manifold3d
+  intersection of height-field solids built from depth maps.
+
+All geometry is float64 and computed eagerly on NumPy arrays through `voxax.BVH`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _validate
+from ._mesh import Mesh
+from ._spatial import BVH
+
+__all__ = [
+    "DepthMap",
+    "ESI",
+    "Frame",
+    "candidates",
+    "closed_mesh",
+    "depth_map",
+    "energy",
+    "esi_gap",
+    "height_field_hull",
+    "fibonacci_sphere",
+    "frame_for",
+    "height_field_solid",
+    "intersect_solids",
+    "occupancy",
+    "select",
+    "to_mesh",
+]
+
+
+# ----------------------------------------------------------------------------- inputs
+
+
+def closed_mesh(where: str, vertices, faces=None) -> Mesh:
+    """A `Mesh` from a mesh object or `(vertices, faces)`, checked to be a closed,
+    consistently oriented, non-empty 3D triangle mesh (every directed edge has exactly one
+    reverse). Raises `ValueError` otherwise."""
+    if faces is None:
+        if _validate.is_mesh_object(vertices):
+            v, f = _validate.mesh_object_arrays(where, vertices)
+        elif isinstance(vertices, tuple) and len(vertices) == 2:
+            v, f = vertices
+        else:
+            raise TypeError(
+                f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or vertices and faces, got {type(vertices).__name__}"
+            )
+    else:
+        v, f = vertices, faces
+    v = np.asarray(v)
+    f = np.asarray(f)
+    if v.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: vertices must be a real array, got dtype {v.dtype}")
+    if f.dtype.kind not in "iu":
+        raise TypeError(f"{where}: faces must be an integer array, got dtype {f.dtype}")
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{where}: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"{where}: faces must have shape (F, 3), got {f.shape}")
+    if len(f) == 0:
+        raise ValueError(f"{where}: the mesh has no faces")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"{where}: face indices out of range [0, {len(v)})")
+    v = v.astype(np.float64)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{where}: vertices contain NaN or Inf")
+    f = f.astype(np.int64)
+    a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)
+    keep = a != b
+    n = len(v)
+    fwd = np.sort(a[keep] * n + b[keep])
+    rev = np.sort(b[keep] * n + a[keep])
+    dup = int(np.count_nonzero(fwd[1:] == fwd[:-1]))
+    # closed and consistently oriented: the directed edges are exactly their reverses
+    unmatched = int(np.count_nonzero(fwd != rev))
+    if dup or unmatched:
+        raise ValueError(
+            f"{where}: needs a closed, consistently oriented triangle mesh "
+            f"({unmatched} edges without a matching reverse edge, {dup} repeated directed edges); "
+            "open meshes have no inside"
+        )
+    mesh = Mesh(v, f.astype(np.int32))
+    used = v[_used(len(v), f)]
+    if not np.ptp(used, axis=0).max() > 0:
+        raise ValueError(f"{where}: the mesh is a single point")
+    return mesh
+
+
+def _used(n: int, faces) -> np.ndarray:
+    used = np.zeros(n, bool)
+    used[np.asarray(faces).ravel()] = True
+    return used
+
+
+def unit_direction(where: str, direction) -> np.ndarray:
+    """`direction` as a unit `(3,)` float64 vector; `ValueError` if it is not a finite,
+    non-zero 3-vector."""
+    d = np.asarray(direction)
+    if d.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: direction must be a real 3-vector, got dtype {d.dtype}")
+    d = d.astype(np.float64)
+    if d.shape != (3,):
+        raise ValueError(f"{where}: direction must have shape (3,), got {d.shape}")
+    if not np.all(np.isfinite(d)):
+        raise ValueError(f"{where}: direction contains NaN or Inf")
+    n = float(np.linalg.norm(d))
+    if not n > 1e-150:
+        raise ValueError(f"{where}: direction is zero (a degenerate direction)")
+    return d / n
+
+
+# ----------------------------------------------------------------------------- depth maps
+
+
+class Frame(NamedTuple):
+    """An orthographic pixel frame perpendicular to a direction.
+
+    - `center`: `(3,)` float64, the centre of the mesh's bounding box.
+    - `u`, `v`, `d`: `(3,)` float64, a right-handed orthonormal basis (`u x v = d`); `d` is
+      the viewing direction.
+    - `radius`: the bounding sphere's radius about `center` (every vertex lies within it).
+    - `resolution`: pixels per side. Pixel `(i, j)` is the ray `center + x_i u + y_j v + z d`
+      with `x_i = y_i = -radius + (i + 1/2) 2 radius / resolution`.
+    """
+
+    center: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    d: np.ndarray
+    radius: float
+    resolution: int
+
+    @property
+    def pixel(self) -> float:
+        """The pixel size `2 radius / resolution`."""
+        return 2.0 * self.radius / self.resolution
+
+    def coords(self) -> np.ndarray:
+        """`(resolution,)` float64 pixel-centre coordinates along `u` (and `v`)."""
+        i = np.arange(self.resolution, dtype=np.float64)
+        return -self.radius + (i + 0.5) * self.pixel
+
+    def points(self, depth) -> np.ndarray:
+        """World points `(r, r, 3)` of the pixels at depths `depth (r, r)` along `d`."""
+        x = self.coords()
+        z = np.asarray(depth, dtype=np.float64)
+        return self.center + x[:, None, None] * self.u + x[None, :, None] * self.v + z[..., None] * self.d
+
+    def to_local(self, points) -> np.ndarray:
+        """Frame coordinates `(..., 3)` = `(x, y, z)` of world points `(..., 3)`."""
+        p = np.asarray(points, dtype=np.float64) - self.center
+        return np.stack([p @ self.u, p @ self.v, p @ self.d], axis=-1)
+
+
+def frame_for(direction, center, radius, resolution) -> Frame:
+    """The [`Frame`][voxax.esi.Frame] of a unit direction: `u` is the unit vector of the
+    coordinate axis least aligned with `d` (lowest index on ties) made orthogonal to `d`,
+    and `v = d x u`."""
+    d = np.asarray(direction, dtype=np.float64)
+    e = np.zeros(3)
+    e[int(np.argmin(np.abs(d)))] = 1.0
+    u = e - (e @ d) * d
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    v /= np.linalg.norm(v)
+    return Frame(np.asarray(center, np.float64), u, v, d, float(radius), int(resolution))
+
+
+class DepthMap(NamedTuple):
+    """The first and last hits of a mesh along parallel rays.
+
+    - `first`: `(r, r)` float64, the smallest depth `z` (along `frame.d`, from the frame's
+      centre) where the pixel's line meets the surface; `nan` off the mask.
+    - `last`: `(r, r)` float64, the largest such depth; `nan` off the mask.
+    - `mask`: `(r, r)` bool, the pixels whose line meets the surface (the silhouette).
+    - `normal_first`, `normal_last`: `(r, r, 3)` float64 unit outward normals of the faces
+      hit (zeros off the mask).
+    - `face_first`, `face_last`: `(r, r)` int32 faces hit (-1 off the mask).
+    - `frame`: the [`Frame`][voxax.esi.Frame].
+
+    `last` is the height function of `HF(d)`, `first` (negated) that of `HF(-d)`, and the
+    pair bounds the double height field `DHF(d)`.
+    """
+
+    first: np.ndarray
+    last: np.ndarray
+    mask: np.ndarray
+    normal_first: np.ndarray
+    normal_last: np.ndarray
+    face_first: np.ndarray
+    face_last: np.ndarray
+    frame: Frame
+
+
+def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
+    """`(center (3,), radius)`: the bounding box centre and the largest vertex distance."""
+    used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
+    c = 0.5 * (used.min(0) + used.max(0))
+    r = float(np.sqrt(((used - c) ** 2).sum(1).max()))
+    return c, r
+
+
+def _face_normals(mesh: Mesh) -> np.ndarray:
+    v, f = mesh.vertices, mesh.faces
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(ln > 0, ln, 1.0)
+
+
+def _depth_map(bvh: BVH, frame: Frame, normals: np.ndarray, threads=None) -> DepthMap:
+    r = frame.resolution
+    x = frame.coords()
+    base = (frame.center + x[:, None, None] * frame.u + x[None, :, None] * frame.v).reshape(-1, 3)
+    reach = 2.0 * frame.radius
+    lo = bvh.first_hits(base - reach * frame.d, frame.d, threads=threads)
+    hi = bvh.first_hits(base + reach * frame.d, -frame.d, threads=threads)
+    mask = lo.hit & hi.hit
+    first = np.where(mask, lo.t - reach, np.nan).reshape(r, r)
+    last = np.where(mask, reach - hi.t, np.nan).reshape(r, r)
+    ff = np.where(mask, lo.face, -1).astype(np.int32)
+    fl = np.where(mask, hi.face, -1).astype(np.int32)
+    nf = np.where(mask[:, None], normals[np.maximum(ff, 0)], 0.0).reshape(r, r, 3)
+    nl = np.where(mask[:, None], normals[np.maximum(fl, 0)], 0.0).reshape(r, r, 3)
+    return DepthMap(first, last, mask.reshape(r, r), nf, nl, ff.reshape(r, r), fl.reshape(r, r), frame)
+
+
+def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, threads=None) -> DepthMap:
+    """The first and last hits of a closed mesh along `direction` on an orthographic frame.
+
+    The frame (see [`Frame`][voxax.esi.Frame]) is centred on the mesh's bounding box,
+    spans its bounding sphere with `resolution x resolution` pixels, and every pixel's
+    line is cast exactly against the mesh through a BVH (watertight ray-triangle tests,
+    float64), once from each side.
+
+    **Arguments:**
+
+    - `vertices`: `(V, 3)` float, or a `Mesh` (then `direction` moves into the `faces`
+      slot: `depth_map(mesh, direction)`).
+    - `faces`: `(F, 3)` int; the mesh must be closed and consistently oriented.
+    - `direction`: `(3,)` float, non-zero (normalised here).
+    - `resolution`: pixels per side (>= 1).
+    - `threads`: threads for the ray casts (default: all cores).
+
+    **Returns:** a [`DepthMap`][voxax.esi.DepthMap].
+
+    >>> from voxax import data
+    >>> dm = depth_map(data.cube(2.0), (0.0, 0.0, 1.0), resolution=4)
+    >>> float(dm.first[1, 1]), float(dm.last[1, 1])
+    (-1.0, 1.0)
+    """
+    where = "esi.depth_map"
+    vertices, faces, (direction,) = _validate.unpack_mesh(where, vertices, faces, direction)
+    if direction is None:
+        raise TypeError(f"{where}: missing `direction`")
+    mesh = closed_mesh(where, vertices, faces)
+    d = unit_direction(where, direction)
+    res = _validate.positive_int(where, "resolution", resolution)
+    c, rad = bounding_sphere(mesh)
+    frame = frame_for(d, c, rad, res)
+    dm = _depth_map(BVH(mesh), frame, _face_normals(mesh), threads)
+    if not dm.mask.any():
+        raise ValueError(
+            f"{where}: the depth map is empty (no pixel centre of the {res}x{res} frame "
+            "meets the mesh); raise the resolution"
+        )
+    return dm
+
+
+# ----------------------------------------------------------------------------- height-field solids
+
+#: Heights of a height field's off-domain top and of its bottom, in bounding-sphere radii
+#: below the centre: both lie outside the bounding sphere, hence outside every DHF.
+ON_SURFACE_PIXELS = 0.5
+_OFF_TOP = 1.02
+_BOTTOM = 1.05
+
+
+def _grid_faces(r: int) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(r - 1), np.arange(r - 1), indexing="ij")
+    a = (i * r + j).ravel()
+    b, c, d = a + r, a + r + 1, a + 1  # (i+1, j), (i+1, j+1), (i, j+1)
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def _border(r: int) -> np.ndarray:
+    """Grid indices of the border, counter-clockwise in (u, v)."""
+    i = np.arange(r - 1)
+    return np.concatenate([i * r, (r - 1) * r + i, (r - 1 - i) * r + r - 1, (r - 1 - i) + 0 * r])
+
+
+def height_field_solid(dm: DepthMap, sign: int) -> tuple[Mesh, int]:
+    """A closed outward mesh of `HF(sign * d)` from a depth map, clipped far below.
+
+    The top is the pixel-centre grid at the height function (`last` for `sign = +1`,
+    `first` for `-1`); pixels off the mask drop to `1.02 radius` below the centre, and
+    the solid ends `1.05 radius` below it. Returns `(mesh, n_top_wall_faces)`: the faces
+    of the top and walls come first (the bottom is outside the bounding sphere).
+    """
+    fr = dm.frame
+    r = fr.resolution
+    if r < 2:
+        raise ValueError("height-field solids need a depth map with resolution >= 2")
+    R = fr.radius
+    h = (dm.last if sign > 0 else -dm.first).copy()
+    h[~dm.mask] = -_OFF_TOP * R
+    # pixels next to the silhouette close the solid at the mean mid-depth of their
+    # neighbours on the mask, so a DHF pinches within a pixel instead of a cliff
+    mid = np.where(dm.mask, 0.5 * (dm.first + dm.last), 0.0)
+    msk = dm.mask.astype(np.float64)
+    pm = np.pad(mid, 1)
+    pk = np.pad(msk, 1)
+    tot = np.zeros_like(mid)
+    cnt = np.zeros_like(mid)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            tot += pm[1 + di : 1 + di + r, 1 + dj : 1 + dj + r]
+            cnt += pk[1 + di : 1 + di + r, 1 + dj : 1 + dj + r]
+    ring = (~dm.mask) & (cnt > 0)
+    h[ring] = sign * tot[ring] / cnt[ring]
+    x = fr.coords()
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    top = np.stack([X.ravel(), Y.ravel(), h.ravel()], 1)
+    bot = np.stack([X.ravel(), Y.ravel(), np.full(r * r, -_BOTTOM * R)], 1)
+    g = _grid_faces(r)
+    b = _border(r)
+    nb = np.roll(b, -1)
+    n = r * r
+    walls = np.concatenate([np.stack([b, b + n, nb + n], 1), np.stack([b, nb + n, nb], 1)])
+    faces = np.concatenate([g, walls, g[:, ::-1] + n])
+    local = np.concatenate([top, bot])
+    world = fr.center + local[:, :1] * fr.u + local[:, 1:2] * fr.v + (sign * local[:, 2:]) * fr.d
+    if sign < 0:
+        faces = faces[:, ::-1]
+    return Mesh(world, faces.astype(np.int32)), len(g) + len(walls)
+
+
+# ----------------------------------------------------------------------------- candidates
+
+
+def fibonacci_sphere(n: int, *, hemisphere: bool = False) -> np.ndarray:
+    """`n` spherical Fibonacci points `(n, 3)` float64 on the unit sphere (or the upper
+    half sphere `z > 0` with `hemisphere=True`), evenly spread by the golden angle."""
+    n = int(n)
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    i = np.arange(n, dtype=np.float64)
+    z = 1.0 - (i + 0.5) / n if hemisphere else 1.0 - 2.0 * (i + 0.5) / max(n, 1)
+    phi = i * math.pi * (3.0 - math.sqrt(5.0))
+    s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], 1)
+
+
+def candidates(n_dhf: int = 50, n_hf: int = 80) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate axes for the DHF and the HFs.
+
+    **Arguments:**
+
+    - `n_dhf`: Fibonacci directions on the half sphere for the DHF (`DHF(d) = DHF(-d)`),
+      after the three coordinate axes.
+    - `n_hf`: Fibonacci directions on the whole sphere for the HFs, after the six signed
+      coordinate axes.
+
+    **Returns:** `(dhf (3 + n_dhf, 3), hf (6 + n_hf, 3))` float64 unit vectors.
+
+    >>> dhf, hf = candidates(10, 12)
+    >>> dhf.shape, hf.shape
+    ((13, 3), (18, 3))
+    """
+    eye = np.eye(3)
+    dhf = np.concatenate([eye, fibonacci_sphere(n_dhf, hemisphere=True)])
+    hf = np.concatenate([np.stack([eye[0], -eye[0], eye[1], -eye[1], eye[2], -eye[2]]), fibonacci_sphere(n_hf)])
+    return dhf, hf
+
+
+def _canonical(d: np.ndarray) -> tuple[tuple, int]:
+    """A hashable key of the line through `d` and the sign of `d` on it."""
+    nz = np.flatnonzero(np.abs(d) > 1e-12)
+    s = 1 if d[nz[0]] > 0 else -1
+    key = tuple(np.round(s * d, 12) + 0.0)
+    return key, s
+
+
+def _T(theta_deg):
+    return 0.5 * np.tanh(theta_deg - 85.0) + 0.5
+
+
+# ----------------------------------------------------------------------------- selection
+
+
+class _Problem:
+    """Everything precomputed for the energy of any combination of candidate axes.
+
+    Height fields are indexed by signed direction `k`; a DHF along a line is the pair of
+    its two signed directions. The mesh is scaled into `[-1/1.1, 1/1.1]^3` first.
+    """
+
+    def __init__(self, mesh: Mesh, dirs: np.ndarray, *, resolution, n_samples, seed, threads):
+        from .metrics import sample_surface
+
+        used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
+        lo, hi = used.min(0), used.max(0)
+        self.center = 0.5 * (lo + hi)
+        self.scale = (1.0 / 1.1) / float(0.5 * (hi - lo).max())
+        self.mesh = Mesh((mesh.vertices - self.center) * self.scale, mesh.faces)
+        self.threads = threads
+        self.bvh = BVH(self.mesh)
+        c, rad = bounding_sphere(self.mesh)
+        self.sphere = (c, rad)
+        self.eps = 1e-9 * rad
+        normals = _face_normals(self.mesh)
+        area_s = (
+            0.5
+            * np.linalg.norm(
+                np.cross(
+                    self.mesh.vertices[self.mesh.faces[:, 1]] - self.mesh.vertices[self.mesh.faces[:, 0]],
+                    self.mesh.vertices[self.mesh.faces[:, 2]] - self.mesh.vertices[self.mesh.faces[:, 0]],
+                ),
+                axis=1,
+            ).sum()
+        )
+        S = sample_surface(self.mesh, n_samples, seed)
+        self.P = S.points
+        self.Pn = S.normals
+        self.n_samples = n_samples
+        # signed directions, grouped by line so that one depth map serves both signs
+        lines: dict = {}
+        self.dirs = []  # (line, sign) per signed direction
+        keys: dict = {}
+        for d in dirs:
+            lk, s = _canonical(d)
+            if lk not in lines:
+                lines[lk] = len(lines)
+            kk = (lines[lk], s)
+            if kk not in keys:
+                keys[kk] = len(keys)
+                self.dirs.append(kk)
+        self.key = keys
+        self._lines = lines
+        line_dirs = [None] * len(lines)
+        for lk, li in lines.items():
+            line_dirs[li] = np.asarray(lk)
+        self.vec = np.array([s * line_dirs[li] for li, s in self.dirs])
+        K = len(self.dirs)
+        self.D = np.zeros((n_samples, K))
+        self.visP = np.zeros((n_samples, K), bool)
+        pixel = 2.0 * rad / resolution
+        #: height-field samples this close to S count as on S (the depth maps are linear
+        #: between pixels); the surface samples stand for them
+        self.on_surface = max(5e-4, ON_SURFACE_PIXELS * pixel)
+        self.B, self.Bn, self.Bd = [], [], []
+        self.maps = {}
+        for li, ld in enumerate(line_dirs):
+            fr = frame_for(ld / np.linalg.norm(ld), c, rad, resolution)
+            self.maps[li] = _depth_map(self.bvh, fr, normals, threads)
+        rng = np.random.default_rng(seed + 7)
+        for k, (li, s) in enumerate(self.dirs):
+            dm = self.maps[li]
+            solid, n_tw = height_field_solid(dm, s)
+            hit = self.bvh.any_hits(self.P, self.vec[k], t_min=self.eps, threads=threads)
+            dist = BVH(solid).closest_points(self.P, threads=threads).distance
+            self.D[:, k] = np.where(hit, dist, 0.0)
+            self.visP[:, k] = ~hit
+            tw = Mesh(solid.vertices, solid.faces[:n_tw])
+            a_tw = (
+                0.5
+                * np.linalg.norm(
+                    np.cross(
+                        tw.vertices[tw.faces[:, 1]] - tw.vertices[tw.faces[:, 0]],
+                        tw.vertices[tw.faces[:, 2]] - tw.vertices[tw.faces[:, 0]],
+                    ),
+                    axis=1,
+                ).sum()
+            )
+            nb = int(round(n_samples * a_tw / area_s))
+            bs = sample_surface(tw, nb, int(rng.integers(2**31)))
+            inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
+            pts, nrm = bs.points[inside], bs.normals[inside]
+            bd = self.bvh.closest_points(pts, threads=threads).distance
+            off = bd > self.on_surface
+            self.B.append(pts[off])
+            self.Bn.append(nrm[off])
+            self.Bd.append(bd[off])
+        self._hit: dict = {}
+        self._T: dict = {}
+        self._TP: dict = {}
+        self.n_full = 0
+
+    def index(self, d) -> int:
+        """The signed-direction index of a candidate direction."""
+        lk, s = _canonical(np.asarray(d, np.float64))
+        return self.key[(self._lines[lk], s)]
+
+    def hit(self, k: int, k2: int) -> np.ndarray:
+        """Whether the rays from the boundary samples of HF k along direction k2 hit S."""
+        h = self._hit.get((k, k2))
+        if h is None:
+            h = self.bvh.any_hits(self.B[k], self.vec[k2], t_min=self.eps, threads=self.threads)
+            self._hit[(k, k2)] = h
+        return h
+
+    def cd_st(self, ks) -> float:
+        return float(self.D[:, list(ks)].min(1).mean())
+
+    def T(self, k: int, k2: int, angle: float) -> np.ndarray:
+        """T of the angle between the normals of HF k's boundary samples and direction k2."""
+        t = self._T.get((k, k2, angle))
+        if t is None:
+            t = _T_of(self.Bn[k] @ self.vec[k2], angle)
+            self._T[(k, k2, angle)] = t
+        return t
+
+    def TP(self, k: int, angle: float) -> np.ndarray:
+        """On of the surface samples for direction k: T where visible, 1 elsewhere."""
+        t = self._TP.get((k, angle))
+        if t is None:
+            t = np.where(self.visP[:, k], _T_of(self.Pn @ self.vec[k], angle), 1.0)
+            self._TP[(k, angle)] = t
+        return t
+
+    def energy(self, ks, eps1: float, eps2: float, angle: float = 85.0) -> dict:
+        """E (Eq. 1-5) of the ESI bounded by the signed directions `ks`.
+
+        S~'s surface is the part of S visible along one of the directions (sampled by the
+        surface samples themselves, at distance 0) and the "floaters": boundary samples of
+        a height field that are off S and inside all the other height fields.
+        """
+        ks = sorted(set(ks))
+        self.n_full += 1
+        vis = self.visP[:, ks].any(1)
+        on_p = np.ones(self.n_samples)
+        for k in ks:
+            on_p = np.minimum(on_p, self.TP(k, angle))
+        tot_d, tot_on, n = 0.0, float(on_p[vis].sum()), int(vis.sum())
+        for k in ks:
+            keep = np.ones(len(self.B[k]), bool)
+            for k2 in ks:
+                if k2 != k:
+                    keep &= self.hit(k, k2)
+            if not keep.any():
+                continue
+            # a floater is inside every other height field, so its rays along their axes
+            # hit S (v = 0, On = 1 there): only its own axis can cover it
+            on = self.T(k, k, angle)[keep]
+            tot_on += float(on.sum())
+            tot_d += float(self.Bd[k][keep].sum())
+            n += int(keep.sum())
+        cd_st = self.cd_st(ks)
+        if n == 0:
+            return dict(E=math.inf, dist=math.inf, cd_st=cd_st, cd_ts=math.inf, mu=1.0)
+        cd_ts = tot_d / n
+        mu = tot_on / n
+        dist = cd_st + cd_ts
+        E = dist + min(mu * (dist + eps1), eps2)
+        return dict(E=E, dist=dist, cd_st=cd_st, cd_ts=cd_ts, mu=mu)
+
+
+def _T_of(cos, angle):
+    theta = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return 0.5 * np.tanh(theta - angle) + 0.5
+
+
+class ESI(NamedTuple):
+    """The selected axes of an explicit surface intersection and their energies.
+
+    - `dhf_axis`: `(3,)` float64 unit axis of the double height field (its sign is
+      immaterial).
+    - `hf_axes`: `(m, 3)` float64 unit axes of the height fields (`HF(d)` keeps the
+      points whose ray along `+d` meets the surface).
+    - `energy`: E of the selection (Eq. 1, in the units of the mesh scaled into
+      `[-1/1.1, 1/1.1]^3`).
+    - `by_m`: `(M,)` float64, the least E found with exactly `m = 0, 1, ...` HFs (the
+      search stops at the first `m` that does not lower E by more than `tol`, unless
+      `stop_early=False`).
+    - `dhf_index`, `hf_indices`: indices into the candidate arrays.
+    - `chamfer`: the selection's Chamfer `Dist = CD(S, S~) + CD(S~, S)` (same units).
+    - `mu`: its uncovered fraction (Eq. 4).
+    - `leaves`, `evaluations`: `(M,)` int64, the combinations with `m` HFs and how many of
+      them were evaluated in full (the rest were pruned by the lower bound).
+    """
+
+    dhf_axis: np.ndarray
+    hf_axes: np.ndarray
+    energy: float
+    by_m: np.ndarray
+    dhf_index: int
+    hf_indices: tuple
+    chamfer: float
+    mu: float
+    leaves: np.ndarray
+    evaluations: np.ndarray
+
+    @property
+    def prune_rate(self) -> float:
+        """The fraction of combinations with >= 1 HF that were never evaluated in full."""
+        leaves = int(self.leaves[1:].sum())
+        return 1.0 - int(self.evaluations[1:].sum()) / leaves if leaves else 0.0
+
+    @property
+    def axes(self) -> list:
+        """The signed ray directions that define the ESI: `+dhf`, `-dhf`, then the HFs."""
+        return [self.dhf_axis, -self.dhf_axis] + list(self.hf_axes)
+
+
+def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
+    """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
+    HFs from `hk`, by branch and bound on `CD(S, S~) <= E`, counting leaves and full
+    evaluations."""
+    n_h = len(hk)
+    best = [math.inf, math.inf, ()]
+    leaves = math.comb(n_h, m) * len(dk)
+    n0 = prob.n_full
+
+    def consider(E, i, hs):
+        if (E, i, hs) < tuple(best):
+            best[0], best[1], best[2] = E, i, hs
+
+    Dh = prob.D[:, hk]
+    for i, (kp, km) in enumerate(dk):
+        if m == 0:
+            E = prob.energy([kp, km], eps1, eps2, angle)["E"]
+            consider(E, i, ())
+            continue
+        base = np.minimum(prob.D[:, kp], prob.D[:, km])
+        rows = base > 0  # samples on the DHF's surface are at distance 0 whatever follows
+        cur0 = base[rows]
+        Dr = Dh[rows]
+        n = prob.n_samples
+        # suffix minima: the best any later HF can do, for the bound of a partial choice
+        suf = np.minimum.accumulate(Dr[:, ::-1], axis=1)[:, ::-1] if len(Dr) else Dr
+        stack = [((), cur0)]
+        while stack:
+            hs, cur = stack.pop()
+            start = hs[-1] + 1 if hs else 0
+            depth = len(hs)
+            if depth == m - 1:
+                if start >= n_h:
+                    continue
+                lbs = np.minimum(cur[:, None], Dr[:, start:]).sum(0) / n
+                order = np.argsort(lbs, kind="stable")
+                for o in order:
+                    h = start + int(o)
+                    if not exhaustive and lbs[o] > best[0]:
+                        break
+                    combo = hs + (h,)
+                    E = prob.energy([kp, km] + [hk[j] for j in combo], eps1, eps2, angle)["E"]
+                    consider(E, i, combo)
+                continue
+            last = n_h - (m - depth)
+            for h in range(last, start - 1, -1):  # pushed in reverse: popped in order
+                new = np.minimum(cur, Dr[:, h])
+                if not exhaustive and h + 1 < n_h:
+                    lb = np.minimum(new, suf[:, h + 1]).sum() / n
+                    if lb > best[0]:
+                        continue
+                stack.append((hs + (h,), new))
+    return best, leaves, prob.n_full - n0
+
+
+def _prepare(where, vertices, faces, dhf, hf, resolution, n_samples, seed, threads):
+    mesh = closed_mesh(where, vertices, faces)
+    dhf = np.atleast_2d(np.asarray(dhf, dtype=np.float64))
+    hf = np.asarray(hf, dtype=np.float64).reshape(-1, 3)
+    dhf = np.stack([unit_direction(where, d) for d in dhf]) if len(dhf) else dhf
+    if len(dhf) == 0:
+        raise ValueError(f"{where}: needs at least one DHF candidate")
+    hf = np.stack([unit_direction(where, d) for d in hf]) if len(hf) else hf.reshape(0, 3)
+    res = _validate.positive_int(where, "resolution", resolution, minimum=2)
+    ns = _validate.positive_int(where, "n_samples", n_samples)
+    prob = _Problem(
+        mesh,
+        np.concatenate([dhf, -dhf, hf]),
+        resolution=res,
+        n_samples=ns,
+        seed=int(seed),
+        threads=threads,
+    )
+    dk = [(prob.index(d), prob.index(-d)) for d in dhf]
+    hk = [prob.index(d) for d in hf]
+    return prob, dk, hk
+
+
+def select(
+    vertices,
+    faces=None,
+    *,
+    candidates_dhf=None,
+    candidates_hf=None,
+    n_dhf: int = 50,
+    n_hf: int = 80,
+    max_hf: int = 3,
+    n_samples: int = 10_000,
+    resolution: int = 128,
+    eps1: float = 1e-4,
+    eps2: float = 1e-3,
+    angle: float = 85.0,
+    tol: float | None = None,
+    stop_early: bool = True,
+    exhaustive: bool = False,
+    seed: int = 0,
+    threads=None,
+) -> ESI:
+    """Select the DHF axis and up to `max_hf` HF axes of an ESI by branch and bound.
+
+    The energy of a choice of axes is `E = Dist + min(mu (Dist + eps1), eps2)` (Eq. 1) on
+    the mesh scaled into `[-1/1.1, 1/1.1]^3`, with:
+
+    - `Dist = CD(S, S~) + CD(S~, S)`, L1 Chamfer distances between `n_samples` area
+      samples `P` of the surface S and area samples of the ESI's surface S~.
+      `CD(S, S~)` is exact per sample: a point of S lies inside every height field, so
+      its distance to the boundary of their intersection is the least distance to the
+      boundary of one of them (0 when the point is visible along that axis).
+      `CD(S~, S)` uses exact point-to-mesh distances of the height-field boundary samples
+      that lie inside all the other height fields (exact ray casts).
+    - `mu`, the mean over S~'s samples of `min_k On(p, d_k)` with `On = max(1 - v, T)`
+      (Eq. 3-4): `v` is 1 when the ray from `p` along `d_k` misses S, `T(theta) =
+      tanh(theta - angle)/2 + 1/2` of the angle in degrees between the sample's normal
+      and `d_k`.
+
+    Each height field's boundary comes from a `resolution^2` depth map (exact hits at
+    pixel centres, linear in between). `m = 0, 1, ...` HFs are tried in turn; for each,
+    every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree
+    whose partial choices are bounded below by `CD(S, S~)` with the best remaining
+    candidates, so most leaves are never evaluated (`ESI.prune_rate`). The search stops
+    at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
+    (default `eps1`: an extra height field must be worth more than the noise of the
+    sampled energy).
+
+    **Arguments:**
+
+    - `vertices`, `faces`: a closed, consistently oriented mesh (or a `Mesh` alone).
+    - `candidates_dhf`, `candidates_hf`: `(n, 3)` candidate axes (default
+      [`candidates(n_dhf, n_hf)`][voxax.esi.candidates]).
+    - `max_hf`: the most HFs (0-3 in the paper).
+    - `n_samples`, `resolution`, `eps1`, `eps2`, `angle`, `tol`: as above.
+    - `stop_early`: `False` computes `by_m` for every `m <= max_hf`.
+    - `exhaustive`: evaluate every leaf (for checking the search).
+    - `seed`: the sampling seed (the energy is a sampled estimate; fix it).
+    - `threads`: threads for the ray casts.
+
+    **Returns:** an [`ESI`][voxax.esi.ESI].
+    """
+    where = "esi.select"
+    if faces is not None and not hasattr(faces, "shape") and not isinstance(faces, (list, tuple)):
+        raise TypeError(f"{where}: faces must be an array")
+    if candidates_dhf is None or candidates_hf is None:
+        cd, ch = candidates(n_dhf, n_hf)
+        candidates_dhf = cd if candidates_dhf is None else candidates_dhf
+        candidates_hf = ch if candidates_hf is None else candidates_hf
+    max_hf = int(max_hf)
+    if not 0 <= max_hf <= 8:
+        raise ValueError(f"{where}: max_hf must be in [0, 8], got {max_hf}")
+    tol = float(eps1 if tol is None else tol)
+    prob, dk, hk = _prepare(where, vertices, faces, candidates_dhf, candidates_hf, resolution, n_samples, seed, threads)
+    return _select(prob, dk, hk, candidates_dhf, candidates_hf, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive)
+
+
+def _select(prob, dk, hk, cdhf, chf, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive):
+    cdhf = np.asarray(cdhf, np.float64).reshape(-1, 3)
+    chf = np.asarray(chf, np.float64).reshape(-1, 3)
+    results, leaves, evals = [], [], []
+    chosen = None
+    for m in range(max_hf + 1):
+        if m > len(hk):
+            break
+        best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive)
+        results.append(best)
+        leaves.append(n_leaves)
+        evals.append(n_eval)
+        if chosen is None or best[0] < results[chosen][0] - tol:
+            chosen = m
+        elif stop_early:
+            break
+    E, i, hs = results[chosen]
+    ks = [dk[i][0], dk[i][1]] + [hk[j] for j in hs]
+    info = prob.energy(ks, eps1, eps2, angle)
+    d0 = cdhf[i] / np.linalg.norm(cdhf[i])
+    hfa = np.array([chf[j] / np.linalg.norm(chf[j]) for j in hs]).reshape(-1, 3)
+    return ESI(
+        d0,
+        hfa,
+        float(E),
+        np.array([r[0] for r in results]),
+        int(i),
+        tuple(int(j) for j in hs),
+        float(info["dist"]),
+        float(info["mu"]),
+        np.array(leaves, np.int64),
+        np.array(evals, np.int64),
+    )
+
+
+# ----------------------------------------------------------------------------- occupancy, meshing
+
+
+def _esi_axes(where: str, esi) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(esi, ESI):
+        d0, hfa = esi.dhf_axis, esi.hf_axes
+    elif isinstance(esi, tuple) and len(esi) == 2:
+        d0, hfa = esi
+    else:
+        raise TypeError(f"{where}: esi must be an ESI or a (dhf_axis, hf_axes) pair")
+    d0 = unit_direction(where, d0)
+    hfa = np.asarray(hfa, dtype=np.float64).reshape(-1, 3)
+    hfa = np.stack([unit_direction(where, d) for d in hfa]) if len(hfa) else hfa
+    return d0, hfa
+
+
+def occupancy(esi, vertices, faces=None, points=None, *, threads=None) -> np.ndarray:
+    """Exact inside/outside of an ESI at points.
+
+    A point is in `HF(d)` when its ray along `+d` meets the mesh (at `t >= 0`, so points
+    on the surface are inside), and in the ESI when it is in `HF(d_0)`, `HF(-d_0)` and
+    every `HF(d_k)`. The rays are cast exactly through a BVH, so the ESI contains every
+    point of the solid (winding number >= 1/2) of a closed mesh.
+
+    **Arguments:**
+
+    - `esi`: an [`ESI`][voxax.esi.ESI] or a pair `(dhf_axis (3,), hf_axes (m, 3))`.
+    - `vertices`, `faces`: the closed mesh the ESI was selected for (or a `Mesh`, then
+      `points` moves into the `faces` slot).
+    - `points`: `(..., 3)` float.
+
+    **Returns:** `(...)` bool.
+
+    >>> import numpy as np
+    >>> from voxax import data
+    >>> occupancy(((0, 0, 1), ()), data.cube(2.0), [[0.0, 0.0, 0.5], [2.0, 0.0, 0.0]]).tolist()
+    [True, False]
+    """
+    where = "esi.occupancy"
+    vertices, faces, (points,) = _validate.unpack_mesh(where, vertices, faces, points)
+    if points is None:
+        raise TypeError(f"{where}: missing `points`")
+    mesh = closed_mesh(where, vertices, faces)
+    d0, hfa = _esi_axes(where, esi)
+    p = np.asarray(points)
+    if p.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: points must be a real array, got dtype {p.dtype}")
+    p = p.astype(np.float64)
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise ValueError(f"{where}: points must have shape (..., 3), got {p.shape}")
+    lead = p.shape[:-1]
+    p = p.reshape(-1, 3)
+    bvh = BVH(mesh)
+    inside = np.ones(len(p), bool)
+    for d in [d0, -d0, *hfa]:
+        idx = np.flatnonzero(inside)
+        if len(idx) == 0:
+            break
+        inside[idx] = bvh.any_hits(p[idx], d, threads=threads)
+    return inside.reshape(lead)
+
+
+def _to_manifold(mesh: Mesh):
+    from manifold3d import Manifold, Mesh64
+
+    m = Manifold(
+        Mesh64(
+            vert_properties=np.array(mesh.vertices, dtype=np.float64, order="C"),
+            tri_verts=np.array(mesh.faces, dtype=np.uint64, order="C"),
+        )
+    )
+    if m.status().name != "NoError":
+        raise ValueError(f"esi.to_mesh: manifold3d rejected a height-field solid ({m.status().name})")
+    return m
+
+
+def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -> Mesh:
+    """A watertight mesh of an ESI: the intersection of height-field solids.
+
+    Every signed axis `d` of the ESI (`+d_0`, `-d_0` and the HF axes) gives a closed solid
+    from a `resolution^2` depth map along `d` (the pixel-centre heights joined linearly,
+    closed within one pixel outside the silhouette); manifold3d intersects them. The
+    result approximates the exact ESI to about a pixel (`2 radius / resolution`).
+
+    **Arguments:**
+
+    - `esi`: an [`ESI`][voxax.esi.ESI] or `(dhf_axis, hf_axes)`.
+    - `vertices`, `faces`: the closed mesh (or a `Mesh`).
+    - `resolution`: depth-map pixels per side (>= 2).
+
+    **Returns:** a `Mesh` (float64, outward).
+    """
+    where = "esi.to_mesh"
+    mesh = closed_mesh(where, vertices, faces)
+    d0, hfa = _esi_axes(where, esi)
+    res = _validate.positive_int(where, "resolution", resolution, minimum=2)
+    c, rad = bounding_sphere(mesh)
+    bvh = BVH(mesh)
+    normals = _face_normals(mesh)
+    maps = {}
+    solids = []
+    for d in [d0, -d0, *hfa]:
+        lk, sg = _canonical(d)
+        if lk not in maps:
+            maps[lk] = _depth_map(bvh, frame_for(np.asarray(lk), c, rad, res), normals, threads)
+        dm = maps[lk]
+        if not dm.mask.any():
+            raise ValueError(f"{where}: the depth map along {d.tolist()} is empty; raise the resolution")
+        solids.append(height_field_solid(dm, sg)[0])
+    return intersect_solids(solids)
+
+
+def intersect_solids(solids) -> Mesh:
+    """The manifold3d intersection of closed, outward meshes (e.g. height-field solids
+    from [`height_field_solid`][voxax.esi.height_field_solid]), as a float64 `Mesh`."""
+    out = None
+    for m in solids:
+        solid = _to_manifold(m)
+        out = solid if out is None else out ^ solid
+    if out is None:
+        raise ValueError("intersect_solids needs at least one solid")
+    mg = out.to_mesh64()
+    v = np.asarray(mg.vert_properties, dtype=np.float64)[:, :3]
+    f = np.asarray(mg.tri_verts, dtype=np.int64)
+    return Mesh(v, f.astype(np.int32))
+
+
+def energy(
+    vertices,
+    faces=None,
+    dhf_axis=None,
+    hf_axes=None,
+    *,
+    n_samples: int = 10_000,
+    resolution: int = 128,
+    eps1: float = 1e-4,
+    eps2: float = 1e-3,
+    angle: float = 85.0,
+    seed: int = 0,
+    threads=None,
+) -> dict:
+    """The energy E (Eq. 1-5) of one choice of axes, as [`select`][voxax.esi.select]
+    computes it.
+
+    **Returns:** a dict with `E`, `dist` (`CD(S, S~) + CD(S~, S)`), `cd_st`, `cd_ts` and
+    `mu`, in the units of the mesh scaled into `[-1/1.1, 1/1.1]^3`.
+    """
+    where = "esi.energy"
+    vertices, faces, (dhf_axis, hf_axes) = _validate.unpack_mesh(where, vertices, faces, dhf_axis, hf_axes)
+    if dhf_axis is None:
+        raise TypeError(f"{where}: missing `dhf_axis`")
+    hf_axes = () if hf_axes is None else hf_axes
+    prob, dk, hk = _prepare(where, vertices, faces, [dhf_axis], hf_axes, resolution, n_samples, seed, threads)
+    return prob.energy([dk[0][0], dk[0][1], *hk], float(eps1), float(eps2), float(angle))
+
+
+# ----------------------------------------------------------------------------- soft hulls on grids
+
+
+def height_field_hull(W, axis: int = 2, w: float = 1000.0):
+    """A differentiable double-height-field hull of a voxel grid along a grid axis.
+
+    A cell lies in `DHF(axis)` when some occupied cell precedes it (or is it) along its
+    column and some occupied cell follows it: `min(P, Q)` with `P` the mellowmax of every
+    prefix of the column (`(logcumsumexp(w W) - log n) / w`, the soft "anything so far")
+    and `Q` that of every suffix (the minimum, not the product, keeps partly filled
+    boundary cells of a height field at their own value). As `w -> inf` it tends to the exact hull of a binary
+    grid; the bandsaw's cut shape is the product of the three silhouettes instead, and
+    `height_field_hull(W, a) <= silhouette extrusion along a`.
+
+    **Arguments:**
+
+    - `W`: `(..., nx, ny, nz)` float grid (leading axes are batch axes).
+    - `axis`: 0, 1 or 2 (x, y, z).
+    - `w`: the mellowmax sharpness.
+
+    **Returns:** `(..., nx, ny, nz)`, the soft hull.
+
+    >>> import jax.numpy as jnp
+    >>> W = jnp.zeros((1, 1, 5)).at[0, 0, 1].set(1.0).at[0, 0, 3].set(1.0)
+    >>> height_field_hull(W, 2, w=1e4).round(2).tolist()
+    [[[0.0, 1.0, 1.0, 1.0, 0.0]]]
+    """
+    import jax
+    import jax.numpy as jnp
+
+    axis = int(axis)
+    if axis not in (0, 1, 2):
+        raise ValueError(f"height_field_hull: axis must be 0, 1 or 2, got {axis}")
+    W = jnp.asarray(W)
+    if W.ndim < 3:
+        raise ValueError(f"height_field_hull: W must have shape (..., nx, ny, nz), got {W.shape}")
+    if not jnp.issubdtype(W.dtype, jnp.floating):
+        raise TypeError(f"height_field_hull: W must be a float array, got dtype {W.dtype}")
+    w = float(w)
+    if not w > 0:
+        raise ValueError(f"height_field_hull: w must be > 0, got {w}")
+    ax = W.ndim - 3 + axis
+    n = W.shape[ax]
+    shape = [1] * W.ndim
+    shape[ax] = n
+    logn = jnp.log(jnp.arange(1, n + 1, dtype=W.dtype)).reshape(shape)
+    m = jax.lax.stop_gradient(W.max())
+    x = w * (W - m)
+    pre = m + (jax.lax.cumlogsumexp(x, axis=ax) - logn) / w
+    suf = m + (jax.lax.cumlogsumexp(x, axis=ax, reverse=True) - jnp.flip(logn, ax)) / w
+    return jnp.clip(jnp.minimum(pre, suf), 0.0, None)
+
+
+def esi_gap(W, axes=(2,), w: float = 1000.0):
+    """`mean((H - W)^2)` with `H` the minimum of the soft double-height-field hulls of `W`
+    along the given grid axes ([`height_field_hull`][voxax.esi.height_field_hull]): zero
+    exactly when the shape equals the intersection of those hulls (for one axis: when it
+    can be cast in a two-piece mould parting perpendicular to the axis)."""
+    import jax.numpy as jnp
+
+    axes = tuple(int(a) for a in np.atleast_1d(axes))
+    if not axes:
+        raise ValueError("esi_gap: needs at least one axis")
+    H = height_field_hull(W, axes[0], w)
+    for a in axes[1:]:
+        H = jnp.minimum(H, height_field_hull(W, a, w))
+    return jnp.mean((H - jnp.asarray(W)) ** 2)

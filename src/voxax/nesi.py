@@ -1,0 +1,565 @@
+"""Neural explicit surface intersections (NESI): an ESI's height fields as small SIRENs.
+
+An [`ESI`][voxax.esi.ESI] bounds a shape by a double height field along `d_0` and up to
+three height fields along `d_k`. `fit` stores each as a SIREN from the plane to heights
+(equinox, through [`voxax.fields.Siren`][voxax.fields.Siren]):
+
+- the DHF as one network `(x, y) -> (f_a, f_b)` with five hidden layers; its domain is
+  implicit (`f_b < f_a` inside the silhouette, `f_b >= f_a` outside);
+- each HF as a height network `(x, y) -> f_k` (five hidden layers) and a mask network
+  `(x, y) -> logit` (three hidden layers of width 16) for its silhouette; the heights are
+  learned only where the earlier explicits do not cover the surface well (the restricted
+  domain), and are only pushed above the surface elsewhere.
+
+Widths by level of detail 1-4: DHF 32/48/72/96, HF 16/24/36/48, as in the paper's
+appendix. Each explicit works in its own frame `(u, v, d)` (see
+[`voxax.esi.frame_for`][voxax.esi.frame_for]) on the mesh scaled so that its bounding
+sphere has radius `1/1.1`: every frame then sees the shape inside `[-1/1.1, 1/1.1]^3`
+(scaling the bounding box instead would let rotated frames leave `[-1, 1]^3`).
+
+Training minimises the paper's losses (Eq. 6-14: L1 heights, the domain hinges, the
+normal cosine term switched on after `normal_start` steps, the mask's binary cross
+entropy) with Adam and a cosine-decayed learning rate through
+[`voxax.minimize`][voxax.minimize], on training points computed exactly from the mesh
+(BVH ray casts). [`occupancy`][voxax.nesi.occupancy], [`raytrace`][voxax.nesi.raytrace]
+and [`to_mesh`][voxax.nesi.to_mesh] work on the networks alone.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import esi as _esi
+from ._mesh import Mesh
+from ._spatial import BVH
+from .fields import Siren
+
+__all__ = [
+    "DHF_WIDTHS",
+    "HF_WIDTHS",
+    "MASK_WIDTH",
+    "NESI",
+    "TrainingData",
+    "fit",
+    "occupancy",
+    "param_count",
+    "raytrace",
+    "to_mesh",
+    "training_data",
+]
+
+#: Hidden widths of the DHF network by level of detail 1-4 (five hidden layers).
+DHF_WIDTHS = (32, 48, 72, 96)
+#: Hidden widths of an HF height network by level of detail 1-4 (five hidden layers).
+HF_WIDTHS = (16, 24, 36, 48)
+#: Hidden width of an HF mask network (three hidden layers).
+MASK_WIDTH = 16
+
+_DEPTH, _MASK_DEPTH = 5, 3
+
+
+class NESI(eqx.Module):
+    """A neural ESI: the DHF network, the HF height and mask networks and their frames.
+
+    - `dhf`: `Siren(2 -> 2)`, `(f_a, f_b)` in the DHF's frame.
+    - `heights`, `masks`: tuples of `Siren(2 -> 1)`, one per HF.
+    - `frames`: `((u, v, d), ...)` per explicit (DHF first), as static tuples.
+    - `center`, `scale`: world point `p` has normalised coordinates `scale * (p - center)`.
+    """
+
+    dhf: Siren
+    heights: tuple
+    masks: tuple
+    frames: tuple = eqx.field(static=True)
+    center: tuple = eqx.field(static=True)
+    scale: float = eqx.field(static=True)
+
+    @property
+    def n_hf(self) -> int:
+        """Number of height fields."""
+        return len(self.heights)
+
+
+def param_count(net: NESI) -> int:
+    """The number of trainable parameters (all array leaves).
+
+    For width `w` the DHF has `4 w^2 + 9 w + 2` parameters and an HF
+    `4 w^2 + 8 w + 1 + 609` (height plus mask network).
+
+    Works on a network or on its shape (`equinox.filter_eval_shape`).
+    """
+    n = 0
+    for x in jax.tree_util.tree_leaves(net):
+        dt = getattr(x, "dtype", None)
+        if dt is not None and jnp.issubdtype(dt, jnp.inexact):
+            n += int(np.prod(x.shape))
+    return n
+
+
+def _check_lod(lod) -> int:
+    lod = int(lod)
+    if lod not in (1, 2, 3, 4):
+        raise ValueError(f"nesi: lod must be 1, 2, 3 or 4, got {lod}")
+    return lod
+
+
+def _init(lod, hf_axes, *, key, frames, center=(0.0, 0.0, 0.0), scale=1.0, dtype=None) -> NESI:
+    lod = _check_lod(lod)
+    keys = jax.random.split(key, 1 + 2 * len(hf_axes))
+    dhf = Siren(2, 2, DHF_WIDTHS[lod - 1], _DEPTH, key=keys[0], dtype=dtype)
+    hs = tuple(Siren(2, 1, HF_WIDTHS[lod - 1], _DEPTH, key=keys[1 + 2 * k], dtype=dtype) for k in range(len(hf_axes)))
+    ms = tuple(Siren(2, 1, MASK_WIDTH, _MASK_DEPTH, key=keys[2 + 2 * k], dtype=dtype) for k in range(len(hf_axes)))
+    fr = tuple(tuple(tuple(float(c) for c in row) for row in f) for f in frames)
+    return NESI(dhf, hs, ms, fr, tuple(float(c) for c in center), float(scale))
+
+
+# ----------------------------------------------------------------------------- training data
+
+
+class TrainingData(NamedTuple):
+    """Training points of every explicit, in normalised frame coordinates.
+
+    DHF: `p0 (n, 2)`, `fa, fb (n,)`, `na, nb (n, 3)` local normals of the top and bottom
+    hits, `pbar0 (n', 2)` points whose lines miss the shape.
+    HFs (lists, one entry per HF): `pk` (lines visible along `d_k`), `fk` heights,
+    `nk` normals, `restricted` bool (the restricted domain, criteria 1-3), `pbark`.
+    """
+
+    p0: np.ndarray
+    fa: np.ndarray
+    fb: np.ndarray
+    na: np.ndarray
+    nb: np.ndarray
+    pbar0: np.ndarray
+    pk: list
+    fk: list
+    nk: list
+    restricted: list
+    pbark: list
+
+
+def _local_frame(d) -> tuple:
+    fr = _esi.frame_for(np.asarray(d, np.float64), np.zeros(3), 1.0, 1)
+    return fr.u, fr.v, fr.d
+
+
+def _lines(bvh, c, R, s, frame, xy):
+    """Exact top and bottom hits (normalised depths and local normals) of lines at `xy`."""
+    u, v, d = frame
+    base = c + (xy[:, :1] / s) * u + (xy[:, 1:2] / s) * v
+    lo = bvh.first_hits(base - 2 * R * d, d)
+    hi = bvh.first_hits(base + 2 * R * d, -d)
+    return lo, hi
+
+
+def training_data(
+    esi,
+    vertices,
+    faces=None,
+    *,
+    n_samples: int = 20_000,
+    grazing: float = 70.0,
+    ray_points: int = 12,
+    restrict: bool = True,
+    seed: int = 0,
+) -> tuple:
+    """Training points for [`fit`][voxax.nesi.fit] (Sec. 5.1-5.2), from exact ray casts.
+
+    Surface samples visible along `+d_0` or `-d_0` give the DHF's points; those visible
+    along `d_k` give HF k's, restricted (with `restrict=True`) to the samples that (1)
+    are hidden from every earlier direction or (2) seen from them only at more than
+    `grazing` degrees, or (3) whose ray along `d_k` passes a point hidden from every
+    earlier direction (`ray_points` points tried along it). Uniform points of `[-1, 1]^2`
+    whose lines miss the shape give the outside of each domain.
+
+    **Returns:** `(data: TrainingData, frames, center, scale)`.
+    """
+    from .metrics import sample_surface
+
+    where = "nesi.training_data"
+    mesh = _esi.closed_mesh(where, vertices, faces)
+    d0, hfa = _axes(where, esi)
+    c, R = _esi.bounding_sphere(mesh)
+    s = (1.0 / 1.1) / R
+    bvh = BVH(mesh)
+    normals = _face_normals(mesh)
+    rng = np.random.default_rng(seed)
+    S = sample_surface(mesh, int(n_samples), seed)
+    Q, Qn = S.points, S.normals
+    eps = 1e-9 * R
+    frames = [_local_frame(d0)] + [_local_frame(d) for d in hfa]
+
+    def loc(frame, p):
+        u, v, d = frame
+        q = (p - c) * s
+        return np.stack([q @ u, q @ v, q @ d], -1)
+
+    def nloc(frame, n):
+        u, v, d = frame
+        return np.stack([n @ u, n @ v, n @ d], -1)
+
+    def outside(frame, n):
+        xy = rng.uniform(-1, 1, (n, 2))
+        lo, hi = _lines(bvh, c, R, s, frame, xy)
+        return xy[~lo.hit & ~hi.hit]
+
+    vis = {}
+
+    def visible(d, pts=None):
+        key = tuple(np.round(d, 14))
+        if pts is None:
+            if key not in vis:
+                vis[key] = ~bvh.any_hits(Q, d, t_min=eps)
+            return vis[key]
+        return ~bvh.any_hits(pts, d, t_min=eps)
+
+    f0 = frames[0]
+    sel = visible(d0) | visible(-d0)
+    xy0 = loc(f0, Q[sel])[:, :2]
+    lo, hi = _lines(bvh, c, R, s, f0, xy0)
+    ok = lo.hit & hi.hit
+    xy0 = xy0[ok]
+    fb = (lo.t[ok] - 2 * R) * s
+    fa = (2 * R - hi.t[ok]) * s
+    na = nloc(f0, normals[hi.face[ok]])
+    nb = nloc(f0, normals[lo.face[ok]])
+    pbar0 = outside(f0, max(len(xy0) // 2, 256))
+    pk, fk, nk, restr, pbark = [], [], [], [], []
+    earlier = [d0, -d0]
+    cos_g = np.cos(np.radians(grazing))
+    for k, d in enumerate(hfa):
+        fr = frames[k + 1]
+        vk = visible(d)
+        q, qn = Q[vk], Qn[vk]
+        xy = loc(fr, q)[:, :2]
+        lo, hi = _lines(bvh, c, R, s, fr, xy)
+        ok = hi.hit
+        xy, q, qn = xy[ok], q[ok], qn[ok]
+        f = (2 * R - hi.t[ok]) * s
+        n = nloc(fr, normals[hi.face[ok]])
+        if restrict:
+            covered = np.zeros(len(q), bool)
+            for e in earlier:
+                covered |= visible(e)[vk][ok] & (qn @ e > cos_g)
+            crit3 = np.zeros(len(q), bool)
+            ts = np.linspace(0.0, 2.0 * R, ray_points + 1)[1:]
+            for t in ts:
+                a = q + t * d
+                hidden = np.ones(len(q), bool)
+                for e in earlier:
+                    hidden &= bvh.any_hits(a, e, t_min=eps)
+                crit3 |= hidden
+            r = ~covered | crit3
+        else:
+            r = np.ones(len(q), bool)
+        pk.append(xy)
+        fk.append(f)
+        nk.append(n)
+        restr.append(r)
+        pbark.append(outside(fr, max(len(xy) // 2, 256)))
+        earlier.append(d)
+    data = TrainingData(xy0, fa, fb, na, nb, pbar0, pk, fk, nk, restr, pbark)
+    return data, frames, c, s
+
+
+def _axes(where, esi):
+    if isinstance(esi, _esi.ESI):
+        d0, hfa = esi.dhf_axis, esi.hf_axes
+    elif isinstance(esi, tuple) and len(esi) == 2:
+        d0, hfa = esi
+    else:
+        raise TypeError(f"{where}: esi must be an ESI or a (dhf_axis, hf_axes) pair")
+    d0 = _esi.unit_direction(where, d0)
+    hfa = np.asarray(hfa, dtype=np.float64).reshape(-1, 3)
+    hfa = [_esi.unit_direction(where, d) for d in hfa]
+    return d0, hfa
+
+
+def _face_normals(mesh: Mesh) -> np.ndarray:
+    v, f = mesh.vertices, mesh.faces
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(ln > 0, ln, 1.0)
+
+
+# ----------------------------------------------------------------------------- losses
+
+
+def _grad_xy(net, xy, i=None):
+    """Values and (x, y) gradients of output `i` of a network at points `(n, 2)`."""
+
+    def one(p):
+        out = net(p)
+        return out if i is None else out[i]
+
+    val, jac = jax.vmap(jax.value_and_grad(one))(xy)
+    return val, jac
+
+
+def _cos_loss(n, ngt, eps=1e-8):
+    dot = jnp.sum(n * ngt, -1)
+    den = jnp.maximum(jnp.linalg.norm(n, axis=-1) * jnp.linalg.norm(ngt, axis=-1), eps)
+    return jnp.mean(1.0 - dot / den)
+
+
+def losses(net: NESI, data: dict, alpha, eps: float = 0.01) -> dict:
+    """The paper's losses (Eq. 6-14) of every explicit, as a dict of scalars.
+
+    `data` holds the [`TrainingData`][voxax.nesi.TrainingData] fields as arrays (the
+    HF entries as tuples); `alpha` weighs the normal terms; `eps` is the margin of the
+    domain hinges (normalised units).
+    """
+    out = {}
+    normals = not (isinstance(alpha, (int, float)) and alpha == 0)
+    p0 = data["p0"]
+    if normals:
+        fa, ga = _grad_xy(net.dhf, p0, 0)
+        fb, gb = _grad_xy(net.dhf, p0, 1)
+    else:
+        o0 = net.dhf(p0)
+        fa, fb = o0[:, 0], o0[:, 1]
+    out["dhf_height"] = jnp.mean(jnp.abs(fa - data["fa"]) + jnp.abs(fb - data["fb"]))
+    ob = net.dhf(data["pbar0"])
+    out["dhf_domain"] = jnp.mean(jnp.maximum(ob[:, 0] - ob[:, 1] + eps, 0.0))
+    if normals:
+        one = jnp.ones_like(fa)[:, None]
+        n_a = jnp.concatenate([-ga, one], -1)
+        n_b = jnp.concatenate([gb, -one], -1)
+        out["dhf_normal"] = _cos_loss(n_a, data["na"]) + _cos_loss(n_b, data["nb"])
+    for k in range(net.n_hf):
+        pk, fk, r = data["pk"][k], data["fk"][k], data["restricted"][k]
+        if normals:
+            f, g = _grad_xy(net.heights[k], pk)
+        else:
+            f = net.heights[k](pk)
+        w = r.astype(f.dtype)
+        nr = jnp.maximum(jnp.sum(w), 1.0)
+        nn = jnp.maximum(jnp.sum(1.0 - w), 1.0)
+        out[f"hf{k}_height"] = jnp.sum(w * jnp.abs(f - fk)) / nr
+        out[f"hf{k}_domain"] = jnp.sum((1.0 - w) * jnp.maximum(fk - f + eps, 0.0)) / nn
+        if normals:
+            nk = jnp.concatenate([-g, jnp.ones_like(f)[:, None]], -1)
+            dot = jnp.sum(nk * data["nk"][k], -1)
+            den = jnp.maximum(jnp.linalg.norm(nk, axis=-1) * jnp.linalg.norm(data["nk"][k], axis=-1), 1e-8)
+            out[f"hf{k}_normal"] = jnp.sum(w * (1.0 - dot / den)) / nr
+        logits = jnp.concatenate([net.masks[k](pk), net.masks[k](data["pbark"][k])])
+        labels = jnp.concatenate([jnp.ones(pk.shape[0]), jnp.zeros(data["pbark"][k].shape[0])])
+        out[f"hf{k}_mask"] = jnp.mean(jax.nn.softplus(logits) - labels * logits)
+    total = 0.0
+    for name, v in out.items():
+        total = total + (alpha * v if name.endswith("normal") else v)
+    out["total"] = total
+    return out
+
+
+def fit(
+    esi,
+    vertices,
+    faces=None,
+    *,
+    lod: int = 1,
+    steps: int = 2000,
+    learning_rate: float = 1e-3,
+    n_samples: int = 20_000,
+    normal_start: int | None = None,
+    eps: float = 0.01,
+    restrict: bool = True,
+    key=None,
+    seed: int = 0,
+    progress: bool = False,
+) -> NESI:
+    """Train a [`NESI`][voxax.nesi.NESI] for an ESI of a closed mesh.
+
+    Full-batch Adam on the training points of
+    [`training_data`][voxax.nesi.training_data] with a learning rate cosine-decayed to 0
+    over `steps`, through [`voxax.minimize`][voxax.minimize]. The normal terms follow the
+    paper's weight `alpha = 0.05 tanh((i - i0)/10) + 0.05`, which is 0 before step `i0 =
+    normal_start` and 0.1 after it: training runs in two phases (the second restarts
+    Adam's moments), `i0` defaulting to a fifth of `steps` (the paper: 4000).
+
+    **Arguments:**
+
+    - `esi`: an [`ESI`][voxax.esi.ESI] or `(dhf_axis, hf_axes)`.
+    - `vertices`, `faces`: the closed mesh (or a `Mesh`).
+    - `lod`: level of detail 1-4 (network widths).
+    - `steps`, `learning_rate`, `n_samples`, `eps`, `restrict`: training settings.
+    - `key`: a `jax.random` key for the initialisation (default `key(seed)`).
+
+    **Returns:** the trained [`NESI`][voxax.nesi.NESI].
+    """
+    import optax
+
+    from ._minimize import StopRules, minimize
+
+    where = "nesi.fit"
+    lod = _check_lod(lod)
+    steps = int(steps)
+    if steps < 0:
+        raise ValueError(f"{where}: steps must be >= 0, got {steps}")
+    data, frames, c, s = training_data(esi, vertices, faces, n_samples=n_samples, restrict=restrict, seed=seed)
+    if len(data.p0) == 0:
+        raise ValueError(f"{where}: no training points for the DHF (is the mesh empty?)")
+    d0, hfa = _axes(where, esi)
+    key = jax.random.key(seed) if key is None else key
+    net = _init(lod, hfa, key=key, frames=frames, center=c, scale=s, dtype=jnp.float32)
+    if steps == 0:
+        return net
+    arrays = {
+        "p0": data.p0,
+        "fa": data.fa,
+        "fb": data.fb,
+        "na": data.na,
+        "nb": data.nb,
+        "pbar0": data.pbar0,
+        "pk": tuple(data.pk),
+        "fk": tuple(data.fk),
+        "nk": tuple(data.nk),
+        "restricted": tuple(data.restricted),
+        "pbark": tuple(data.pbark),
+    }
+    arrays = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=None if a.dtype == bool else jnp.float32), arrays)
+    params, static = eqx.partition(net, eqx.is_inexact_array)
+    i0 = steps // 5 if normal_start is None else max(0, min(int(normal_start), steps))
+    sched = optax.cosine_decay_schedule(learning_rate, steps)
+    for lo_i, hi_i, alpha in ((0, i0, 0.0), (i0, steps, 0.1)):
+        if hi_i <= lo_i:
+            continue
+        opt = optax.adam(lambda i, lo_i=lo_i: sched(i + lo_i))
+
+        def energy(p, args, alpha=alpha):
+            return losses(eqx.combine(p, static), args, alpha, eps)["total"]
+
+        res = minimize(
+            energy,
+            params,
+            arrays,
+            solver=opt,
+            stop=StopRules(max_steps=hi_i - lo_i),
+            progress=progress,
+            rtol=0.0,
+            atol=0.0,
+        )
+        params = res.y
+    return eqx.combine(params, static)
+
+
+# ----------------------------------------------------------------------------- queries
+
+
+def _local(net: NESI, p):
+    q = (p - jnp.asarray(net.center, p.dtype)) * net.scale
+    fr = jnp.asarray(net.frames, p.dtype)  # (m+1, 3, 3)
+    return jnp.einsum("nk,ejk->enj", q, fr)  # (m+1, n, 3)
+
+
+@eqx.filter_jit
+def _occupancy_flat(net: NESI, p):
+    loc = _local(net, p)
+    box = jnp.all(jnp.abs(loc[0]) <= 1.0, -1)
+    out = net.dhf(loc[0, :, :2])
+    inside = box & (loc[0, :, 2] <= out[:, 0]) & (loc[0, :, 2] >= out[:, 1])
+    for k in range(net.n_hf):
+        xy, z = loc[k + 1, :, :2], loc[k + 1, :, 2]
+        inside = inside & (net.masks[k](xy) > 0) & (z <= net.heights[k](xy))
+    return inside
+
+
+def occupancy(net: NESI, points) -> jax.Array:
+    """Inside/outside of a NESI at world points: inside the DHF (`f_b <= z <= f_a`) and,
+    for every HF, inside its mask and below its height. Traceable (jit, vmap).
+
+    **Arguments:** `net`; `points`: `(..., 3)` float. **Returns:** `(...)` bool.
+    """
+    p = jnp.asarray(points)
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise ValueError(f"nesi.occupancy: points must have shape (..., 3), got {p.shape}")
+    lead = p.shape[:-1]
+    return _occupancy_flat(net, p.reshape(-1, 3)).reshape(lead)
+
+
+def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int = 3):
+    """First entry of rays into a NESI: `n_steps` uniform steps over the ray's part inside
+    the normalised unit sphere, then `refine` bisections of the first step that enters.
+
+    **Arguments:** `origins`, `directions`: `(..., 3)` float (directions non-zero).
+
+    **Returns:** `(t (...), hit (...) bool)`; `t` is `inf` where the ray misses.
+    """
+    o = jnp.asarray(origins, jnp.result_type(float))
+    d = jnp.asarray(directions, jnp.result_type(float))
+    o, d = jnp.broadcast_arrays(o, d)
+    if o.shape[-1] != 3:
+        raise ValueError(f"nesi.raytrace: rays must have shape (..., 3), got {o.shape}")
+    lead = o.shape[:-1]
+    t, hit = _raytrace(net, o.reshape(-1, 3), d.reshape(-1, 3), int(n_steps), int(refine))
+    return t.reshape(lead), hit.reshape(lead)
+
+
+@eqx.filter_jit
+def _raytrace(net, o, d, n_steps, refine):
+    c = jnp.asarray(net.center, o.dtype)
+    rad = 1.0 / net.scale
+    dd = jnp.sum(d * d, -1)
+    oc = o - c
+    b = jnp.sum(oc * d, -1) / dd
+    disc = b * b - (jnp.sum(oc * oc, -1) - rad * rad) / dd
+    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    t0 = jnp.maximum(-b - sq, 0.0)
+    t1 = -b + sq
+    ts = t0[:, None] + (t1 - t0)[:, None] * jnp.linspace(0.0, 1.0, n_steps)[None]
+    pts = o[:, None] + ts[..., None] * d[:, None]
+    occ = _occupancy_flat(net, pts.reshape(-1, 3)).reshape(ts.shape) & (disc > 0)[:, None]
+    hit = occ.any(1)
+    first = jnp.argmax(occ, 1)
+    hi_t = jnp.take_along_axis(ts, first[:, None], 1)[:, 0]
+    lo_t = jnp.take_along_axis(ts, jnp.maximum(first - 1, 0)[:, None], 1)[:, 0]
+    for _ in range(int(refine)):
+        mid = 0.5 * (lo_t + hi_t)
+        inside = _occupancy_flat(net, o + mid[:, None] * d)
+        hi_t = jnp.where(inside, mid, hi_t)
+        lo_t = jnp.where(inside, lo_t, mid)
+    return jnp.where(hit, hi_t, jnp.inf), hit
+
+
+def to_mesh(net: NESI, resolution: int = 128) -> Mesh:
+    """A watertight mesh of a NESI: each explicit's heights on a `resolution^2` pixel grid
+    become a height-field solid, and manifold3d intersects them (the paper's App. B).
+
+    **Returns:** a `Mesh` in world coordinates.
+    """
+    r = int(resolution)
+    if r < 2:
+        raise ValueError(f"nesi.to_mesh: resolution must be >= 2, got {r}")
+    c = np.asarray(net.center)
+    R = 1.0 / net.scale
+    solids = []
+    for e, (u, v, d) in enumerate(net.frames):
+        fr = _esi.Frame(c, np.asarray(u), np.asarray(v), np.asarray(d), R, r)
+        x = fr.coords() * net.scale
+        xy = np.stack(np.meshgrid(x, x, indexing="ij"), -1).reshape(-1, 2)
+        if e == 0:
+            out = np.asarray(net.dhf(jnp.asarray(xy)), np.float64)
+            fa, fb = out[:, 0].reshape(r, r) / net.scale, out[:, 1].reshape(r, r) / net.scale
+            mask = (fa > fb) & np.all(np.abs(xy) <= 1, -1).reshape(r, r)
+            dm = _depth_dummy(fr, np.where(mask, fb, np.nan), np.where(mask, fa, np.nan), mask)
+            if not mask.any():
+                raise ValueError("nesi.to_mesh: the DHF network is empty at this resolution")
+            solids += [_esi.height_field_solid(dm, 1)[0], _esi.height_field_solid(dm, -1)[0]]
+        else:
+            h = np.asarray(net.heights[e - 1](jnp.asarray(xy)), np.float64).reshape(r, r) / net.scale
+            mask = np.asarray(net.masks[e - 1](jnp.asarray(xy)) > 0).reshape(r, r)
+            dm = _depth_dummy(fr, np.where(mask, h, np.nan), np.where(mask, h, np.nan), mask)
+            solids.append(_esi.height_field_solid(dm, 1)[0])
+    return _esi.intersect_solids(solids)
+
+
+def _depth_dummy(frame, first, last, mask) -> _esi.DepthMap:
+    r = frame.resolution
+    z3 = np.zeros((r, r, 3))
+    f = np.full((r, r), -1, np.int32)
+    return _esi.DepthMap(first, last, mask, z3, z3, f, f, frame)
