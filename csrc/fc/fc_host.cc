@@ -78,7 +78,7 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
                         std::to_string(i / 3) + ")");
     voxax::GridSpec g;
     const voxax::ffi::Error ge = voxax::check_grid(3, box[0], box[3], shape[0], box[1], box[4],
-                                                   shape[1], box[2], box[5], shape[2], &g);
+                                                   shape[1], box[2], box[5], shape[2], 0, 0, &g);
     if (ge.failure()) return fail(err, errlen, ge.message());
     voxax::fc::Params prm;
     prm.lambda_n = params[0];
