@@ -35,6 +35,7 @@
 #include "spatial/bvh.h"
 #include "voxelize/clip.h"
 #include "voxelize/forward.h"
+#include "voxelize/splat.h"
 
 namespace voxax {
 namespace fc {
@@ -134,22 +135,9 @@ inline void clip_triangle(const GridSpec& g, const double p[3][3], int64_t ia, i
 // unit normal nh, by a fan from its first vertex.
 inline double piece_moments(const Poly<3>& Q, const double nh[3], const double centre[3],
                             double d[3]) {
-  double A = 0, M[3] = {0, 0, 0};
+  double M[3];
   const double* q0 = Q.v[0];
-  for (int m = 1; m + 1 < Q.count; ++m) {
-    const double* q1 = Q.v[m];
-    const double* q2 = Q.v[m + 1];
-    double u[3], w[3];
-    for (int a = 0; a < 3; ++a) {
-      u[a] = q1[a] - q0[a];
-      w[a] = q2[a] - q0[a];
-    }
-    const double area =
-        0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-               nh[2] * (u[0] * w[1] - u[1] * w[0]));
-    A += area;
-    for (int a = 0; a < 3; ++a) M[a] += area * (u[a] + w[a]) * (1.0 / 3.0);
-  }
+  const double A = fan_moments(Q, nh, q0, M);
   if (A > 0)
     for (int a = 0; a < 3; ++a) d[a] = (q0[a] - centre[a]) + M[a] / A;
   return A;

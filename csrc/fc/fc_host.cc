@@ -25,6 +25,7 @@
 
 #include "common/constants.h"
 #include "common/grid.h"
+#include "common/host_errors.h"
 #include "fc/decode.h"
 #include "fc/encode.h"
 #include "intersect/predicates.h"
@@ -36,14 +37,7 @@ namespace {
 
 using voxax::fc::Rows;
 
-int fail(char* err, int64_t errlen, const std::string& msg) {
-  if (err && errlen > 0) {
-    const size_t n = std::min<size_t>(msg.size(), static_cast<size_t>(errlen - 1));
-    std::memcpy(err, msg.data(), n);
-    err[n] = '\0';
-  }
-  return 1;
-}
+using voxax::host_fail;
 
 template <typename T>
 void append(std::vector<T>* dst, const std::vector<T>& src) {
@@ -59,38 +53,38 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
   if (handle) *handle = nullptr;
   try {
     if (!handle || !sizes || !box || !shape || !params)
-      return fail(err, errlen, "voxax: fc.encode got a null argument");
+      return host_fail(err, errlen, "voxax: fc.encode got a null argument");
     if (nv < 0 || nf < 0 || nv > INT32_MAX || nf > INT32_MAX)
-      return fail(err, errlen, "voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
+      return host_fail(err, errlen, "voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
     if ((nv > 0 && !V) || (nf > 0 && !F))
-      return fail(err, errlen, "voxax: fc.encode got a null mesh array");
+      return host_fail(err, errlen, "voxax: fc.encode got a null mesh array");
     for (int64_t i = 0; i < 3 * nv; ++i)
       if (!std::isfinite(V[i]) || std::fabs(V[i]) > voxax::kMaxAbsCoordinate)
-        return fail(err, errlen,
-                    "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
-                    "(row " +
-                        std::to_string(i / 3) + ")");
+        return host_fail(err, errlen,
+                         "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
+                         "(row " +
+                             std::to_string(i / 3) + ")");
     for (int64_t i = 0; i < 3 * nf; ++i)
       if (F[i] < 0 || F[i] >= nv)
-        return fail(err, errlen,
-                    "voxax: fc.encode: face index " + std::to_string(F[i]) +
-                        " is out of range [0, " + std::to_string(nv) + ") (face " +
-                        std::to_string(i / 3) + ")");
+        return host_fail(err, errlen,
+                         "voxax: fc.encode: face index " + std::to_string(F[i]) +
+                             " is out of range [0, " + std::to_string(nv) + ") (face " +
+                             std::to_string(i / 3) + ")");
     voxax::GridSpec g;
     const voxax::ffi::Error ge = voxax::check_grid(3, box[0], box[3], shape[0], box[1], box[4],
                                                    shape[1], box[2], box[5], shape[2], 0, 0, &g);
-    if (ge.failure()) return fail(err, errlen, ge.message());
+    if (ge.failure()) return host_fail(err, errlen, ge.message());
     voxax::fc::Params prm;
     prm.lambda_n = params[0];
     prm.lambda_d = params[1];
     prm.power = params[2];
     if (!(prm.lambda_n >= 0) || !std::isfinite(prm.lambda_n))
-      return fail(err, errlen, "voxax: fc.encode: lambda_n must be >= 0 and finite");
+      return host_fail(err, errlen, "voxax: fc.encode: lambda_n must be >= 0 and finite");
     if (!(prm.lambda_d > 0) || !std::isfinite(prm.lambda_d))
-      return fail(err, errlen, "voxax: fc.encode: lambda_d must be > 0 and finite");
+      return host_fail(err, errlen, "voxax: fc.encode: lambda_d must be > 0 and finite");
     if (!(prm.power >= 0) || !(prm.power <= 16))
-      return fail(err, errlen, "voxax: fc.encode: weight_power must lie in [0, 16]");
-    if (flags < 0 || flags > 31) return fail(err, errlen, "voxax: fc.encode: bad flags");
+      return host_fail(err, errlen, "voxax: fc.encode: weight_power must lie in [0, 16]");
+    if (flags < 0 || flags > 31) return host_fail(err, errlen, "voxax: fc.encode: bad flags");
     prm.clamp = (flags & 1) != 0;
     prm.components = (flags & 2) != 0;
     prm.faces = (flags & 4) != 0;
@@ -163,11 +157,11 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     *handle = rows;
     return 0;
   } catch (const std::bad_alloc&) {
-    return fail(err, errlen, "voxax: out of memory in fc.encode");
+    return host_fail(err, errlen, "voxax: out of memory in fc.encode");
   } catch (const std::exception& e) {
-    return fail(err, errlen, std::string("voxax: fc.encode error: ") + e.what());
+    return host_fail(err, errlen, std::string("voxax: fc.encode error: ") + e.what());
   } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in fc.encode");
+    return host_fail(err, errlen, "voxax: unknown error in fc.encode");
   }
 }
 
@@ -210,8 +204,8 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
   if (handle) *handle = nullptr;
   try {
     if (!handle || !count || !shape || K < 0 || (K > 0 && (!index || !P || !N || !S)))
-      return fail(err, errlen, "voxax: fc.decode got a null argument");
-    if (split < 0 || split > 2) return fail(err, errlen, "voxax: fc.decode: bad split mode");
+      return host_fail(err, errlen, "voxax: fc.decode got a null argument");
+    if (split < 0 || split > 2) return host_fail(err, errlen, "voxax: fc.decode: bad split mode");
     voxax::fc::DecodeInput in;
     in.K = K;
     in.index = index;
@@ -221,22 +215,23 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
     in.split = split;
     for (int a = 0; a < 3; ++a) {
       if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
-        return fail(err, errlen, "voxax: fc.decode: bad grid shape");
+        return host_fail(err, errlen, "voxax: fc.decode: bad grid shape");
       in.n[a] = shape[a];
     }
     const double cells = double(in.n[0]) * double(in.n[1]) * double(in.n[2]);
-    if (!(cells < 9.2e18)) return fail(err, errlen, "voxax: fc.decode: the grid is too large");
+    if (!(cells < 9.2e18)) return host_fail(err, errlen, "voxax: fc.decode: the grid is too large");
     const int64_t total = in.n[0] * in.n[1] * in.n[2];
     for (int64_t r = 0; r < K; ++r) {
       if (index[r] < 0 || index[r] >= total)
-        return fail(err, errlen,
-                    "voxax: fc.decode: cell index out of range (row " + std::to_string(r) + ")");
+        return host_fail(
+            err, errlen,
+            "voxax: fc.decode: cell index out of range (row " + std::to_string(r) + ")");
       if (r > 0 && index[r] < index[r - 1])
-        return fail(err, errlen, "voxax: fc.decode: rows must be sorted by cell index");
+        return host_fail(err, errlen, "voxax: fc.decode: rows must be sorted by cell index");
     }
     for (int64_t i = 0; i < 3 * K; ++i)
       if (!std::isfinite(P[i]) || !std::isfinite(N[i]))
-        return fail(err, errlen, "voxax: fc.decode: anchors and normals must be finite");
+        return host_fail(err, errlen, "voxax: fc.decode: anchors and normals must be finite");
     constexpr int64_t kChunk = 4096;
     const int64_t chunks = (K + kChunk - 1) / kChunk;
     std::vector<std::vector<int64_t>> parts(chunks);
@@ -260,11 +255,11 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
     *handle = out;
     return 0;
   } catch (const std::bad_alloc&) {
-    return fail(err, errlen, "voxax: out of memory in fc.decode");
+    return host_fail(err, errlen, "voxax: out of memory in fc.decode");
   } catch (const std::exception& e) {
-    return fail(err, errlen, std::string("voxax: fc.decode error: ") + e.what());
+    return host_fail(err, errlen, std::string("voxax: fc.decode error: ") + e.what());
   } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in fc.decode");
+    return host_fail(err, errlen, "voxax: unknown error in fc.decode");
   }
 }
 
@@ -288,13 +283,14 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
   try {
     if (nv < 0 || nf < 0 || m < 0 || (m > 0 && (!faces || !nodes || !axis || !out)) ||
         (nf > 0 && !F) || (nv > 0 && !V))
-      return fail(err, errlen, "voxax: fc.node_side got a bad argument");
+      return host_fail(err, errlen, "voxax: fc.node_side got a bad argument");
     for (int64_t i = 0; i < m; ++i) {
       if (faces[i] < 0 || faces[i] >= nf || axis[i] < 0 || axis[i] > 2)
-        return fail(err, errlen, "voxax: fc.node_side: face or axis out of range");
+        return host_fail(err, errlen, "voxax: fc.node_side: face or axis out of range");
       for (int c = 0; c < 3; ++c) {
         const int32_t v = F[3 * int64_t(faces[i]) + c];
-        if (v < 0 || v >= nv) return fail(err, errlen, "voxax: fc.node_side: vertex out of range");
+        if (v < 0 || v >= nv)
+          return host_fail(err, errlen, "voxax: fc.node_side: vertex out of range");
       }
     }
     for (int64_t i = 0; i < m; ++i) {
@@ -320,6 +316,6 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
     }
     return 0;
   } catch (...) {
-    return fail(err, errlen, "voxax: unknown error in fc.node_side");
+    return host_fail(err, errlen, "voxax: unknown error in fc.node_side");
   }
 }

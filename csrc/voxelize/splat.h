@@ -10,6 +10,31 @@
 
 namespace voxax {
 
+// The area (signed along the unit normal nh) and the first moment relative to `origin` of
+// a convex planar piece Q, by a fan from its first corner.
+inline double fan_moments(const Poly<3>& Q, const double nh[3], const double* origin, double M[3]) {
+  double A = 0;
+  M[0] = M[1] = M[2] = 0;
+  const double* q0 = Q.v[0];
+  for (int m = 1; m + 1 < Q.count; ++m) {
+    const double* q1 = Q.v[m];
+    const double* q2 = Q.v[m + 1];
+    double u[3], w[3];
+    for (int k = 0; k < 3; ++k) {
+      u[k] = q1[k] - q0[k];
+      w[k] = q2[k] - q0[k];
+    }
+    const double area =
+        0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
+               nh[2] * (u[0] * w[1] - u[1] * w[0]));
+    A += area;
+    for (int k = 0; k < 3; ++k)
+      M[k] +=
+          area * ((q0[k] - origin[k]) + (q1[k] - origin[k]) + (q2[k] - origin[k])) * (1.0 / 3.0);
+  }
+  return A;
+}
+
 // A triangle's corners in float64, its unit normal nh, and the rows of its barycentric
 // map: beta_1 = r1 . (p - a0), beta_2 = r2 . (p - a0) with r1 = (e2 x N) / |N|^2 and
 // r2 = (N x e1) / |N|^2 (exact for slivers too).
@@ -56,24 +81,8 @@ struct TriangleFrame {
   // of the triangle: its area A (signed along nh) and first moment M relative to a0, by
   // a fan from Q's first corner, give beta_1 = r1 . M, beta_2 = r2 . M, beta_0 = A - both.
   void piece_integrals(const Poly<3>& Q, double* beta) const {
-    const double* a = a0();
-    double A = 0, M[3] = {0, 0, 0};
-    const double* q0 = Q.v[0];
-    for (int m = 1; m + 1 < Q.count; ++m) {
-      const double* q1 = Q.v[m];
-      const double* q2 = Q.v[m + 1];
-      double u[3], w[3];
-      for (int k = 0; k < 3; ++k) {
-        u[k] = q1[k] - q0[k];
-        w[k] = q2[k] - q0[k];
-      }
-      const double area =
-          0.5 * (nh[0] * (u[1] * w[2] - u[2] * w[1]) + nh[1] * (u[2] * w[0] - u[0] * w[2]) +
-                 nh[2] * (u[0] * w[1] - u[1] * w[0]));
-      A += area;
-      for (int k = 0; k < 3; ++k)
-        M[k] += area * ((q0[k] - a[k]) + (q1[k] - a[k]) + (q2[k] - a[k])) * (1.0 / 3.0);
-    }
+    double M[3];
+    const double A = fan_moments(Q, nh, a0(), M);
     beta[1] = r1[0] * M[0] + r1[1] * M[1] + r1[2] * M[2];
     beta[2] = r2[0] * M[0] + r2[1] * M[1] + r2[2] * M[2];
     beta[0] = A - beta[1] - beta[2];

@@ -133,6 +133,10 @@ class Mesh:
 
     # -- geometry ---------------------------------------------------------------------
 
+    def face_normals(self) -> np.ndarray:
+        """`(F, 3)` float64 unit normals of the triangles (zeros for degenerate ones)."""
+        return face_normals(self.vertices, self.faces)
+
     def signed_volume(self) -> float:
         """Exact signed volume (3D) or signed area (2D) enclosed by the mesh.
 
@@ -275,3 +279,15 @@ def from_manifold(manifold) -> tuple[np.ndarray, np.ndarray]:
     uniq, inverse = np.unique(vertices, axis=0, return_inverse=True)
     faces = inverse.reshape(-1)[faces]
     return uniq, faces
+
+
+def face_normals(vertices, faces) -> np.ndarray:
+    """`(F, 3)` float64 unit normals of triangles `faces` of `vertices` (right-hand rule;
+    zeros for degenerate triangles)."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces)
+    if len(f) == 0:
+        return np.zeros((0, 3))
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0, length, 1.0)

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _validate
-from ._mesh import Mesh
+from ._mesh import Mesh, face_normals
 from ._spatial import BVH
 
 __all__ = [
@@ -224,13 +224,6 @@ def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
     return c, r
 
 
-def _face_normals(mesh: Mesh) -> np.ndarray:
-    v, f = mesh.vertices, mesh.faces
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(ln > 0, ln, 1.0)
-
-
 def _depth_map(bvh: BVH, frame: Frame, normals: np.ndarray, threads=None) -> DepthMap:
     r = frame.resolution
     x = frame.coords()
@@ -281,7 +274,7 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
     res = _validate.positive_int(where, "resolution", resolution)
     c, rad = bounding_sphere(mesh)
     frame = frame_for(d, c, rad, res)
-    dm = _depth_map(BVH(mesh), frame, _face_normals(mesh), threads)
+    dm = _depth_map(BVH(mesh), frame, face_normals(mesh.vertices, mesh.faces), threads)
     if not dm.mask.any():
         raise ValueError(
             f"{where}: the depth map is empty (no pixel centre of the {res}x{res} frame "
@@ -431,7 +424,7 @@ class _Problem:
         c, rad = bounding_sphere(self.mesh)
         self.sphere = (c, rad)
         self.eps = 1e-9 * rad
-        normals = _face_normals(self.mesh)
+        normals = face_normals(self.mesh.vertices, self.mesh.faces)
         area_s = (
             0.5
             * np.linalg.norm(
@@ -911,7 +904,7 @@ def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -
     res = _validate.positive_int(where, "resolution", resolution, minimum=2)
     c, rad = bounding_sphere(mesh)
     bvh = BVH(mesh)
-    normals = _face_normals(mesh)
+    normals = face_normals(mesh.vertices, mesh.faces)
     maps = {}
     solids = []
     for d in [d0, -d0, *hfa]:

@@ -52,7 +52,7 @@ import numpy as np
 from . import _host
 from . import _validate as check
 from ._grid import Grid
-from ._mesh import Mesh
+from ._mesh import Mesh, face_normals
 
 __all__ = [
     "EDGE_OFFSETS",
@@ -527,7 +527,7 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     if len(missing):
         mcells = np.stack(np.unravel_index(missing, shape), axis=1)
         moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
-        fn = _face_normals(V, F)[cr.face[src]]
+        fn = face_normals(V, F)[cr.face[src]]
         index = np.concatenate([index, missing])
         comp = np.concatenate([comp, np.zeros(len(missing), np.int32)])
         off = np.concatenate([off, moff])
@@ -621,15 +621,6 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     slot = gaxis[chosen[:, 0]] * 4 + (chosen[:, 1] + 2) % 4
     signs[chosen[:, 2], slot] = np.clip(net[chosen[:, 0]], -127, 127)
     return signs
-
-
-def _face_normals(V, F) -> np.ndarray:
-    if len(F) == 0:
-        return np.zeros((0, 3))
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    n = np.cross(b - a, c - a)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0)
 
 
 def encode(

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import esi as _esi
-from ._mesh import Mesh
+from ._mesh import Mesh, face_normals
 from ._spatial import BVH
 from .fields import Siren
 
@@ -187,7 +187,7 @@ def training_data(
     c, R = _esi.bounding_sphere(mesh)
     s = (1.0 / 1.1) / R
     bvh = BVH(mesh)
-    normals = _face_normals(mesh)
+    normals = face_normals(mesh.vertices, mesh.faces)
     rng = np.random.default_rng(seed)
     S = sample_surface(mesh, int(n_samples), seed)
     Q, Qn = S.points, S.normals
@@ -278,13 +278,6 @@ def _axes(where, esi):
     hfa = np.asarray(hfa, dtype=np.float64).reshape(-1, 3)
     hfa = [_esi.unit_direction(where, d) for d in hfa]
     return d0, hfa
-
-
-def _face_normals(mesh: Mesh) -> np.ndarray:
-    v, f = mesh.vertices, mesh.faces
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(ln > 0, ln, 1.0)
 
 
 # ----------------------------------------------------------------------------- losses
