@@ -216,7 +216,7 @@ def test_rdt_bad_input(sphere_rdt):
         cvt.rdt(fr, seeds[:2])
     bad = seeds.copy()
     bad[0, 0] = np.nan
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(ValueError, match="NaN or Inf"):
         cvt.rdt(fr, bad)
     with pytest.raises(ValueError, match="max_hole"):
         cvt.rdt(fr, seeds, max_hole=2)

@@ -1,4 +1,4 @@
-// Error reporting of the eager host entry points: plain C functions called through
+// Error reporting and input checks of the eager host entry points: plain C functions called through
 // ctypes, which return 0 on success and 1 on failure with a message in a caller-owned
 // buffer. `host_guarded` runs the body and turns every exception into a message of the
 // same categories as the FFI handlers' `guarded` (common/errors.h), so no exception ever
@@ -6,6 +6,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <exception>
@@ -13,6 +14,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "common/constants.h"
 #include "common/errors.h"
 
 namespace voxax {
@@ -51,6 +53,25 @@ int host_guarded(const char* where, char* err, int64_t errlen, Body&& body) noex
   } catch (...) {
     return host_fail(err, errlen, "");
   }
+}
+
+// Checks that `count` coordinates (rows of 3) are finite and within the package's bound;
+// on failure writes the message (naming `what` and the row) into msg and returns false.
+inline bool check_host_coordinates(const double* x, int64_t count, const char* what,
+                                   std::string* msg) {
+  for (int64_t i = 0; i < count; ++i) {
+    if (!std::isfinite(x[i])) {
+      *msg =
+          std::string("voxax: ") + what + " contain NaN or Inf (row " + std::to_string(i / 3) + ")";
+      return false;
+    }
+    if (std::fabs(x[i]) > kMaxAbsCoordinate) {
+      *msg = std::string("voxax: ") + what + " coordinate magnitude exceeds 1e75 (row " +
+             std::to_string(i / 3) + ")";
+      return false;
+    }
+  }
+  return true;
 }
 
 }  // namespace voxax

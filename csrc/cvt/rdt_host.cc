@@ -18,22 +18,6 @@
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 
-namespace {
-
-constexpr double kMaxAbs = 1e75;
-
-bool finite_coords(const double* x, int64_t count, const char* what, std::string* msg) {
-  for (int64_t i = 0; i < count; ++i)
-    if (!std::isfinite(x[i]) || std::fabs(x[i]) > kMaxAbs) {
-      *msg = std::string("voxax: ") + what + " must be finite with magnitude <= 1e75 (row " +
-             std::to_string(i / 3) + ")";
-      return false;
-    }
-  return true;
-}
-
-}  // namespace
-
 VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, const double* N,
                                int64_t np, double tau, int32_t max_hole, int32_t threads,
                                void** handle, char* err, int64_t errlen) {
@@ -59,9 +43,9 @@ VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, con
       *msg = "voxax: max_hole must lie in [3, 64]";
       return false;
     }
-    if (!finite_coords(S, 3 * ns, "seeds", msg)) return false;
-    if (!finite_coords(X, 3 * np, "fragments", msg)) return false;
-    if (!finite_coords(N, 3 * np, "normals", msg)) return false;
+    if (!voxax::check_host_coordinates(S, 3 * ns, "seeds", msg)) return false;
+    if (!voxax::check_host_coordinates(X, 3 * np, "fragments", msg)) return false;
+    if (!voxax::check_host_coordinates(N, 3 * np, "normals", msg)) return false;
     auto rdt = std::make_unique<voxax::cvt::Rdt>();
     rdt->run(S, ns, X, N, np, tau, max_hole, threads);
     *handle = rdt.release();

@@ -32,24 +32,7 @@ namespace {
 using voxax::spatial::Bvh;
 using voxax::spatial::RayHit;
 
-constexpr double kMaxAbs = 1e75;  // the package's coordinate bound
-constexpr int64_t kChunk = 256;   // queries per task: fixed, so results do not depend on threads
-
-bool check_coords(const double* x, int64_t count, const char* what, std::string* msg) {
-  for (int64_t i = 0; i < count; ++i) {
-    if (!std::isfinite(x[i])) {
-      *msg =
-          std::string("voxax: ") + what + " contain NaN or Inf (row " + std::to_string(i / 3) + ")";
-      return false;
-    }
-    if (std::fabs(x[i]) > kMaxAbs) {
-      *msg = std::string("voxax: ") + what + " coordinate magnitude exceeds 1e75 (row " +
-             std::to_string(i / 3) + ")";
-      return false;
-    }
-  }
-  return true;
-}
+constexpr int64_t kChunk = 256;  // queries per task: fixed, so results do not depend on threads
 
 // The query order: queries sorted along a Morton curve over their bounding box
 // (ties by index), so that consecutive queries are close in space. Results are
@@ -95,8 +78,8 @@ struct Hits {
 
 bool check_rays(const double* O, const double* D, int64_t n, double tmin, double tmax,
                 std::string* msg) {
-  if (!check_coords(O, 3 * n, "ray origins", msg)) return false;
-  if (!check_coords(D, 3 * n, "ray directions", msg)) return false;
+  if (!voxax::check_host_coordinates(O, 3 * n, "ray origins", msg)) return false;
+  if (!voxax::check_host_coordinates(D, 3 * n, "ray directions", msg)) return false;
   for (int64_t i = 0; i < n; ++i) {
     const double* d = D + 3 * i;
     if (d[0] == 0.0 && d[1] == 0.0 && d[2] == 0.0) {
@@ -121,7 +104,7 @@ VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, 
       *msg = "voxax: the BVH takes at most 2^30 faces";
       return false;
     }
-    if (!check_coords(V, 3 * nv, "vertices", msg)) return false;
+    if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg)) return false;
     for (int64_t i = 0; i < 3 * nf; ++i) {
       if (F[i] < 0 || F[i] >= nv) {
         *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
@@ -158,7 +141,7 @@ VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int
       *msg = "voxax: the BVH has been freed";
       return false;
     }
-    if (!check_coords(P, 3 * n, "points", msg)) return false;
+    if (!voxax::check_host_coordinates(P, 3 * n, "points", msg)) return false;
     const std::vector<int64_t> order = spatial_order(P, n);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
       int32_t hint = -1;

@@ -24,16 +24,6 @@ namespace {
 
 constexpr int64_t kKnnChunk = 256;
 
-bool finite_rows(const double* x, int64_t count, const char* what, std::string* msg) {
-  for (int64_t i = 0; i < count; ++i)
-    if (!std::isfinite(x[i]) || std::fabs(x[i]) > kMaxAbsCoordinate) {
-      *msg = std::string("voxax: ") + what + " contain NaN, Inf or a coordinate beyond 1e75 (row " +
-             std::to_string(i / 3) + ")";
-      return false;
-    }
-  return true;
-}
-
 ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<ffi::F64> queries,
                ffi::ResultBuffer<ffi::S32> idx, ffi::ResultBuffer<ffi::F64> dist) {
   return guarded("the kNN kernel", [&]() -> ffi::Error {
@@ -50,8 +40,8 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
       return ffi::Error::InvalidArgument("voxax: k must lie in [1, 32], got " + std::to_string(k));
     if (pd[0] > INT32_MAX) return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 points");
     std::string msg;
-    if (!finite_rows(points.typed_data(), 3 * pd[0], "points", &msg) ||
-        !finite_rows(queries.typed_data(), 3 * qd[0], "queries", &msg))
+    if (!check_host_coordinates(points.typed_data(), 3 * pd[0], "points", &msg) ||
+        !check_host_coordinates(queries.typed_data(), 3 * qd[0], "queries", &msg))
       return ffi::Error::InvalidArgument(msg);
     spatial::PointGrid grid;
     grid.build(points.typed_data(), pd[0]);
@@ -85,8 +75,8 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
       *msg = "voxax: at most 2^31 - 1 points";
       return false;
     }
-    if (!voxax::finite_rows(S, 3 * n, "points", msg) ||
-        !voxax::finite_rows(Q, 3 * m, "queries", msg))
+    if (!voxax::check_host_coordinates(S, 3 * n, "points", msg) ||
+        !voxax::check_host_coordinates(Q, 3 * m, "queries", msg))
       return false;
     voxax::spatial::PointGrid grid;
     grid.build(S, n);

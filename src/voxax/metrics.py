@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import _validate
 from ._grid import Grid
 from ._mesh import Mesh
 from ._spatial import BVH
@@ -600,16 +601,11 @@ def iou(a, b, grid: Grid, *, soft: bool = True, threshold: float = 0.5):
 
     from ._voxelize import voxelize
 
-    def occupancy(x, name):
-        if isinstance(x, Mesh):
-            v, f = x.vertices, x.faces
-        elif isinstance(x, tuple) and len(x) == 2:
-            v, f = x
-        else:
-            raise TypeError(f"{name} must be a voxax.Mesh or a (vertices, faces) pair")
+    def occupancy(x):
+        v, f = _validate.mesh_like("iou", x)
         return jnp.clip(voxelize(v, f, grid), 0.0, 1.0)
 
-    wa, wb = occupancy(a, "a"), occupancy(b, "b")
+    wa, wb = occupancy(a), occupancy(b)
     if soft:
         inter, union = jnp.sum(jnp.minimum(wa, wb)), jnp.sum(jnp.maximum(wa, wb))
     else:
