@@ -248,6 +248,12 @@ ERRORS = [
     (["tile", "-n", "32", "torus"], "multiple of 3"),
     (["tile", "torus", "cube", "--instances", "1", "2", "3"], "3 counts for 2 meshes"),
     (["tile", "torus", "--init", "grid"], "invalid choice"),
+    (["fc", "no_such_mesh"], "neither a mesh file"),
+    (["fc", "torus", "-r", "0"], "at least 2"),
+    (["fc", "torus", "-o", "{tmp}/out.txt"], "must end in .ply"),
+    (["remesh", "{tmp}/missing.ply"], "no such mesh file"),
+    (["remesh", "torus", "--seeds", "2"], "expected an integer >= 4"),
+    (["remesh", "torus", "-o", "{tmp}/out.npz"], "must end in .ply"),
 ]
 
 

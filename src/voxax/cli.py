@@ -152,6 +152,10 @@ def _load_mesh(name: str, dim: int | None = 3):
     return mesh
 
 
+# Mesh formats the commands write (through trimesh).
+_MESH_OUTPUTS = (".ply", ".obj", ".stl", ".off", ".glb")
+
+
 def _check_output(path: str, suffixes: tuple[str, ...] = ()) -> None:
     """Refuses an output path early (before minutes of computing) if it cannot be written."""
     if suffixes and not path.lower().endswith(suffixes):
@@ -550,7 +554,7 @@ def _read_grid(path: str):
 def _mesh(args) -> int:
     if (args.grid is None) == (args.sdf is None):
         raise UsageError("give either a grid file W.npz or --sdf NAME (exactly one)")
-    _check_output(args.output)
+    _check_output(args.output, _MESH_OUTPUTS)
     _setup_jax(False)
     import numpy as np
 
@@ -591,7 +595,7 @@ def _fc_arguments(p) -> None:
 
 
 def _fc(args) -> int:
-    _check_output(args.output)
+    _check_output(args.output, _MESH_OUTPUTS)
     if args.report:
         _check_output(args.report, (".json",))
     mesh = _load_mesh(args.mesh, 3)
@@ -634,7 +638,7 @@ def _remesh_arguments(p) -> None:
 
 
 def _remesh(args) -> int:
-    _check_output(args.output)
+    _check_output(args.output, _MESH_OUTPUTS)
     mesh = _load_mesh(args.mesh)
     _setup_jax(False)
     import voxax
