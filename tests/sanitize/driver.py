@@ -856,7 +856,7 @@ def run_rdt(rng, n_inputs):
     frag = cvt.Fragments(x, x, np.ones(20), np.zeros(20, np.int8), np.zeros(20, np.int64), np.ones(20, np.int8), g)
     bad = {
         "two seeds": (lambda: cvt.rdt(frag, s[:2]), "3 seeds"),
-        "NaN seed": (lambda: cvt.rdt(frag, np.where(np.arange(30).reshape(10, 3) == 4, np.nan, s)), "finite"),
+        "NaN seed": (lambda: cvt.rdt(frag, np.where(np.arange(30).reshape(10, 3) == 4, np.nan, s)), "NaN or Inf"),
         "huge seed": (lambda: cvt.rdt(frag, s * 1e80), "1e75"),
         "negative tau": (lambda: cvt.rdt(frag, s, tau=-1.0), "tolerance"),
         "no fragments": (lambda: cvt.rdt(frag._replace(points=np.zeros((0, 3)), normals=np.zeros((0, 3))), s), "fragments"),
