@@ -38,6 +38,29 @@ import voxax  # noqa: E402
 from voxax import _voxelize_ops  # noqa: E402
 
 
+def _status(key: str) -> int:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def reset_peak() -> int:
+    """Resets the peak resident set size (Linux) and returns the current one."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+    return _status("VmRSS")
+
+
+def peak_since(base: int) -> float:
+    """GiB of resident memory above `base` at the peak since the last `reset_peak`."""
+    return (_status("VmHWM") - base) / 2**30
+
+
 def timed(fn, *args, repeats=5):
     jax.block_until_ready(fn(*args))  # compile and warm up
     times = []
@@ -121,9 +144,16 @@ def loops(n: int, subdivisions: int, steps: int, repeats: int) -> dict:
         return x, value, t
 
     out = {"grid": n, "faces": mesh.n_faces, "steps": steps, "kernels_per_step_s": kernel_s}
+    base = reset_peak()
     out["python_loop_per_step_s"] = timed(python_loop, v0, target, repeats=repeats) / steps
-    t_don = jnp.array(target)  # a private copy: donation consumes it
-    jax.block_until_ready(python_loop_donated(v0, jnp.array(target)))  # compile
+    out["python_loop_peak_gib"] = peak_since(base)
+    # One target buffer at a time (at 1024^3 each grid is 4 GiB): donation consumes it and
+    # each call hands it back.
+    t_don = target
+    del target
+    base = reset_peak()
+    x, value, t_don = python_loop_donated(v0, t_don)  # compile
+    jax.block_until_ready((x, value, t_don))
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -131,7 +161,10 @@ def loops(n: int, subdivisions: int, steps: int, repeats: int) -> dict:
         jax.block_until_ready((x, value, t_don))
         times.append(time.perf_counter() - t0)
     out["donated_loop_per_step_s"] = statistics.median(times) / steps
-    out["fori_loop_per_step_s"] = timed(run_loop, v0, target, repeats=repeats) / steps
+    out["donated_loop_peak_gib"] = peak_since(base)
+    base = reset_peak()
+    out["fori_loop_per_step_s"] = timed(run_loop, v0, t_don, repeats=repeats) / steps
+    out["fori_loop_peak_gib"] = peak_since(base)
     for k in ("python_loop", "donated_loop", "fori_loop"):
         out[f"{k}_over_kernels"] = out[f"{k}_per_step_s"] / kernel_s
     return out
@@ -155,13 +188,15 @@ def main(argv=None) -> int:
         print(f"| {name} | {k[name + '_s'] * 1e3:.1f} ms |")
     print(f"\ntangent / backward: {k['tangent_over_backward']:.2f}")
     lp = loops(args.loop_size, args.subdivisions, args.steps, args.repeats)
-    print(f"\n| loop step ({lp['grid']}^3, {lp['faces']} faces, float32) | per step | / kernels |")
-    print("|---|---:|---:|")
-    print(f"| kernels alone (forward + backward) | {lp['kernels_per_step_s'] * 1e3:.0f} ms | 1.00 |")
+    print(f"\n| loop step ({lp['grid']}^3, {lp['faces']} faces, float32) | per step | / kernels | peak memory "
+          f"above the inputs |")
+    print("|---|---:|---:|---:|")
+    print(f"| kernels alone (forward + backward) | {lp['kernels_per_step_s'] * 1e3:.0f} ms | 1.00 | |")
     for name, label in (("python_loop", "jitted step, Python loop"),
                         ("donated_loop", "jitted step, target donated"),
                         ("fori_loop", "lax.fori_loop in one jit")):
-        print(f"| {label} | {lp[name + '_per_step_s'] * 1e3:.0f} ms | {lp[name + '_over_kernels']:.2f} |")
+        print(f"| {label} | {lp[name + '_per_step_s'] * 1e3:.0f} ms | {lp[name + '_over_kernels']:.2f} | "
+              f"{lp[name + '_peak_gib']:.2f} GiB |")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"kernels": k, "loops": lp}, fh, indent=1)
