@@ -79,63 +79,103 @@ def _threads() -> int:
     return max(1, min(os.cpu_count() or 1, 64))
 
 
+def _mc_lib():
+    lib = _ffi.library()
+    if not getattr(lib, "_voxax_mc_typed", False):
+        lib.voxax_mc_count.restype = ctypes.c_int
+        lib.voxax_mc_count.argtypes = [
+            ctypes.c_void_p,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.POINTER(ctypes.c_int64),
+            ctypes.c_double,
+            ctypes.c_int,
+            ctypes.POINTER(ctypes.c_void_p),
+            ctypes.POINTER(ctypes.c_int64),
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ]
+        lib.voxax_mc_fill.restype = ctypes.c_int
+        lib.voxax_mc_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        lib.voxax_mc_release.restype = None
+        lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
+        lib.voxax_mc_slice_vertices.restype = ctypes.c_int64
+        lib.voxax_mc_slice_vertices.argtypes = [ctypes.c_void_p, ctypes.c_int64]
+        lib._voxax_mc_typed = True
+    return lib
+
+
+class _Count:
+    """Pass 1 of the C++ kernel on one array: the counts, and a context for pass 2.
+
+    Holds a reference to the (contiguous) samples, which pass 2 reads again.
+    """
+
+    def __init__(self, values: np.ndarray, level: float, threads: int | None = None):
+        lib = _mc_lib()
+        values = np.ascontiguousarray(values)
+        if values.dtype not in (np.float32, np.float64):
+            values = values.astype(np.float64)
+        self.values = values
+        self.dim = dim = values.ndim
+        dtype = 0 if values.dtype == np.float32 else 1
+        shape = (ctypes.c_int64 * 3)(*(list(values.shape) + [1] * (3 - dim)))
+        counts = (ctypes.c_int64 * 2)()
+        self.ctx = ctypes.c_void_p()
+        err = ctypes.create_string_buffer(512)
+        rc = lib.voxax_mc_count(
+            values.ctypes.data,
+            dtype,
+            dim,
+            shape,
+            float(level),
+            threads or _threads(),
+            ctypes.byref(self.ctx),
+            counts,
+            err,
+            512,
+        )
+        if rc != 0:
+            msg = err.value.decode(errors="replace")
+            raise (MemoryError if rc == 2 else ValueError)(msg)
+        self.n_vertices, self.n_faces = int(counts[0]), int(counts[1])
+
+    def slice_vertices(self, i: int) -> int:
+        """Vertices owned by x slice `i` (crossed edges with their lower cell there)."""
+        return int(_mc_lib().voxax_mc_slice_vertices(self.ctx, int(i)))
+
+    def fill(self):
+        """Pass 2: `edges (V, 2)` and `faces (F, d)` int32; releases the context."""
+        lib = _mc_lib()
+        try:
+            edges = np.zeros((self.n_vertices, 2), np.int32)
+            faces = np.zeros((self.n_faces, self.dim), np.int32)
+            if lib.voxax_mc_fill(self.ctx, edges.ctypes.data, faces.ctypes.data) != 0:
+                raise MemoryError("voxax.isosurface: out of memory")
+        finally:
+            self.release()
+        return edges, faces
+
+    def release(self):
+        if self.ctx:
+            _mc_lib().voxax_mc_release(self.ctx)
+            self.ctx = ctypes.c_void_p()
+        self.values = None
+
+    def __del__(self):
+        try:
+            self.release()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+
 def host_topology(values: np.ndarray, level: float, threads: int | None = None):
     """Exact-size topology of one field: `edges (V, 2)`, `faces (F, d)` (int32).
 
     `values` is a NumPy array (float32 or float64) of the grid's shape; `threads` defaults to
     the number of CPUs (the result does not depend on it). No input checks: see `isosurface`.
     """
-    lib = _ffi.library()
-    values = np.ascontiguousarray(values)
-    dim = values.ndim
-    dtype = 0 if values.dtype == np.float32 else 1
-    if dtype == 1 and values.dtype != np.float64:
-        values = values.astype(np.float64)
-    shape = (ctypes.c_int64 * 3)(*(list(values.shape) + [1] * (3 - dim)))
-    counts = (ctypes.c_int64 * 2)()
-    ctx = ctypes.c_void_p()
-    err = ctypes.create_string_buffer(512)
-    lib.voxax_mc_count.restype = ctypes.c_int
-    lib.voxax_mc_count.argtypes = [
-        ctypes.c_void_p,
-        ctypes.c_int,
-        ctypes.c_int,
-        ctypes.POINTER(ctypes.c_int64),
-        ctypes.c_double,
-        ctypes.c_int,
-        ctypes.POINTER(ctypes.c_void_p),
-        ctypes.POINTER(ctypes.c_int64),
-        ctypes.c_char_p,
-        ctypes.c_int64,
-    ]
-    lib.voxax_mc_fill.restype = ctypes.c_int
-    lib.voxax_mc_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-    lib.voxax_mc_release.restype = None
-    lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
-    rc = lib.voxax_mc_count(
-        values.ctypes.data,
-        dtype,
-        dim,
-        shape,
-        float(level),
-        threads or _threads(),
-        ctypes.byref(ctx),
-        counts,
-        err,
-        512,
-    )
-    if rc != 0:
-        msg = err.value.decode(errors="replace")
-        raise (MemoryError if rc == 2 else ValueError)(msg)
-    try:
-        nv, nf = int(counts[0]), int(counts[1])
-        edges = np.zeros((nv, 2), np.int32)
-        faces = np.zeros((nf, dim), np.int32)
-        if lib.voxax_mc_fill(ctx, edges.ctypes.data, faces.ctypes.data) != 0:
-            raise MemoryError("voxax.isosurface: out of memory")
-    finally:
-        lib.voxax_mc_release(ctx)
-    return edges, faces
+    return _Count(values, level, threads).fill()
 
 
 def _ffi_topology(values, level: float, dim: int, vcap: int, fcap: int):
@@ -360,6 +400,217 @@ def _interpolate_eager(values: np.ndarray, edges: np.ndarray, grid: Grid, level:
     return v[..., :n, :], min_gap
 
 
+# -- the eager path, streamed over slabs of x planes ------------------------------------------
+
+# Cells per slab of the eager path (64 MiB of float32 samples): grids up to this size run as
+# one slab; larger ones are swept slab by slab, so that nothing of the grid's size is
+# allocated besides the result (no padded copy, no mask, no float64 copy).
+_SLAB_CELLS = 1 << 24
+
+
+def _close_value(values: np.ndarray, level: float, inside: str, close, planes: int):
+    """The pad value of `close` (as in `_pad`), reading `values` slab by slab."""
+    if close is True:
+        span = 0.0
+        for a in range(0, max(values.shape[0], 1), planes):
+            part = values[a : a + planes]
+            if part.size:
+                span = max(span, float(np.max(np.abs(part.astype(np.float64) - level))))
+        outward = 1.0 if inside == "below" else -1.0
+        return np.asarray(level + outward * (span if span > 0 else 1.0), values.dtype)
+    pad = float(close)
+    ok = pad > level if inside == "below" else pad < level
+    if not np.isfinite(pad) or not ok:
+        side = "above" if inside == "below" else "below"
+        raise ValueError(
+            f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+        )
+    return np.asarray(pad, values.dtype)
+
+
+def _edge_keys(edges: np.ndarray, strides: np.ndarray, offset: int) -> np.ndarray:
+    """Sort keys `d * (global lower cell) + axis` of edges given in local cell indices."""
+    d = len(strides)
+    diff = (edges[:, 1] - edges[:, 0]).astype(np.int64)
+    axis = np.zeros(len(edges), np.int64)
+    for a, st in enumerate(strides):
+        axis[diff == st] = a
+    return (edges[:, 0].astype(np.int64) + offset) * d + axis
+
+
+def _vertices_of(fa, fb, edges: np.ndarray, grid: Grid, level: float):
+    """Vertex positions (NumPy) and min gap of gathered samples, by the compiled
+    interpolation (vertex counts rounded up to a power of two, as in `_interpolate_eager`)."""
+    ft = _float()
+    n = len(edges)
+    bucket = max(64, 1 << max(n - 1, 0).bit_length())
+    pe = np.zeros((bucket, 2), np.int32)
+    pe[:n] = edges
+    pa = np.zeros(bucket, fa.dtype)
+    pb = np.zeros(bucket, fb.dtype)
+    pa[:n], pb[:n] = fa, fb
+    v, gap = _from_samples_jit(
+        jnp.asarray(pa, ft),
+        jnp.asarray(pb, ft),
+        jnp.asarray(pe),
+        jnp.asarray(n, jnp.int32),
+        grid,
+        jnp.asarray(level, ft),
+    )
+    return np.asarray(v)[:n], gap
+
+
+def _isosurface_streamed(
+    values: np.ndarray, grid: Grid, level: float, inside: str, close, planes=None
+) -> IsoMesh:
+    """The eager `isosurface` of concrete samples `values` (of `grid.shape`), swept over slabs.
+
+    Slab `s` covers the x planes `a..b` (`b = a + planes`, the last one clipped) of the
+    (padded, with `close`) grid; neighbouring slabs share one plane. Each slab runs the C++
+    kernel on its own (a view of `values`, or a padded copy of the slab with `close`). A slab
+    owns the vertices whose lower cell lies in its planes `a..b-1` (the last slab: all), so
+    the concatenated vertices are numbered exactly as in one sweep (by edge id); faces of a
+    slab that use vertices of its last plane are renumbered to those of the next slab's first
+    plane, found by their edge keys. Vertex positions are interpolated per slab by the same
+    compiled elementwise function. The result is the same, bit for bit, for any `planes`.
+    Memory: the result, plus one slab's samples, topology and (with `close`) padded copy.
+    """
+    d = grid.dim
+    base = grid.shape
+    shape = tuple(n + 2 for n in base) if close is not False else base
+    m = int(np.prod(shape[1:], dtype=np.int64))
+    if planes is None:
+        planes = max(1, _SLAB_CELLS // max(m, 1))
+    planes = int(planes)
+    pad = None
+    if close is not False:
+        _check_finite_slabs(values, planes)
+        pad = _close_value(values, level, inside, close, planes)
+        g = _padded(grid)
+    else:
+        g = grid
+    if int(np.prod(shape, dtype=np.int64)) > _INT32_MAX:
+        raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
+    nx = shape[0]
+    starts = list(range(0, max(nx - 1, 1), planes))
+    spans = [(a, min(a + planes, nx - 1)) for a in starts]
+    view = pad is None and values.flags.c_contiguous and values.dtype in (np.float32, np.float64)
+
+    def slab(a, b):
+        if pad is None:
+            return values[a : b + 1]
+        out = np.empty((b - a + 1,) + shape[1:], values.dtype)
+        out[...] = pad
+        lo, hi = max(a, 1), min(b, base[0])
+        if lo <= hi:
+            out[(slice(lo - a, hi - a + 1),) + (slice(1, -1),) * (d - 1)] = values[lo - 1 : hi]
+        return out
+
+    # Pass 1: counts per slab (the contexts of views are kept for pass 2).
+    kept, counts = [], []
+    for s, (a, b) in enumerate(spans):
+        part = slab(a, b)
+        if pad is None and not np.all(np.isfinite(part)):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+        c = _Count(part, level)
+        last = s == len(spans) - 1
+        own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
+        counts.append((own, c.n_faces))
+        if view:
+            kept.append(c)
+        else:
+            c.release()
+            kept.append(None)
+    n_vertices = sum(o for o, _ in counts)
+    n_faces = sum(f for _, f in counts)
+    if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
+        raise ValueError("isosurface: more than 2^31 - 1 vertices or faces")
+    ft = np.dtype(_float())
+    edges = np.zeros((n_vertices, 2), np.int32)
+    faces = np.zeros((n_faces, d), np.int32)
+    vertices = np.zeros((n_vertices, d), ft)
+    strides = np.array([int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)])
+    order = None if inside == "below" else ([1, 0] if d == 2 else [0, 2, 1])
+    gaps = []
+    voff = foff = 0
+    pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
+
+    def put_faces(fl, own, off, at, mapped):
+        out = fl.astype(np.int64)
+        tail = out >= own
+        out[~tail] += off
+        if mapped is not None:
+            out[tail] = mapped[out[tail] - own]
+        if order is not None:
+            out = out[:, order]
+        faces[at : at + len(fl)] = out
+
+    for s, (a, b) in enumerate(spans):
+        c = kept[s] if kept[s] is not None else _Count(slab(a, b), level)
+        kept[s] = None
+        part = c.values
+        el, fl = c.fill()
+        own, nf = counts[s]
+        gl = el[:own].astype(np.int64) + a * m
+        edges[voff : voff + own] = gl
+        if pending is not None:
+            pf, pown, poff, pfo, pkeys = pending
+            nfirst = int(np.searchsorted(el[:, 0], m))
+            keys = _edge_keys(el[:nfirst], strides, a * m)
+            idx = np.searchsorted(keys, pkeys)
+            if len(pkeys) and (
+                idx.max() >= len(keys) or not np.array_equal(keys[idx], pkeys)
+            ):
+                raise RuntimeError("isosurface: slabs disagree on a shared plane")
+            put_faces(pf, pown, poff, pfo, voff + idx)
+            pending = None
+        if s == len(spans) - 1:
+            put_faces(fl, own, voff, foff, None)
+        else:
+            pending = (fl, own, voff, foff, _edge_keys(el[own:], strides, a * m))
+        if own:
+            flat = part.reshape(-1)
+            v, gap = _vertices_of(flat[el[:own, 0]], flat[el[:own, 1]], gl, g, level)
+            vertices[voff : voff + own] = v
+            gaps.append(gap)
+        del part, el, fl, c
+        voff += own
+        foff += nf
+    min_gap = jnp.asarray(np.inf, ft)
+    for gap in gaps:
+        min_gap = jnp.minimum(min_gap, gap)
+    if n_faces == 0:
+        lo, hi = float(values.min()), float(values.max())
+        if pad is not None:
+            lo, hi = min(lo, float(pad)), max(hi, float(pad))
+        warnings.warn(
+            f"isosurface: the field does not cross level {level} (values in "
+            f"[{lo:.6g}, {hi:.6g}]): the mesh is empty",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    out_v = jnp.asarray(vertices)
+    del vertices
+    out_f = jnp.asarray(faces)
+    del faces
+    out_e = jnp.asarray(edges)
+    del edges
+    return IsoMesh(
+        out_v,
+        out_f,
+        out_e,
+        jnp.asarray(n_vertices, jnp.int32),
+        jnp.asarray(n_faces, jnp.int32),
+        min_gap,
+    )
+
+
+def _check_finite_slabs(values: np.ndarray, planes: int):
+    for a in range(0, max(values.shape[0], 1), planes):
+        if not np.all(np.isfinite(values[a : a + planes])):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+
+
 def isosurface_vertices(
     values,
     topology: IsoMesh,
@@ -491,6 +742,14 @@ def isosurface(
     caps = _capacities(capacity, name)
     values = _check_values(values, grid, name)
     d = grid.dim
+    batch = values.shape[: values.ndim - d]
+    if caps is None and not isinstance(values, jax.core.Tracer) and all(n == 1 for n in batch):
+        iso = _isosurface_streamed(
+            np.asarray(values).reshape(grid.shape), grid, level, inside, close
+        )
+        if not batch:
+            return iso
+        return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape), iso)
     concrete = _concrete(values)
     if concrete is not None and not np.all(np.isfinite(concrete)):
         raise ValueError("isosurface: `values` contain NaN or Inf")
