@@ -535,7 +535,7 @@ def _isosurface_streamed(
     voff = foff = 0
     pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
 
-    def put_faces(fl, own, off, at, mapped):
+    def put_faces(dest, fl, own, off, at, mapped):
         out = fl.astype(np.int64)
         tail = out >= own
         out[~tail] += off
@@ -543,7 +543,7 @@ def _isosurface_streamed(
             out[tail] = mapped[out[tail] - own]
         if order is not None:
             out = out[:, order]
-        faces[at : at + len(fl)] = out
+        dest[at : at + len(fl)] = out
 
     for s, (a, b) in enumerate(spans):
         c = kept[s] if kept[s] is not None else _Count(slab(a, b), level)
@@ -562,10 +562,10 @@ def _isosurface_streamed(
                 idx.max() >= len(keys) or not np.array_equal(keys[idx], pkeys)
             ):
                 raise RuntimeError("isosurface: slabs disagree on a shared plane")
-            put_faces(pf, pown, poff, pfo, voff + idx)
+            put_faces(faces, pf, pown, poff, pfo, voff + idx)
             pending = None
         if s == len(spans) - 1:
-            put_faces(fl, own, voff, foff, None)
+            put_faces(faces, fl, own, voff, foff, None)
         else:
             pending = (fl, own, voff, foff, _edge_keys(el[own:], strides, a * m))
         if own:
