@@ -7,7 +7,7 @@ from scipy.ndimage import gaussian_filter
 
 import voxax
 from voxax import _isosurface
-from voxax._isosurface import _isosurface_streamed, _pad, host_topology
+from voxax._isosurface import _close_value, _isosurface_streamed, _pad, host_topology
 
 
 def _same(a, b):
@@ -43,6 +43,8 @@ def test_slabs_equal_one_sweep(rng, close):
                 padded, pgrid = f, grid
             else:
                 padded, pgrid = _pad(f, grid, level, inside, c)
+                pad = _close_value(f, level, inside, c, 2)
+                assert padded.flat[0].tobytes() == pad.tobytes()
             edges, faces = host_topology(padded, level)
             assert np.array_equal(np.asarray(whole.edges), edges)
             if inside == "above":

@@ -415,7 +415,10 @@ def _close_value(values: np.ndarray, level: float, inside: str, close, planes: i
         for a in range(0, max(values.shape[0], 1), planes):
             part = values[a : a + planes]
             if part.size:
-                span = max(span, float(np.max(np.abs(part.astype(np.float64) - level))))
+                # max |f - level| in float64 without a float64 copy: the rounded difference
+                # is monotone in f, so its extremes come from the extreme samples
+                lo, hi = float(np.min(part)), float(np.max(part))
+                span = max(span, hi - level, level - lo)
         outward = 1.0 if inside == "below" else -1.0
         return np.asarray(level + outward * (span if span > 0 else 1.0), values.dtype)
     pad = float(close)
