@@ -822,9 +822,14 @@ def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
     """`fn(params, points)` in chunks, as a float64 NumPy array (no gradient)."""
     out = np.empty(points.shape[0], np.float64)
     for s in range(0, points.shape[0], chunk):
-        out[s : s + chunk] = np.asarray(
-            fn(params, jnp.asarray(points[s : s + chunk])), np.float64
-        ).reshape(-1)
+        part = points[s : s + chunk]
+        n = len(part)
+        # pad to a power of two (at least 256) so that a few shapes cover every call and
+        # a compiled `fn` (or the primitives of an eager one) is reused
+        size = min(max(chunk, n), max(256, 1 << max(n - 1, 0).bit_length()))
+        if size > n:
+            part = np.concatenate([part, np.broadcast_to(part[:1], (size - n,) + part.shape[1:])])
+        out[s : s + n] = np.asarray(fn(params, jnp.asarray(part)), np.float64).reshape(-1)[:n]
     return out
 
 
@@ -860,6 +865,15 @@ def _dilate(mask: np.ndarray, width: int) -> np.ndarray:
     return maximum_filter(mask, size=2 * width + 1, mode="constant", cval=False)
 
 
+def _centers_at(grid: Grid, mask: np.ndarray) -> np.ndarray:
+    """The cell centres `(N, d)` of the cells where `mask` holds (C order), as
+    `grid.centers()[mask]` without building every centre."""
+    idx = np.nonzero(mask)
+    lower = np.asarray(grid.lower, np.float64)
+    h = np.asarray(grid.spacing, np.float64)
+    return lower + (np.stack(idx, -1).astype(np.float64) + 0.5) * h
+
+
 def _lipschitz_samples(
     fn, params, grid: Grid, level: float, lipschitz: float, pad, chunk: int
 ):
@@ -888,11 +902,18 @@ def _lipschitz_samples(
             exact[idx] = True
             break
         decided = np.abs(g) > lipschitz * radius
-        for o, c, gv, r in zip(
-            origins[decided], count[decided], g[decided], radius[decided]
-        ):
-            sl = tuple(slice(a, a + b) for a, b in zip(o, c))
-            values[sl] = level + np.sign(gv) * (abs(gv) - lipschitz * r)
+        if decided.any():
+            # every cell of a decided block gets a value of the block's sign whose distance to
+            # the level is a lower bound of |f - level| over the block
+            coarse = np.full(tuple(-(-n // size)), np.nan)
+            coarse[tuple((origins[decided] // size).T)] = level + np.sign(g[decided]) * (
+                np.abs(g[decided]) - lipschitz * radius[decided]
+            )
+            for axis in range(d):
+                coarse = np.repeat(coarse, size, axis=axis)
+            coarse = coarse[tuple(slice(0, m) for m in n)]
+            hit = ~np.isnan(coarse)
+            values[hit] = coarse[hit]
         size //= 2
         rest = origins[~decided]
         children = [rest + np.array(off) * size for off in np.ndindex(*(2,) * d)]
@@ -900,7 +921,7 @@ def _lipschitz_samples(
         origins = origins[np.all(origins < n, axis=1)]
     need = _strip_pad(_active_corners(_with_pad(values, pad), level), pad) & ~exact
     if need.any():
-        pts = grid.centers()[need]
+        pts = _centers_at(grid, need)
         values[need] = _evaluate_np(fn, params, pts, chunk)
         evaluated += len(pts)
     return values, evaluated
@@ -909,33 +930,39 @@ def _lipschitz_samples(
 def _band_samples(
     fn, params, grid: Grid, level: float, previous: np.ndarray, pad, chunk: int
 ):
-    """Re-evaluates the field near the previous surface, widening the band until it holds it."""
+    """Re-evaluates the field near the previous surface, growing the evaluated set until closed.
+
+    Starts from the previous active corners (cells of cubes whose corners differ in sign) and
+    repeats: evaluate the pending cells; then every cell that is an active corner of the
+    current samples, or a neighbour (26-connected) of an evaluated cell whose sign changed,
+    and was not evaluated yet, is pending. It stops when nothing is pending: every active
+    corner then holds an exact value, and every region of changed signs that reaches the
+    evaluated set is explored to its border, so the mesh equals dense evaluation unless a
+    region of changed signs lies entirely outside it (a new component far from the previous
+    surface).
+    """
     previous = np.asarray(previous, np.float64)
     if previous.shape != grid.shape:
         raise ValueError(
             f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}"
         )
-    core = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
-    centers = grid.centers()
+    before = previous >= level
+    todo = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
+    if not todo.any():
+        todo = np.ones(grid.shape, bool)
     values = previous.copy()
     done = np.zeros(grid.shape, bool)
     evaluated = 0
-    width = 2
-    while True:
-        mask = _dilate(core, width) if core.any() else np.ones(grid.shape, bool)
-        todo = mask & ~done
-        if todo.any():
-            values[todo] = _evaluate_np(fn, params, centers[todo], chunk)
-            evaluated += int(todo.sum())
-            done |= todo
-        if mask.all():
-            return values, evaluated
-        corners = _strip_pad(_active_corners(_with_pad(values, pad), level), pad)
-        rim = mask & _dilate(~mask, 1)
-        moved = (values[rim] >= level) != (previous[rim] >= level)
-        if not (corners & ~mask).any() and not moved.any():
-            return values, evaluated
-        width *= 2
+    while todo.any():
+        values[todo] = _evaluate_np(fn, params, _centers_at(grid, todo), chunk)
+        evaluated += int(todo.sum())
+        done |= todo
+        flipped = done & ((values >= level) != before)
+        todo = _strip_pad(_active_corners(_with_pad(values, pad), level), pad)
+        if flipped.any():
+            todo |= _dilate(flipped, 1)
+        todo &= ~done
+    return values, evaluated
 
 
 def _field_gradient(fn, params, points):
@@ -980,10 +1007,12 @@ def isosurface_fn(
     Fast paths for expensive fields (eager calls only; the mesh is identical to dense
     evaluation when their assumptions hold):
 
-    - `band=previous.samples`: re-evaluate only cells within a band (2 cells, widened until it
-      holds the new surface) around the previous surface; other cells keep their previous
-      values. A component appearing far from the previous surface is not seen: refresh with a
-      dense call (or `lipschitz`) from time to time.
+    - `band=previous.samples`: re-evaluate the cells of the previous surface (the corners of
+      its cubes), then grow the evaluated set until it holds every corner of the new
+      surface's cubes and the full extent of every region whose sign changed; other cells
+      keep their previous values. Exact unless a region of changed sign lies entirely away
+      from the evaluated cells (a component appearing far from the previous surface): refresh
+      with a dense call (or `lipschitz`) from time to time.
     - `lipschitz=L`: coarse-to-fine evaluation that skips blocks whose centre value exceeds
       `L` times the block's radius (their sign is certain), then evaluates exactly every cell
       marching cubes reads. Exact whenever `L` bounds `|∇f|` (`L = 1` for SDFs).
