@@ -703,6 +703,9 @@ def isosurface(
     Two paths:
 
     - eager (`capacity=None`): exact-size arrays. It also works under eager `jax.grad`.
+      Grids of more than 2^24 cells are swept in slabs of x planes, so that besides the
+      input and the result it holds only one slab's worth of memory (with `close`, a padded
+      copy of one slab instead of the whole grid); the result is the same, bit for bit.
     - jittable (`capacity` given): padded arrays of static size; `n_vertices`/`n_faces` give
       the counts, and a result that does not fit raises an error (through
       `equinox.error_if`). Use this path under `jax.jit` and `jax.vmap` (leading axes of
