@@ -114,7 +114,9 @@ def main(argv=None):
         # near the surface: points of the torus, jittered
         u = jax.random.uniform(k2, (m, 2), f32, 0.0, 2 * np.pi)
         ring = jnp.stack([jnp.cos(u[:, 0]), jnp.sin(u[:, 0]), jnp.zeros(m, f32)], -1)
-        tube = 0.5 * ring + 0.2 * (jnp.cos(u[:, 1])[:, None] * ring + jnp.sin(u[:, 1])[:, None] * jnp.array([0, 0, 1.0], f32))
+        tube = 0.5 * ring + 0.2 * (
+            jnp.cos(u[:, 1])[:, None] * ring + jnp.sin(u[:, 1])[:, None] * jnp.array([0, 0, 1.0], f32)
+        )
         near = tube + 0.05 * jax.random.normal(k3, (m, 3), f32)
         x = jnp.concatenate([uniform, near])
         (value, vs), grads = jax.value_and_grad(loss, has_aux=True)(params, vs, x)
@@ -139,7 +141,7 @@ def main(argv=None):
     norms = [float(np.linalg.svd(w.astype(np.float64), compute_uv=False)[0]) for w, _ in weights]
     L = float(np.prod(norms))
     L_used = L + 0.01
-    print(f"trained in {t_train:.1f} s; spectral norms {['%.6f' % s for s in norms]}; L = {L:.6f}", flush=True)
+    print(f"trained in {t_train:.1f} s; spectral norms {[f'{s:.6f}' for s in norms]}; L = {L:.6f}", flush=True)
     wj = [(jnp.asarray(w), jnp.asarray(b)) for w, b in weights]
 
     field = jax.jit(lambda c, x: mlp(wj, x) - jnp.asarray(c, f32))
@@ -183,7 +185,10 @@ def main(argv=None):
     mesh = ref.to_mesh()
     chi = voxax.metrics.euler_characteristic(mesh) if hasattr(voxax, "metrics") else None
     rows.append(("lipschitz", 0.0, lip.n_evaluated, t_lip, int(lip.n_faces)))
-    print(f"lipschitz L = {L_used:.4f}: {lip.n_evaluated} evaluations ({lip.n_evaluated / grid.size:.2%}) in {t_lip:.2f} s; faces {int(lip.n_faces)}, chi {chi}", flush=True)
+    print(
+        f"lipschitz L = {L_used:.4f}: {lip.n_evaluated} evaluations ({lip.n_evaluated / grid.size:.2%}) in {t_lip:.2f} s; faces {int(lip.n_faces)}, chi {chi}",
+        flush=True,
+    )
     # empirical gradient norm at the surface vertices (for comparison only)
     g = jax.vmap(jax.grad(lambda x: mlp(wj, x)))(jnp.asarray(mesh.vertices, f32))
     print(f"empirical max |grad f| at the vertices: {float(jnp.max(jnp.linalg.norm(g, axis=-1))):.4f} (not a proof)")
@@ -197,12 +202,17 @@ def main(argv=None):
         ref, _ = reference(c)
         same(band, ref, f"band step {k}")
         rows.append(("band", float(c) / h, band.n_evaluated, t_band, int(band.n_faces)))
-        print(f"band step {k} (f - {float(c) / h:.1f} h): {band.n_evaluated} evaluations ({band.n_evaluated / grid.size:.2%}) in {t_band:.2f} s", flush=True)
+        print(
+            f"band step {k} (f - {float(c) / h:.1f} h): {band.n_evaluated} evaluations ({band.n_evaluated / grid.size:.2%}) in {t_band:.2f} s",
+            flush=True,
+        )
         prev = band.samples
 
     print()
-    print(f"MLP 3-{'-'.join([str(args.width)] * args.depth)}-1 (MaxMin), trained {args.train_steps} steps in {t_train:.0f} s; "
-          f"L = {L:.6f} (product of spectral norms), lipschitz= {L_used:.4f}; dense {n}^3 evaluation {t_dense:.1f} s")
+    print(
+        f"MLP 3-{'-'.join([str(args.width)] * args.depth)}-1 (MaxMin), trained {args.train_steps} steps in {t_train:.0f} s; "
+        f"L = {L:.6f} (product of spectral norms), lipschitz= {L_used:.4f}; dense {n}^3 evaluation {t_dense:.1f} s"
+    )
     print("| path | field | evaluations | % of grid | time | faces | same mesh as dense |")
     print("|---|---|---|---|---|---|---|")
     for path, shift, ev, t, nf in rows:
