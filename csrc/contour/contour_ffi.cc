@@ -277,6 +277,14 @@ int voxax_mc_fill(void* ctx, int32_t* edges, int32_t* faces) {
   }
 }
 
+// The number of vertices owned by x slice i (crossed edges whose lower cell
+// lies in slice i) after pass 1; -1 when i is out of range.
+int64_t voxax_mc_slice_vertices(const void* ctx, int64_t i) {
+  const auto* c = static_cast<const voxax::Context*>(ctx);
+  if (!c || i < 0 || i >= static_cast<int64_t>(c->counts.vertices.size())) return -1;
+  return c->counts.vertices[static_cast<size_t>(i)];
+}
+
 void voxax_mc_release(void* ctx) { delete static_cast<voxax::Context*>(ctx); }
 
 // Loops of the derived cube cases that found no valid triangulation (expected:

@@ -79,63 +79,103 @@ def _threads() -> int:
     return max(1, min(os.cpu_count() or 1, 64))
 
 
+def _mc_lib():
+    lib = _ffi.library()
+    if not getattr(lib, "_voxax_mc_typed", False):
+        lib.voxax_mc_count.restype = ctypes.c_int
+        lib.voxax_mc_count.argtypes = [
+            ctypes.c_void_p,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.POINTER(ctypes.c_int64),
+            ctypes.c_double,
+            ctypes.c_int,
+            ctypes.POINTER(ctypes.c_void_p),
+            ctypes.POINTER(ctypes.c_int64),
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ]
+        lib.voxax_mc_fill.restype = ctypes.c_int
+        lib.voxax_mc_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        lib.voxax_mc_release.restype = None
+        lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
+        lib.voxax_mc_slice_vertices.restype = ctypes.c_int64
+        lib.voxax_mc_slice_vertices.argtypes = [ctypes.c_void_p, ctypes.c_int64]
+        lib._voxax_mc_typed = True
+    return lib
+
+
+class _Count:
+    """Pass 1 of the C++ kernel on one array: the counts, and a context for pass 2.
+
+    Holds a reference to the (contiguous) samples, which pass 2 reads again.
+    """
+
+    def __init__(self, values: np.ndarray, level: float, threads: int | None = None):
+        lib = _mc_lib()
+        values = np.ascontiguousarray(values)
+        if values.dtype not in (np.float32, np.float64):
+            values = values.astype(np.float64)
+        self.values = values
+        self.dim = dim = values.ndim
+        dtype = 0 if values.dtype == np.float32 else 1
+        shape = (ctypes.c_int64 * 3)(*(list(values.shape) + [1] * (3 - dim)))
+        counts = (ctypes.c_int64 * 2)()
+        self.ctx = ctypes.c_void_p()
+        err = ctypes.create_string_buffer(512)
+        rc = lib.voxax_mc_count(
+            values.ctypes.data,
+            dtype,
+            dim,
+            shape,
+            float(level),
+            threads or _threads(),
+            ctypes.byref(self.ctx),
+            counts,
+            err,
+            512,
+        )
+        if rc != 0:
+            msg = err.value.decode(errors="replace")
+            raise (MemoryError if rc == 2 else ValueError)(msg)
+        self.n_vertices, self.n_faces = int(counts[0]), int(counts[1])
+
+    def slice_vertices(self, i: int) -> int:
+        """Vertices owned by x slice `i` (crossed edges with their lower cell there)."""
+        return int(_mc_lib().voxax_mc_slice_vertices(self.ctx, int(i)))
+
+    def fill(self):
+        """Pass 2: `edges (V, 2)` and `faces (F, d)` int32; releases the context."""
+        lib = _mc_lib()
+        try:
+            edges = np.zeros((self.n_vertices, 2), np.int32)
+            faces = np.zeros((self.n_faces, self.dim), np.int32)
+            if lib.voxax_mc_fill(self.ctx, edges.ctypes.data, faces.ctypes.data) != 0:
+                raise MemoryError("voxax.isosurface: out of memory")
+        finally:
+            self.release()
+        return edges, faces
+
+    def release(self):
+        if self.ctx:
+            _mc_lib().voxax_mc_release(self.ctx)
+            self.ctx = ctypes.c_void_p()
+        self.values = None
+
+    def __del__(self):
+        try:
+            self.release()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+
 def host_topology(values: np.ndarray, level: float, threads: int | None = None):
     """Exact-size topology of one field: `edges (V, 2)`, `faces (F, d)` (int32).
 
     `values` is a NumPy array (float32 or float64) of the grid's shape; `threads` defaults to
     the number of CPUs (the result does not depend on it). No input checks: see `isosurface`.
     """
-    lib = _ffi.library()
-    values = np.ascontiguousarray(values)
-    dim = values.ndim
-    dtype = 0 if values.dtype == np.float32 else 1
-    if dtype == 1 and values.dtype != np.float64:
-        values = values.astype(np.float64)
-    shape = (ctypes.c_int64 * 3)(*(list(values.shape) + [1] * (3 - dim)))
-    counts = (ctypes.c_int64 * 2)()
-    ctx = ctypes.c_void_p()
-    err = ctypes.create_string_buffer(512)
-    lib.voxax_mc_count.restype = ctypes.c_int
-    lib.voxax_mc_count.argtypes = [
-        ctypes.c_void_p,
-        ctypes.c_int,
-        ctypes.c_int,
-        ctypes.POINTER(ctypes.c_int64),
-        ctypes.c_double,
-        ctypes.c_int,
-        ctypes.POINTER(ctypes.c_void_p),
-        ctypes.POINTER(ctypes.c_int64),
-        ctypes.c_char_p,
-        ctypes.c_int64,
-    ]
-    lib.voxax_mc_fill.restype = ctypes.c_int
-    lib.voxax_mc_fill.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
-    lib.voxax_mc_release.restype = None
-    lib.voxax_mc_release.argtypes = [ctypes.c_void_p]
-    rc = lib.voxax_mc_count(
-        values.ctypes.data,
-        dtype,
-        dim,
-        shape,
-        float(level),
-        threads or _threads(),
-        ctypes.byref(ctx),
-        counts,
-        err,
-        512,
-    )
-    if rc != 0:
-        msg = err.value.decode(errors="replace")
-        raise (MemoryError if rc == 2 else ValueError)(msg)
-    try:
-        nv, nf = int(counts[0]), int(counts[1])
-        edges = np.zeros((nv, 2), np.int32)
-        faces = np.zeros((nf, dim), np.int32)
-        if lib.voxax_mc_fill(ctx, edges.ctypes.data, faces.ctypes.data) != 0:
-            raise MemoryError("voxax.isosurface: out of memory")
-    finally:
-        lib.voxax_mc_release(ctx)
-    return edges, faces
+    return _Count(values, level, threads).fill()
 
 
 def _ffi_topology(values, level: float, dim: int, vcap: int, fcap: int):
@@ -360,6 +400,220 @@ def _interpolate_eager(values: np.ndarray, edges: np.ndarray, grid: Grid, level:
     return v[..., :n, :], min_gap
 
 
+# -- the eager path, streamed over slabs of x planes ------------------------------------------
+
+# Cells per slab of the eager path (64 MiB of float32 samples): grids up to this size run as
+# one slab; larger ones are swept slab by slab, so that nothing of the grid's size is
+# allocated besides the result (no padded copy, no mask, no float64 copy).
+_SLAB_CELLS = 1 << 24
+
+
+def _close_value(values: np.ndarray, level: float, inside: str, close, planes: int):
+    """The pad value of `close` (as in `_pad`), reading `values` slab by slab."""
+    if close is True:
+        span = 0.0
+        for a in range(0, max(values.shape[0], 1), planes):
+            part = values[a : a + planes]
+            if part.size:
+                # max |f - level| in float64 without a float64 copy: the rounded difference
+                # is monotone in f, so its extremes come from the extreme samples
+                lo, hi = float(np.min(part)), float(np.max(part))
+                span = max(span, hi - level, level - lo)
+        outward = 1.0 if inside == "below" else -1.0
+        return np.asarray(level + outward * (span if span > 0 else 1.0), values.dtype)
+    pad = float(close)
+    ok = pad > level if inside == "below" else pad < level
+    if not np.isfinite(pad) or not ok:
+        side = "above" if inside == "below" else "below"
+        raise ValueError(
+            f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+        )
+    return np.asarray(pad, values.dtype)
+
+
+def _edge_keys(edges: np.ndarray, strides: np.ndarray, offset: int) -> np.ndarray:
+    """Sort keys `d * (global lower cell) + axis` of edges given in local cell indices."""
+    d = len(strides)
+    diff = (edges[:, 1] - edges[:, 0]).astype(np.int64)
+    axis = np.zeros(len(edges), np.int64)
+    for a, st in enumerate(strides):
+        axis[diff == st] = a
+    return (edges[:, 0].astype(np.int64) + offset) * d + axis
+
+
+def _vertices_of(fa, fb, edges: np.ndarray, grid: Grid, level: float):
+    """Vertex positions (NumPy) and min gap of gathered samples, by the compiled
+    interpolation (vertex counts rounded up to a power of two, as in `_interpolate_eager`)."""
+    ft = _float()
+    n = len(edges)
+    bucket = max(64, 1 << max(n - 1, 0).bit_length())
+    pe = np.zeros((bucket, 2), np.int32)
+    pe[:n] = edges
+    pa = np.zeros(bucket, fa.dtype)
+    pb = np.zeros(bucket, fb.dtype)
+    pa[:n], pb[:n] = fa, fb
+    v, gap = _from_samples_jit(
+        jnp.asarray(pa, ft),
+        jnp.asarray(pb, ft),
+        jnp.asarray(pe),
+        jnp.asarray(n, jnp.int32),
+        grid,
+        jnp.asarray(level, ft),
+    )
+    return np.asarray(v)[:n], gap
+
+
+def _isosurface_streamed(
+    values: np.ndarray, grid: Grid, level: float, inside: str, close, planes=None
+) -> IsoMesh:
+    """The eager `isosurface` of concrete samples `values` (of `grid.shape`), swept over slabs.
+
+    Slab `s` covers the x planes `a..b` (`b = a + planes`, the last one clipped) of the
+    (padded, with `close`) grid; neighbouring slabs share one plane. Each slab runs the C++
+    kernel on its own (a view of `values`, or a padded copy of the slab with `close`). A slab
+    owns the vertices whose lower cell lies in its planes `a..b-1` (the last slab: all), so
+    the concatenated vertices are numbered exactly as in one sweep (by edge id); faces of a
+    slab that use vertices of its last plane are renumbered to those of the next slab's first
+    plane, found by their edge keys. Vertex positions are interpolated per slab by the same
+    compiled elementwise function. The result is the same, bit for bit, for any `planes`.
+    Memory: the result, plus one slab's samples, topology and (with `close`) padded copy.
+    """
+    d = grid.dim
+    base = grid.shape
+    shape = tuple(n + 2 for n in base) if close is not False else base
+    m = int(np.prod(shape[1:], dtype=np.int64))
+    if planes is None:
+        planes = max(1, _SLAB_CELLS // max(m, 1))
+    planes = int(planes)
+    pad = None
+    if close is not False:
+        _check_finite_slabs(values, planes)
+        pad = _close_value(values, level, inside, close, planes)
+        g = _padded(grid)
+    else:
+        g = grid
+    if int(np.prod(shape, dtype=np.int64)) > _INT32_MAX:
+        raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
+    nx = shape[0]
+    starts = list(range(0, max(nx - 1, 1), planes))
+    spans = [(a, min(a + planes, nx - 1)) for a in starts]
+    view = pad is None and values.flags.c_contiguous and values.dtype in (np.float32, np.float64)
+
+    def slab(a, b):
+        if pad is None:
+            return values[a : b + 1]
+        out = np.empty((b - a + 1,) + shape[1:], values.dtype)
+        out[...] = pad
+        lo, hi = max(a, 1), min(b, base[0])
+        if lo <= hi:
+            out[(slice(lo - a, hi - a + 1),) + (slice(1, -1),) * (d - 1)] = values[lo - 1 : hi]
+        return out
+
+    # Pass 1: counts per slab (the contexts of views are kept for pass 2).
+    kept, counts = [], []
+    for s, (a, b) in enumerate(spans):
+        part = slab(a, b)
+        if pad is None and not np.all(np.isfinite(part)):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+        c = _Count(part, level)
+        last = s == len(spans) - 1
+        own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
+        counts.append((own, c.n_faces))
+        if view:
+            kept.append(c)
+        else:
+            c.release()
+            kept.append(None)
+    n_vertices = sum(o for o, _ in counts)
+    n_faces = sum(f for _, f in counts)
+    if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
+        raise ValueError("isosurface: more than 2^31 - 1 vertices or faces")
+    ft = np.dtype(_float())
+    edges = np.zeros((n_vertices, 2), np.int32)
+    faces = np.zeros((n_faces, d), np.int32)
+    vertices = np.zeros((n_vertices, d), ft)
+    strides = np.array([int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)])
+    order = None if inside == "below" else ([1, 0] if d == 2 else [0, 2, 1])
+    gaps = []
+    voff = foff = 0
+    pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
+
+    def put_faces(dest, fl, own, off, at, mapped):
+        out = fl.astype(np.int64)
+        tail = out >= own
+        out[~tail] += off
+        if mapped is not None:
+            out[tail] = mapped[out[tail] - own]
+        if order is not None:
+            out = out[:, order]
+        dest[at : at + len(fl)] = out
+
+    for s, (a, b) in enumerate(spans):
+        c = kept[s] if kept[s] is not None else _Count(slab(a, b), level)
+        kept[s] = None
+        part = c.values
+        el, fl = c.fill()
+        own, nf = counts[s]
+        gl = el[:own].astype(np.int64) + a * m
+        edges[voff : voff + own] = gl
+        if pending is not None:
+            pf, pown, poff, pfo, pkeys = pending
+            nfirst = int(np.searchsorted(el[:, 0], m))
+            keys = _edge_keys(el[:nfirst], strides, a * m)
+            idx = np.searchsorted(keys, pkeys)
+            if len(pkeys) and (
+                idx.max() >= len(keys) or not np.array_equal(keys[idx], pkeys)
+            ):
+                raise RuntimeError("isosurface: slabs disagree on a shared plane")
+            put_faces(faces, pf, pown, poff, pfo, voff + idx)
+            pending = None
+        if s == len(spans) - 1:
+            put_faces(faces, fl, own, voff, foff, None)
+        else:
+            pending = (fl, own, voff, foff, _edge_keys(el[own:], strides, a * m))
+        if own:
+            flat = part.reshape(-1)
+            v, gap = _vertices_of(flat[el[:own, 0]], flat[el[:own, 1]], gl, g, level)
+            vertices[voff : voff + own] = v
+            gaps.append(gap)
+        del part, el, fl, c
+        voff += own
+        foff += nf
+    min_gap = jnp.asarray(np.inf, ft)
+    for gap in gaps:
+        min_gap = jnp.minimum(min_gap, gap)
+    if n_faces == 0:
+        lo, hi = float(values.min()), float(values.max())
+        if pad is not None:
+            lo, hi = min(lo, float(pad)), max(hi, float(pad))
+        warnings.warn(
+            f"isosurface: the field does not cross level {level} (values in "
+            f"[{lo:.6g}, {hi:.6g}]): the mesh is empty",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    out_v = jnp.asarray(vertices)
+    del vertices
+    out_f = jnp.asarray(faces)
+    del faces
+    out_e = jnp.asarray(edges)
+    del edges
+    return IsoMesh(
+        out_v,
+        out_f,
+        out_e,
+        jnp.asarray(n_vertices, jnp.int32),
+        jnp.asarray(n_faces, jnp.int32),
+        min_gap,
+    )
+
+
+def _check_finite_slabs(values: np.ndarray, planes: int):
+    for a in range(0, max(values.shape[0], 1), planes):
+        if not np.all(np.isfinite(values[a : a + planes])):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+
+
 def isosurface_vertices(
     values,
     topology: IsoMesh,
@@ -449,6 +703,9 @@ def isosurface(
     Two paths:
 
     - eager (`capacity=None`): exact-size arrays. It also works under eager `jax.grad`.
+      Grids of more than 2^24 cells are swept in slabs of x planes, so that besides the
+      input and the result it holds only one slab's worth of memory (with `close`, a padded
+      copy of one slab instead of the whole grid); the result is the same, bit for bit.
     - jittable (`capacity` given): padded arrays of static size; `n_vertices`/`n_faces` give
       the counts, and a result that does not fit raises an error (through
       `equinox.error_if`). Use this path under `jax.jit` and `jax.vmap` (leading axes of
@@ -491,6 +748,14 @@ def isosurface(
     caps = _capacities(capacity, name)
     values = _check_values(values, grid, name)
     d = grid.dim
+    batch = values.shape[: values.ndim - d]
+    if caps is None and not isinstance(values, jax.core.Tracer) and all(n == 1 for n in batch):
+        iso = _isosurface_streamed(
+            np.asarray(values).reshape(grid.shape), grid, level, inside, close
+        )
+        if not batch:
+            return iso
+        return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape), iso)
     concrete = _concrete(values)
     if concrete is not None and not np.all(np.isfinite(concrete)):
         raise ValueError("isosurface: `values` contain NaN or Inf")
@@ -560,9 +825,14 @@ def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
     """`fn(params, points)` in chunks, as a float64 NumPy array (no gradient)."""
     out = np.empty(points.shape[0], np.float64)
     for s in range(0, points.shape[0], chunk):
-        out[s : s + chunk] = np.asarray(
-            fn(params, jnp.asarray(points[s : s + chunk])), np.float64
-        ).reshape(-1)
+        part = points[s : s + chunk]
+        n = len(part)
+        # pad to a power of two (at least 256) so that a few shapes cover every call and
+        # a compiled `fn` (or the primitives of an eager one) is reused
+        size = min(max(chunk, n), max(256, 1 << max(n - 1, 0).bit_length()))
+        if size > n:
+            part = np.concatenate([part, np.broadcast_to(part[:1], (size - n,) + part.shape[1:])])
+        out[s : s + n] = np.asarray(fn(params, jnp.asarray(part)), np.float64).reshape(-1)[:n]
     return out
 
 
@@ -598,6 +868,15 @@ def _dilate(mask: np.ndarray, width: int) -> np.ndarray:
     return maximum_filter(mask, size=2 * width + 1, mode="constant", cval=False)
 
 
+def _centers_at(grid: Grid, mask: np.ndarray) -> np.ndarray:
+    """The cell centres `(N, d)` of the cells where `mask` holds (C order), as
+    `grid.centers()[mask]` without building every centre."""
+    idx = np.nonzero(mask)
+    lower = np.asarray(grid.lower, np.float64)
+    h = np.asarray(grid.spacing, np.float64)
+    return lower + (np.stack(idx, -1).astype(np.float64) + 0.5) * h
+
+
 def _lipschitz_samples(
     fn, params, grid: Grid, level: float, lipschitz: float, pad, chunk: int
 ):
@@ -626,11 +905,18 @@ def _lipschitz_samples(
             exact[idx] = True
             break
         decided = np.abs(g) > lipschitz * radius
-        for o, c, gv, r in zip(
-            origins[decided], count[decided], g[decided], radius[decided]
-        ):
-            sl = tuple(slice(a, a + b) for a, b in zip(o, c))
-            values[sl] = level + np.sign(gv) * (abs(gv) - lipschitz * r)
+        if decided.any():
+            # every cell of a decided block gets a value of the block's sign whose distance to
+            # the level is a lower bound of |f - level| over the block
+            coarse = np.full(tuple(-(-n // size)), np.nan)
+            coarse[tuple((origins[decided] // size).T)] = level + np.sign(g[decided]) * (
+                np.abs(g[decided]) - lipschitz * radius[decided]
+            )
+            for axis in range(d):
+                coarse = np.repeat(coarse, size, axis=axis)
+            coarse = coarse[tuple(slice(0, m) for m in n)]
+            hit = ~np.isnan(coarse)
+            values[hit] = coarse[hit]
         size //= 2
         rest = origins[~decided]
         children = [rest + np.array(off) * size for off in np.ndindex(*(2,) * d)]
@@ -638,7 +924,7 @@ def _lipschitz_samples(
         origins = origins[np.all(origins < n, axis=1)]
     need = _strip_pad(_active_corners(_with_pad(values, pad), level), pad) & ~exact
     if need.any():
-        pts = grid.centers()[need]
+        pts = _centers_at(grid, need)
         values[need] = _evaluate_np(fn, params, pts, chunk)
         evaluated += len(pts)
     return values, evaluated
@@ -647,33 +933,39 @@ def _lipschitz_samples(
 def _band_samples(
     fn, params, grid: Grid, level: float, previous: np.ndarray, pad, chunk: int
 ):
-    """Re-evaluates the field near the previous surface, widening the band until it holds it."""
+    """Re-evaluates the field near the previous surface, growing the evaluated set until closed.
+
+    Starts from the previous active corners (cells of cubes whose corners differ in sign) and
+    repeats: evaluate the pending cells; then every cell that is an active corner of the
+    current samples, or a neighbour (26-connected) of an evaluated cell whose sign changed,
+    and was not evaluated yet, is pending. It stops when nothing is pending: every active
+    corner then holds an exact value, and every region of changed signs that reaches the
+    evaluated set is explored to its border, so the mesh equals dense evaluation unless a
+    region of changed signs lies entirely outside it (a new component far from the previous
+    surface).
+    """
     previous = np.asarray(previous, np.float64)
     if previous.shape != grid.shape:
         raise ValueError(
             f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}"
         )
-    core = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
-    centers = grid.centers()
+    before = previous >= level
+    todo = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)
+    if not todo.any():
+        todo = np.ones(grid.shape, bool)
     values = previous.copy()
     done = np.zeros(grid.shape, bool)
     evaluated = 0
-    width = 2
-    while True:
-        mask = _dilate(core, width) if core.any() else np.ones(grid.shape, bool)
-        todo = mask & ~done
-        if todo.any():
-            values[todo] = _evaluate_np(fn, params, centers[todo], chunk)
-            evaluated += int(todo.sum())
-            done |= todo
-        if mask.all():
-            return values, evaluated
-        corners = _strip_pad(_active_corners(_with_pad(values, pad), level), pad)
-        rim = mask & _dilate(~mask, 1)
-        moved = (values[rim] >= level) != (previous[rim] >= level)
-        if not (corners & ~mask).any() and not moved.any():
-            return values, evaluated
-        width *= 2
+    while todo.any():
+        values[todo] = _evaluate_np(fn, params, _centers_at(grid, todo), chunk)
+        evaluated += int(todo.sum())
+        done |= todo
+        flipped = done & ((values >= level) != before)
+        todo = _strip_pad(_active_corners(_with_pad(values, pad), level), pad)
+        if flipped.any():
+            todo |= _dilate(flipped, 1)
+        todo &= ~done
+    return values, evaluated
 
 
 def _field_gradient(fn, params, points):
@@ -718,10 +1010,12 @@ def isosurface_fn(
     Fast paths for expensive fields (eager calls only; the mesh is identical to dense
     evaluation when their assumptions hold):
 
-    - `band=previous.samples`: re-evaluate only cells within a band (2 cells, widened until it
-      holds the new surface) around the previous surface; other cells keep their previous
-      values. A component appearing far from the previous surface is not seen: refresh with a
-      dense call (or `lipschitz`) from time to time.
+    - `band=previous.samples`: re-evaluate the cells of the previous surface (the corners of
+      its cubes), then grow the evaluated set until it holds every corner of the new
+      surface's cubes and the full extent of every region whose sign changed; other cells
+      keep their previous values. Exact unless a region of changed sign lies entirely away
+      from the evaluated cells (a component appearing far from the previous surface): refresh
+      with a dense call (or `lipschitz`) from time to time.
     - `lipschitz=L`: coarse-to-fine evaluation that skips blocks whose centre value exceeds
       `L` times the block's radius (their sign is certain), then evaluates exactly every cell
       marching cubes reads. Exact whenever `L` bounds `|∇f|` (`L = 1` for SDFs).
