@@ -28,6 +28,7 @@ SMALL = {
     "05_tiling": {"RESOLUTION": 24, "MAX_STEPS": 10},
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},
     "07_meshsdf": {"RESOLUTION": 16},
+    "08_faithful_contouring": {"RESOLUTION": 32, "SAMPLES": 10_000},
 }
 
 
