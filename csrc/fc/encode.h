@@ -26,6 +26,7 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <numeric>
@@ -416,7 +417,15 @@ inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
 // pieces instead.
 inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
                         const Bins& bins, int64_t slab, int64_t ia, int64_t ib, bool pieces_only,
-                        Rows* out) {
+                        Rows* out, double* seconds = nullptr) {
+  using Clock = std::chrono::steady_clock;
+  auto t0 = Clock::now();
+  auto lap = [&](int k) {
+    if (!seconds) return;
+    const auto t = Clock::now();
+    seconds[k] += std::chrono::duration<double>(t - t0).count();
+    t0 = t;
+  };
   std::vector<Piece> pieces;
   const int64_t ny = g.n[1], nz = g.n[2];
   for (int64_t e = bins.start[slab]; e < bins.start[slab + 1]; ++e) {
@@ -435,9 +444,11 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
       pieces.push_back(pc);
     });
   }
+  lap(0);
   std::sort(pieces.begin(), pieces.end(), [](const Piece& a, const Piece& b) {
     return a.cell < b.cell || (a.cell == b.cell && a.face < b.face);
   });
+  lap(1);
   if (pieces_only) {
     for (const Piece& pc : pieces) {
       const int64_t ijk[3] = {pc.cell / (ny * nz), (pc.cell / nz) % ny, pc.cell % nz};
@@ -489,6 +500,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
     }
     s = e;
   }
+  lap(2);
 }
 
 }  // namespace fc

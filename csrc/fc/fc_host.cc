@@ -15,6 +15,9 @@
 //   voxax_fc_free(handle)
 
 #include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -28,6 +31,7 @@
 #include "common/host_errors.h"
 #include "fc/decode.h"
 #include "fc/encode.h"
+#include "fc/signs.h"
 #include "intersect/predicates.h"
 #include "spatial/host_pool.h"
 
@@ -126,10 +130,24 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
         &bins);
     const int64_t slabs = tl.ntx;
     std::vector<Rows> parts(slabs);
+    // VOXAX_FC_PROFILE=1 prints the CPU seconds of the encoder's stages (summed over slabs).
+    const bool profile = std::getenv("VOXAX_FC_PROFILE") != nullptr;
+    std::vector<double> seconds(profile ? 3 * slabs : 0, 0.0);
+    const auto t_bins = std::chrono::steady_clock::now();
     voxax::spatial::parallel_chunks(slabs, 1, threads, [&](int64_t s, int64_t, int64_t) {
       const int64_t ia = s * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
-      voxax::fc::encode_slab(g, prm, V, F, bins, s, ia, ib, pieces_only, &parts[s]);
+      voxax::fc::encode_slab(g, prm, V, F, bins, s, ia, ib, pieces_only, &parts[s],
+                             profile ? &seconds[3 * s] : nullptr);
     });
+    if (profile) {
+      double sum[3] = {0, 0, 0};
+      for (int64_t s = 0; s < slabs; ++s)
+        for (int k = 0; k < 3; ++k) sum[k] += seconds[3 * s + k];
+      std::fprintf(stderr,
+                   "fc.encode: slabs %.3f s wall; CPU s: clip %.3f, sort %.3f, solve %.3f\n",
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t_bins).count(),
+                   sum[0], sum[1], sum[2]);
+    }
     Rows* rows = new Rows();
     try {
       for (auto& p : parts) {
@@ -317,5 +335,72 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
     return 0;
   } catch (...) {
     return host_fail(err, errlen, "voxax: unknown error in fc.node_side");
+  }
+}
+
+// voxax_fc_signs(index (K,) i64 sorted, K, shape[3], edge (C,) i64, sign (C,) i8, C, threads,
+//                S (K, 12) i8 (zeros), &handle, &count, err, errlen): writes the net sign of
+//                every crossed edge into the rows of its 4 cells; the cells without a row come
+//                back as `count` (cell, crossing) pairs, sorted by cell, one per cell (copy with
+//                voxax_fc_triangles(handle, out (count, 2) i64), free with
+//                voxax_fc_free_triangles).
+VOXAX_EXPORT int voxax_fc_signs(const int64_t* index, int64_t K, const int64_t* shape,
+                                const int64_t* edge, const int8_t* sign, int64_t C,
+                                int32_t threads, int8_t* S, void** handle, int64_t* count,
+                                char* err, int64_t errlen) {
+  if (handle) *handle = nullptr;
+  try {
+    if (!handle || !count || !shape || K < 0 || C < 0 || (K > 0 && (!index || !S)) ||
+        (C > 0 && (!edge || !sign)))
+      return host_fail(err, errlen, "voxax: fc.signs got a null argument");
+    int64_t n[3];
+    for (int a = 0; a < 3; ++a) {
+      if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
+        return host_fail(err, errlen, "voxax: fc.signs: bad grid shape");
+      n[a] = shape[a];
+    }
+    const int64_t edges = 3 * (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
+    for (int64_t c = 0; c < C; ++c)
+      if (edge[c] < 0 || edge[c] >= edges)
+        return host_fail(err, errlen, "voxax: fc.signs: edge id out of range");
+    const int64_t total = n[0] * n[1] * n[2];
+    for (int64_t r = 0; r < K; ++r)
+      if (index[r] < 0 || index[r] >= total || (r > 0 && index[r] < index[r - 1]))
+        return host_fail(err, errlen, "voxax: fc.signs: rows must be sorted cell indices");
+    const voxax::fc::EdgeNet en = voxax::fc::net_flux(edge, sign, C);
+    const int64_t E = static_cast<int64_t>(en.edge.size());
+    constexpr int64_t kChunk = 1 << 16;
+    std::vector<std::vector<int64_t>> parts((E + kChunk - 1) / kChunk);
+    voxax::spatial::parallel_chunks(E, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
+      voxax::fc::scatter_signs(en, b, e, index, K, n, S, &parts[c]);
+    });
+    std::vector<std::pair<int64_t, int64_t>> miss;  // (cell, order of appearance)
+    std::vector<int64_t> src;
+    for (const auto& p : parts)
+      for (size_t i = 0; i < p.size(); i += 2) {
+        miss.emplace_back(p[i], static_cast<int64_t>(src.size()));
+        src.push_back(p[i + 1]);
+      }
+    std::sort(miss.begin(), miss.end());
+    auto* out = new std::vector<int64_t>();
+    try {
+      for (size_t i = 0; i < miss.size(); ++i) {
+        if (i > 0 && miss[i].first == miss[i - 1].first) continue;
+        out->push_back(miss[i].first);
+        out->push_back(src[miss[i].second]);
+      }
+    } catch (...) {
+      delete out;
+      throw;
+    }
+    *count = static_cast<int64_t>(out->size() / 2);
+    *handle = out;
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return host_fail(err, errlen, "voxax: out of memory in fc.signs");
+  } catch (const std::exception& e) {
+    return host_fail(err, errlen, std::string("voxax: fc.signs error: ") + e.what());
+  } catch (...) {
+    return host_fail(err, errlen, "voxax: unknown error in fc.signs");
   }
 }

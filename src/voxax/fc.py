@@ -126,6 +126,23 @@ _SIGNATURES = {
         ],
     ),
     "voxax_fc_free_triangles": (None, [_VP]),
+    "voxax_fc_signs": (
+        ctypes.c_int,
+        [
+            _I64,
+            ctypes.c_int64,
+            _I64,
+            _I64,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.c_int64,
+            ctypes.c_int32,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.POINTER(_VP),
+            _I64,
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
+    ),
 }
 
 # Corner offsets of the 12 cell edges: EDGE_OFFSETS[e] is the lower end of edge e relative
@@ -501,18 +518,25 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     shape = grid.shape
     h = np.asarray(grid.spacing)
     lo = np.asarray(grid.lower)
-    if components:
-        # Every crossing counts for the rows of its own sheet: all crossings need cells.
-        src_of = np.arange(len(cr.edge))
-        edge = cr.edge
-    else:
-        # Net flux per crossed edge; edges whose crossings cancel give no quad.
-        order, starts = _group(cr.edge)
-        net = np.add.reduceat(cr.sign[order].astype(np.int64), starts) if len(starts) else np.zeros(0, np.int64)
-        nz = net != 0
-        edge = cr.edge[order[starts]][nz]
-        src_of = order[starts][nz]  # the first crossing of each edge
-        net = net[nz]
+    if not components:
+        signs, missing, src = _net_signs_host(grid, index, cr, threads)
+        if len(missing):
+            # Cells that a crossing touches without a piece of positive area get a row at
+            # the crossing point, so every quad has its four vertices.
+            mcells = np.stack(np.unravel_index(missing, shape), axis=1)
+            moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
+            order = np.argsort(np.concatenate([index, missing]), kind="stable")
+            index = np.concatenate([index, missing])[order]
+            comp = np.concatenate([comp, np.zeros(len(missing), np.int32)])[order]
+            off = np.concatenate([off, moff])[order]
+            nrm = np.concatenate([nrm, face_normals(V, F)[cr.face[src]]])[order]
+            area = np.concatenate([area, np.zeros(len(missing))])[order]
+            signs, missing, _ = _net_signs_host(grid, index, cr, threads)
+            assert not len(missing)
+        return Tokens(grid, index, off, nrm, signs, comp, area)
+    # anchors_per_cell="components": every crossing counts for the rows of its own sheet,
+    # so every crossing needs its cells.
+    edge = cr.edge
     axis, nodes = _edge_geometry(grid, edge)
     cidx = _cells_around(grid, axis, nodes)
     inside = cidx >= 0
@@ -523,7 +547,7 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     want = flat[forder[fstarts]]
     firsts = forder[fstarts]
     keep = (want >= 0) & (_lookup(index, want) < 0)
-    missing, src = want[keep], src_of[firsts[keep] // 4]
+    missing, src = want[keep], firsts[keep] // 4
     if len(missing):
         mcells = np.stack(np.unravel_index(missing, shape), axis=1)
         moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
@@ -533,27 +557,51 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
         off = np.concatenate([off, moff])
         nrm = np.concatenate([nrm, fn])
         area = np.concatenate([area, np.zeros(len(missing))])
-        if components:
-            fcount = np.concatenate([fcount, np.ones(len(missing), np.int64)])
-            rfaces_rows = np.split(rfaces, np.cumsum(fcount[: len(fcount) - len(missing)])[:-1])
-            rfaces_rows += [np.array([f], np.int32) for f in cr.face[src]]
+        fcount = np.concatenate([fcount, np.ones(len(missing), np.int64)])
+        rfaces_rows = np.split(rfaces, np.cumsum(fcount[: len(fcount) - len(missing)])[:-1])
+        rfaces_rows += [np.array([f], np.int32) for f in cr.face[src]]
         order = np.lexsort((comp, index))
         index, comp, off, nrm, area = index[order], comp[order], off[order], nrm[order], area[order]
-        if components:
-            rfaces_rows = [rfaces_rows[i] for i in order]
-            fcount = fcount[order]
-            rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
-    K = len(index)
-    if not components:
-        signs = np.zeros((K, 12), np.int8)
-        rows = _lookup(index, cidx)
-        slot = axis[:, None] * 4 + (np.arange(4)[None] + 2) % 4
-        ok = rows >= 0
-        val = np.broadcast_to(np.clip(net, -127, 127)[:, None], rows.shape)
-        signs[rows[ok], slot[ok]] = val[ok]
-    else:
-        signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K)
+        rfaces_rows = [rfaces_rows[i] for i in order]
+        fcount = fcount[order]
+        rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
+    signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, len(index))
     return Tokens(grid, index, off, nrm, signs, comp, area)
+
+def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
+    """`(K, 12)` int8 net signs of the rows' edges (one row per cell), and the cells around
+    signed edges that have no row with the crossing each takes its row from."""
+    lib = _lib()
+    K = len(index)
+    index = np.ascontiguousarray(index, np.int64)
+    edge = np.ascontiguousarray(cr.edge, np.int64)
+    sign = np.ascontiguousarray(cr.sign, np.int8)
+    shape = np.ascontiguousarray(grid.shape, np.int64)
+    S = np.zeros((K, 12), np.int8)
+    handle = _VP()
+    count = np.zeros(1, np.int64)
+    err = _host.error_buffer()
+    status = lib.voxax_fc_signs(
+        index.ctypes.data_as(_I64),
+        K,
+        shape.ctypes.data_as(_I64),
+        edge.ctypes.data_as(_I64),
+        sign.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        len(edge),
+        _threads(threads),
+        S.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        ctypes.byref(handle),
+        count.ctypes.data_as(_I64),
+        err,
+        _host.ERRLEN,
+    )
+    _host.check(status, err)
+    try:
+        pairs = np.empty((int(count[0]), 2), np.int64)
+        lib.voxax_fc_triangles(handle, pairs.ctypes.data_as(_I64))
+    finally:
+        lib.voxax_fc_free_triangles(handle)
+    return S, pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
 def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
