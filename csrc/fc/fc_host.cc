@@ -16,10 +16,10 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstdio>
-#include <cstdlib>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <new>
@@ -345,9 +345,9 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
 //                voxax_fc_triangles(handle, out (count, 2) i64), free with
 //                voxax_fc_free_triangles).
 VOXAX_EXPORT int voxax_fc_signs(const int64_t* index, int64_t K, const int64_t* shape,
-                                const int64_t* edge, const int8_t* sign, int64_t C,
-                                int32_t threads, int8_t* S, void** handle, int64_t* count,
-                                char* err, int64_t errlen) {
+                                const int64_t* edge, const int8_t* sign, int64_t C, int32_t threads,
+                                int8_t* S, void** handle, int64_t* count, char* err,
+                                int64_t errlen) {
   if (handle) *handle = nullptr;
   try {
     if (!handle || !count || !shape || K < 0 || C < 0 || (K > 0 && (!index || !S)) ||

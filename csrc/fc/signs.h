@@ -70,8 +70,7 @@ inline EdgeNet net_flux(const int64_t* edge, const int8_t* sign, int64_t C) {
 // Writes the net signs of edges [e0, e1) of `en` into S (K, 12); appends (cell, crossing)
 // for cells without a row to `missing`.
 inline void scatter_signs(const EdgeNet& en, int64_t e0, int64_t e1, const int64_t* index,
-                          int64_t K, const int64_t n[3], int8_t* S,
-                          std::vector<int64_t>* missing) {
+                          int64_t K, const int64_t n[3], int8_t* S, std::vector<int64_t>* missing) {
   const int64_t s[3] = {n[0] + 1, n[1] + 1, n[2] + 1};
   const int64_t total = s[0] * s[1] * s[2];
   int64_t hint[4] = {-1, -1, -1, -1};

@@ -568,6 +568,7 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, len(index))
     return Tokens(grid, index, off, nrm, signs, comp, area)
 
+
 def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
     """`(K, 12)` int8 net signs of the rows' edges (one row per cell), and the cells around
     signed edges that have no row with the crossing each takes its row from."""
