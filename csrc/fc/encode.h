@@ -413,6 +413,20 @@ inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
   return common >= 2;
 }
 
+// Sorts `keys` stably by their high 32 bits, of which only the lowest `bits` may be set
+// (least significant digit first, 11-bit digits).
+inline void radix_sort_high(std::vector<uint64_t>* keys, int bits) {
+  constexpr int kDigit = 11;
+  std::vector<uint64_t> tmp(keys->size());
+  for (int shift = 0; shift < bits; shift += kDigit) {
+    std::vector<size_t> count((size_t{1} << kDigit) + 1, 0);
+    for (uint64_t k : *keys) ++count[((k >> (32 + shift)) & ((1u << kDigit) - 1)) + 1];
+    for (size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
+    for (uint64_t k : *keys) tmp[count[(k >> (32 + shift)) & ((1u << kDigit) - 1)]++] = k;
+    keys->swap(tmp);
+  }
+}
+
 // The rows of the cells of one slab [ia, ib). With `pieces_only`, records the
 // pieces instead.
 inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
@@ -445,12 +459,32 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
     });
   }
   lap(0);
-  std::sort(pieces.begin(), pieces.end(), [](const Piece& a, const Piece& b) {
-    return a.cell < b.cell || (a.cell == b.cell && a.face < b.face);
-  });
+  // Sort by (cell, face). The pieces come in increasing face order (the bins list faces in
+  // increasing order, and a face has one piece per cell), so a stable radix sort of packed
+  // keys (cell within the slab, position) by the cell gives the (cell, face) order; the
+  // pieces stay where they are and are visited through `order`.
+  const int64_t base = ia * ny * nz;
+  const int64_t span = (ib - ia) * ny * nz;
+  std::vector<uint32_t> order(pieces.size());
+  if (span <= INT64_C(0xFFFFFFFF) && pieces.size() <= size_t{0x7FFFFFFF}) {
+    std::vector<uint64_t> key(pieces.size());
+    for (size_t r = 0; r < pieces.size(); ++r)
+      key[r] = (static_cast<uint64_t>(pieces[r].cell - base) << 32) | r;
+    int bits = 0;
+    while (bits < 32 && (INT64_C(1) << bits) < span) ++bits;
+    radix_sort_high(&key, bits);
+    for (size_t r = 0; r < key.size(); ++r) order[r] = static_cast<uint32_t>(key[r]);
+  } else {
+    std::iota(order.begin(), order.end(), 0u);
+    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+      return pieces[a].cell < pieces[b].cell ||
+             (pieces[a].cell == pieces[b].cell && pieces[a].face < pieces[b].face);
+    });
+  }
   lap(1);
   if (pieces_only) {
-    for (const Piece& pc : pieces) {
+    for (uint32_t r : order) {
+      const Piece& pc = pieces[r];
       const int64_t ijk[3] = {pc.cell / (ny * nz), (pc.cell / nz) % ny, pc.cell % nz};
       out->p_cell.push_back(pc.cell);
       out->p_face.push_back(pc.face);
@@ -466,13 +500,13 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
   std::vector<int32_t> ids, parent;
   std::vector<std::vector<int32_t>> groups;
   size_t s = 0;
-  while (s < pieces.size()) {
+  while (s < order.size()) {
     size_t e = s;
-    while (e < pieces.size() && pieces[e].cell == pieces[s].cell) ++e;
+    while (e < order.size() && pieces[order[e]].cell == pieces[order[s]].cell) ++e;
     const int32_t m = static_cast<int32_t>(e - s);
     if (!prm.components || m == 1) {
       ids.resize(m);
-      for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(s) + r;
+      for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(order[s + r]);
       solve_row(g, prm, V, F, pieces, ids, 0, out);
     } else {
       // Union-find over pieces whose faces share a mesh edge; components are
@@ -485,7 +519,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
       };
       for (int32_t a = 0; a < m; ++a)
         for (int32_t b = a + 1; b < m; ++b)
-          if (share_edge(F, pieces[s + a].face, pieces[s + b].face)) {
+          if (share_edge(F, pieces[order[s + a]].face, pieces[order[s + b]].face)) {
             const int32_t ra = find(a), rb = find(b);
             if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
           }
@@ -494,7 +528,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
         if (find(a) != a) continue;
         ids.clear();
         for (int32_t b = a; b < m; ++b)
-          if (find(b) == a) ids.push_back(static_cast<int32_t>(s) + b);
+          if (find(b) == a) ids.push_back(static_cast<int32_t>(order[s + b]));
         solve_row(g, prm, V, F, pieces, ids, comp++, out);
       }
     }

@@ -306,17 +306,31 @@ class Tokens:
     @property
     def cells(self) -> np.ndarray:
         """`(K, 3)` int32 cell indices `(i, j, k)`."""
-        return np.stack(np.unravel_index(self.index, self.grid.shape), axis=1).astype(np.int32)
+        return _unravel(self.index, self.grid.shape)
 
     @property
     def anchors(self) -> np.ndarray:
         """`(K, 3)` float64 anchors in world coordinates."""
         lo = np.asarray(self.grid.lower)
         h = np.asarray(self.grid.spacing)
-        return lo + (self.cells + 0.5 + self.offsets) * h
+        out = self.cells + 0.5
+        out += self.offsets
+        out *= h
+        out += lo
+        return out
 
     def __repr__(self) -> str:
         return f"Tokens({len(self)} rows on {self.grid})"
+
+
+def _unravel(index, shape) -> np.ndarray:
+    """`(K, 3)` int32 cell indices of C-order indices `index` on a grid of `shape`."""
+    out = np.empty((len(index), 3), np.int32)
+    rest = np.asarray(index, np.int64)
+    for a in (2, 1):
+        rest, out[:, a] = np.divmod(rest, shape[a])
+    out[:, 0] = rest
+    return out
 
 
 def _node_ids(grid: Grid, axis, nodes) -> np.ndarray:
@@ -849,7 +863,7 @@ def _near_rows(tokens: Tokens, rows) -> np.ndarray:
     grid = tokens.grid
     shape = np.asarray(grid.shape, np.int64)
     d = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
-    cells = (tokens.cells[rows].astype(np.int64)[:, None, :] + d[None]).reshape(-1, 3)
+    cells = (_unravel(tokens.index[rows], grid.shape).astype(np.int64)[:, None, :] + d[None]).reshape(-1, 3)
     cells = cells[np.all((cells >= 0) & (cells < shape), axis=1)]
     lin = np.unique((cells[:, 0] * shape[1] + cells[:, 1]) * shape[2] + cells[:, 2])
     lo = np.searchsorted(tokens.index, lin, side="left")
