@@ -850,10 +850,10 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
         lib.voxax_fc_triangles(handle, tris.ctypes.data_as(_I64))
     finally:
         lib.voxax_fc_free_triangles(handle)
-    if tips and len(tris):
-        tris = _insert_tips(tokens, P, tris)
     used = np.zeros(K, bool)
     used[tris.reshape(-1)] = True
+    if tips and len(tris):
+        tris, used = _insert_tips(tokens, P, tris, used)
     remap = np.cumsum(used) - 1
     return Mesh(P[used], remap[tris].astype(np.int32))
 
@@ -874,22 +874,22 @@ def _near_rows(tokens: Tokens, rows) -> np.ndarray:
     return np.cumsum(mark)[:-1] > 0
 
 
-def _insert_tips(tokens: Tokens, P, tris):
+def _insert_tips(tokens: Tokens, P, tris, used):
     """Connects the anchors that no quad uses (cells a sharp tip pokes into without
-    crossing any of their edges): works on the triangles near them only."""
+    crossing any of their edges): works on the triangles near them only. `used` marks the
+    rows that `tris` uses; returns the new triangles and marks."""
     K = len(tokens)
-    used = np.zeros(K, bool)
-    used[tris.reshape(-1)] = True
     todo = np.flatnonzero(~used & ~(np.asarray(tokens.area) == 0))
     if not len(todo):
-        return tris
+        return tris, used
     near = _near_rows(tokens, todo)
-    ring = np.any(near[tris], axis=1)
+    ring = near[tris[:, 0]] | near[tris[:, 1]] | near[tris[:, 2]]
     verts = np.zeros(K, bool)
     verts[tris[ring].reshape(-1)] = True
-    sub = np.any(verts[tris], axis=1)  # the triangles near the tips and their neighbours
+    sub = verts[tris[:, 0]] | verts[tris[:, 1]] | verts[tris[:, 2]]  # near the tips, and their neighbours
     new = _split_for_tips(P, tris[sub], todo)
-    return np.concatenate([tris[~sub], new])
+    used[new.reshape(-1)] = True  # the split triangles keep their corners
+    return np.concatenate([tris[~sub], new]), used
 
 
 def _split_for_tips(P, tris, todo, rounds: int = 4):
