@@ -51,6 +51,9 @@ struct Params {
   // Per face, bit k set when its edge k (corners k, k + 1) is an open boundary of the mesh
   // (used by this face alone), or null.
   const uint8_t* open = nullptr;
+  // Cells (sorted) whose pieces get one anchor even with `components`.
+  const int64_t* joined = nullptr;
+  int64_t njoined = 0;
 };
 
 // One piece of a triangle in a cell: d is the area centroid relative to the
@@ -504,7 +507,9 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
     size_t e = s;
     while (e < order.size() && pieces[order[e]].cell == pieces[order[s]].cell) ++e;
     const int32_t m = static_cast<int32_t>(e - s);
-    if (!prm.components || m == 1) {
+    const int64_t cell = pieces[order[s]].cell;
+    if (!prm.components || m == 1 ||
+        std::binary_search(prm.joined, prm.joined + prm.njoined, cell)) {
       ids.resize(m);
       for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(order[s + r]);
       solve_row(g, prm, V, F, pieces, ids, 0, out);

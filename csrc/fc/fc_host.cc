@@ -5,8 +5,10 @@
 //
 //   voxax_fc_encode(V (nv, 3) f64, nv, F (nf, 3) i32, nf, open (nf,) u8 or null (bit k: edge k
 //                   of the face is an open boundary), box[6] (lower, upper), shape[3],
-//                   params[3] (lambda_n, lambda_d, weight_power), flags, threads,
-//                   &handle, sizes[3] (rows, faces, pieces), err, errlen)
+//                   params[3] (lambda_n, lambda_d, weight_power), flags, joined (J,) i64
+//                   sorted or null, J, threads, &handle, sizes[3] (rows, faces, pieces), err,
+//                   errlen)
+//       joined: cells that get one anchor for all their pieces even with components
 //       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only, 16 find the
 //       open boundary edges here (instead of `open`)
 //   voxax_fc_rows(handle, index (K,) i64, component (K,) i32, offset (K, 3), normal (K, 3),
@@ -59,8 +61,9 @@ using voxax::host_fail;
 
 VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, int64_t nf,
                                  const uint8_t* open, const double* box, const int64_t* shape,
-                                 const double* params, int32_t flags, int32_t threads,
-                                 void** handle, int64_t* sizes, char* err, int64_t errlen) {
+                                 const double* params, int32_t flags, const int64_t* joined,
+                                 int64_t njoined, int32_t threads, void** handle, int64_t* sizes,
+                                 char* err, int64_t errlen) {
   if (handle) *handle = nullptr;
   const auto t_start = std::chrono::steady_clock::now();
   const bool profile = std::getenv("VOXAX_FC_PROFILE") != nullptr;
@@ -112,6 +115,13 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     } else {
       prm.open = open;
     }
+    if (njoined < 0 || (njoined > 0 && !joined))
+      return host_fail(err, errlen, "voxax: fc.encode got a bad list of joined cells");
+    for (int64_t r = 1; r < njoined; ++r)
+      if (joined[r] <= joined[r - 1])
+        return host_fail(err, errlen, "voxax: fc.encode: joined cells must be sorted and unique");
+    prm.joined = joined;
+    prm.njoined = njoined;
     const bool pieces_only = (flags & 8) != 0;
     g.build_planes();
 

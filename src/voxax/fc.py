@@ -81,6 +81,8 @@ _SIGNATURES = {
             _I64,
             _D,
             ctypes.c_int32,
+            _I64,
+            ctypes.c_int64,
             ctypes.c_int32,
             ctypes.POINTER(_VP),
             _I64,
@@ -168,13 +170,15 @@ def _threads(threads) -> int:
     return _host.threads(threads)
 
 
-def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False):
+def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False, joined=None):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int32)
     box = np.ascontiguousarray(np.concatenate([grid.lower, grid.upper]), dtype=np.float64)
     shape = np.ascontiguousarray(grid.shape, dtype=np.int64)
     prm = np.ascontiguousarray(params, dtype=np.float64)
+    if joined is not None:
+        joined = np.ascontiguousarray(joined, dtype=np.int64)
     handle = _VP()
     sizes = np.zeros(3, np.int64)
     err = _host.error_buffer()
@@ -188,6 +192,8 @@ def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=Fals
         shape.ctypes.data_as(_I64),
         prm.ctypes.data_as(_D),
         int(flags) | (16 if open_boundaries else 0),
+        None if joined is None else joined.ctypes.data_as(_I64),
+        0 if joined is None else len(joined),
         _threads(threads),
         ctypes.byref(handle),
         sizes.ctypes.data_as(_I64),
@@ -476,10 +482,12 @@ def _token_edges(grid: Grid, cells: np.ndarray) -> np.ndarray:
     return _node_ids(grid, EDGE_AXIS[None, :], nodes)
 
 
-def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries=True):
+def _rows(
+    where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries=True, joined=None
+):
     flags = (1 if clamp else 0) | (2 | 4 if components else 0)
     handle, sizes = _call_encode(
-        where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries
+        where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries, joined=joined
     )
     lib = _lib()
     try:
@@ -553,13 +561,35 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     edge = cr.edge
     axis, nodes = _edge_geometry(grid, edge)
     cidx = _cells_around(grid, axis, nodes)
-    inside = cidx >= 0
-    # Cells that a crossing touches without a piece of positive area get a row at the
-    # crossing point, so every quad has its four vertices.
     flat = cidx.reshape(-1)
     forder, fstarts = _group(flat)
     want = flat[forder[fstarts]]
     firsts = forder[fstarts]
+    # A cell whose components split the crossings of an edge that one row of a neighbour
+    # holds together (two sheets that join just outside the cell) would leave holes: such
+    # cells get one anchor for all their pieces, until every edge's crossings are split
+    # alike in its 4 cells.
+    joined = np.zeros(0, np.int64)
+    for _ in range(64):
+        tok, bad = _component_tokens(V, F, grid, cr, cidx, want, firsts, index, comp, off, nrm, area, fcount, rfaces)
+        bad = np.setdiff1d(bad, joined)
+        if not len(bad):
+            break
+        joined = np.union1d(joined, bad)
+        index, comp, off, nrm, area, fcount, rfaces = _rows(
+            where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, True, threads, boundaries, joined=joined
+        )
+    return tok
+
+
+def _component_tokens(V, F, grid, cr, cidx, want, firsts, index, comp, off, nrm, area, fcount, rfaces):
+    """Tokens with several rows per cell, and the cells whose rows split an edge's group."""
+    shape = grid.shape
+    h = np.asarray(grid.spacing)
+    lo = np.asarray(grid.lower)
+    inside = cidx >= 0
+    # Cells that a crossing touches without a piece of positive area get a row at the
+    # crossing point, so every quad has its four vertices.
     keep = (want >= 0) & (_lookup(index, want) < 0)
     missing, src = want[keep], firsts[keep] // 4
     if len(missing):
@@ -579,8 +609,8 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
         rfaces_rows = [rfaces_rows[i] for i in order]
         fcount = fcount[order]
         rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
-    signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, len(index))
-    return Tokens(grid, index, off, nrm, signs, comp, area)
+    signs, bad = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, len(index))
+    return Tokens(grid, index, off, nrm, signs, comp, area), bad
 
 
 def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
@@ -657,7 +687,7 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
                 rows[t, p] = a + int(np.argmin(d))
     signs = np.zeros((K, 12), np.int8)
     if C == 0:
-        return signs
+        return signs, np.zeros(0, np.int64)
     # Groups: crossings joined through a shared (edge, row) in any cell.
     t_idx, p_idx = np.nonzero(rows >= 0)
     ekey = np.stack([cr.edge[t_idx], rows[t_idx, p_idx]], 1)
@@ -675,6 +705,9 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     r = rows[t_idx, p_idx]
     trip = np.stack([g, p_idx, r], 1)
     uniq, counts = np.unique(trip, axis=0, return_counts=True)
+    # Cells where one group's crossings belong to several rows.
+    split = np.flatnonzero(np.all(uniq[1:, :2] == uniq[:-1, :2], axis=1))
+    bad = np.unique(index[np.concatenate([uniq[split, 2], uniq[split + 1, 2]])])
     order = np.lexsort((uniq[:, 2], -counts, uniq[:, 1], uniq[:, 0]))
     uniq = uniq[order]
     firsts = np.concatenate([[True], np.any(uniq[1:, :2] != uniq[:-1, :2], axis=1)])
@@ -683,7 +716,29 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     gaxis[group] = axis
     slot = gaxis[chosen[:, 0]] * 4 + (chosen[:, 1] + 2) % 4
     signs[chosen[:, 2], slot] = np.clip(net[chosen[:, 0]], -127, 127)
-    return signs
+    # The decoder pairs an edge's voting rows across its 4 cells in the order of their
+    # anchors along the edge: where that order differs between cells, the groups would be
+    # paired wrongly, so those cells join their components too.
+    cg = chosen[net[chosen[:, 0]] != 0]
+    if len(cg):
+        gedge = np.zeros(len(net), np.int64)
+        gedge[group] = cr.edge
+        e = gedge[cg[:, 0]]
+        coord = anchors[cg[:, 2], gaxis[cg[:, 0]]]
+        o = np.lexsort((cg[:, 2], coord, cg[:, 1], e))
+        cg, e = cg[o], e[o]
+        run = np.concatenate([[True], (e[1:] != e[:-1]) | (cg[1:, 1] != cg[:-1, 1])])
+        start = np.maximum.accumulate(np.where(run, np.arange(len(cg)), 0))
+        rank = np.arange(len(cg)) - start
+        lo_rank = np.full(len(net), np.iinfo(np.int64).max)
+        hi_rank = np.full(len(net), -1)
+        np.minimum.at(lo_rank, cg[:, 0], rank)
+        np.maximum.at(hi_rank, cg[:, 0], rank)
+        mixed = lo_rank[cg[:, 0]] != hi_rank[cg[:, 0]]
+        if mixed.any():
+            edges = np.unique(e[mixed])
+            bad = np.union1d(bad, index[cg[np.isin(e, edges), 2]])
+    return signs, bad
 
 
 def encode(
@@ -714,7 +769,10 @@ def encode(
     - `weight_power`: `p` in the piece weights `A^p` (0: uniform).
     - `clamp`: move anchors that leave their cell back onto the cell's pieces.
     - `anchors_per_cell`: `1`, or `"components"` for one anchor per connected component
-      of the cell's pieces.
+      of the cell's pieces (faces joined by mesh edges). A cell keeps one anchor where its
+      components would split the crossings of one of its edges differently from the cells
+      around that edge (two sheets that join just outside the cell, or sheets in another
+      order along the edge), which would leave holes in the decoded mesh.
     - `open_boundaries`: where an open boundary of the mesh (an edge of one face only)
       passes through a cell, add its lines to the QEF with the weight of the tangent
       planes, so that the anchor lies on the boundary and open sheets keep their extent
