@@ -204,6 +204,9 @@ def test_rotated_cube_beats_marching_cubes_on_the_voxelization(n):
     assert np.percentile(d_fc, 99) <= 0.05 and np.percentile(d_fc, 99) * 5 <= np.percentile(d_mc, 99)
     corners = (np.array(np.meshgrid(*[[-0.6, 0.6]] * 3, indexing="ij")).reshape(3, -1).T) @ np.asarray(_rotation_of(m))
     assert _corner_errors(out, corners).max() <= 0.02 * h
+    # One anchor per sheet of a cell separates the two faces of such a sharp edge.
+    comp = metrics.manifold_report(fc.decode(fc.encode(m, g, anchors_per_cell="components")))
+    assert comp.closed and comp.oriented and comp.manifold and comp.euler_characteristic == 2
 
 
 def _rotation_of(m):
@@ -316,6 +319,20 @@ def test_components_on_coarse_grids_leave_no_holes(name, n, chi):
     rep = metrics.manifold_report(fc.decode(tok))
     assert rep.n_boundary_edges == 0 and rep.n_nonmanifold_edges == 0 and rep.oriented
     assert rep.euler_characteristic == chi
+
+
+def test_components_close_a_cad_part():
+    manifold3d = pytest.importorskip("manifold3d")
+    block = manifold3d.Manifold.cube([1.2, 0.8, 0.5], center=True)
+    bore = manifold3d.Manifold.cylinder(0.8, 0.2, 0.2, 64, center=True).translate([-0.25, 0.0, 0.0])
+    cut = manifold3d.Manifold.cube([1.4, 0.3, 0.3], center=True).rotate([45.0, 0.0, 0.0]).translate([0, -0.4, 0.25])
+    mm = (block - bore - cut).rotate([12.0, 21.0, 7.0]).to_mesh()
+    part = voxax.Mesh(np.asarray(mm.vert_properties, np.float64)[:, :3], np.asarray(mm.tri_verts, np.int32))
+    g = voxax.Grid.around(part.vertices, 32)
+    one = metrics.manifold_report(fc.decode(fc.encode(part, g)))
+    assert one.n_boundary_edges == 0 and one.n_nonmanifold_edges > 0  # sharp edges past cell corners
+    comp = metrics.manifold_report(fc.decode(fc.encode(part, g, anchors_per_cell="components")))
+    assert comp.closed and comp.oriented and comp.manifold and comp.euler_characteristic == 0  # genus 1
 
 
 @pytest.mark.parametrize("fmt, width", [("fct19", 19), ("fct69", 69), ("fct18", 18)])

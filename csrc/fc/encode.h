@@ -404,16 +404,40 @@ inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
   return bits;
 }
 
-// Whether faces s and t share an edge (two vertex indices).
-inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
-  int common = 0;
+// Whether segment ab meets the closed box [lo, hi] (slab test).
+inline bool segment_meets_box(const double* a, const double* b, const double lo[3],
+                              const double hi[3]) {
+  double t0 = 0, t1 = 1;
+  for (int ax = 0; ax < 3; ++ax) {
+    const double d = b[ax] - a[ax];
+    if (d == 0) {
+      if (a[ax] < lo[ax] || a[ax] > hi[ax]) return false;
+      continue;
+    }
+    double s0 = (lo[ax] - a[ax]) / d, s1 = (hi[ax] - a[ax]) / d;
+    if (s0 > s1) std::swap(s0, s1);
+    t0 = std::max(t0, s0);
+    t1 = std::min(t1, s1);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
+// Whether the pieces of faces s and t in the closed cell [lo, hi] are joined: the faces
+// share a mesh edge (two vertex indices) and that edge passes through the cell.
+inline bool joined_in_cell(const double* V, const int32_t* F, int32_t s, int32_t t,
+                           const double lo[3], const double hi[3]) {
+  int32_t common[2] = {0, 0};
+  int n = 0;
   for (int c = 0; c < 3; ++c)
     for (int e = 0; e < 3; ++e)
       if (F[3 * int64_t(s) + c] == F[3 * int64_t(t) + e]) {
-        ++common;
+        if (n < 2) common[n] = F[3 * int64_t(s) + c];
+        ++n;
         break;
       }
-  return common >= 2;
+  if (n < 2) return false;
+  return segment_meets_box(V + 3 * int64_t(common[0]), V + 3 * int64_t(common[1]), lo, hi);
 }
 
 // Sorts `keys` stably by their high 32 bits, of which only the lowest `bits` may be set
@@ -516,6 +540,12 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
     } else {
       // Union-find over pieces whose faces share a mesh edge; components are
       // numbered by their lowest face.
+      const int64_t ijk[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
+      double lo[3], hi[3];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = g.plane(a, ijk[a]);
+        hi[a] = g.plane(a, ijk[a] + 1);
+      }
       parent.resize(m);
       std::iota(parent.begin(), parent.end(), 0);
       auto find = [&](int32_t x) {
@@ -524,7 +554,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
       };
       for (int32_t a = 0; a < m; ++a)
         for (int32_t b = a + 1; b < m; ++b)
-          if (share_edge(F, pieces[order[s + a]].face, pieces[order[s + b]].face)) {
+          if (joined_in_cell(V, F, pieces[order[s + a]].face, pieces[order[s + b]].face, lo, hi)) {
             const int32_t ra = find(a), rb = find(b);
             if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
           }

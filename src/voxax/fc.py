@@ -17,8 +17,8 @@ normals taken in local coordinates). When the minimizer leaves the cell, it is c
 the cell and moved to the closest point of the cell's own pieces. Beyond the paper: open
 boundaries of the mesh add their lines to the QEF (`open_boundaries=True`), so open sheets
 keep their extent; with `anchors_per_cell="components"` every connected component of a
-cell's pieces (faces joined by mesh edges) gets its own anchor, so nearby sheets are no
-longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
+cell's pieces (faces joined by a mesh edge through the cell) gets its own anchor, so nearby
+sheets are no longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
 thinner than a cell) to the surface.
 
 Edge signs are the net flux of the surface through each lattice edge: the sum over the
@@ -769,7 +769,9 @@ def encode(
     - `weight_power`: `p` in the piece weights `A^p` (0: uniform).
     - `clamp`: move anchors that leave their cell back onto the cell's pieces.
     - `anchors_per_cell`: `1`, or `"components"` for one anchor per connected component
-      of the cell's pieces (faces joined by mesh edges). A cell keeps one anchor where its
+      of the cell's pieces (pieces of faces that share a mesh edge passing through the
+      cell are joined), so that nearby sheets, and the two faces of a sharp edge that
+      passes just outside the cell, get a vertex each. A cell keeps one anchor where its
       components would split the crossings of one of its edges differently from the cells
       around that edge (two sheets that join just outside the cell, or sheets in another
       order along the edge), which would leave holes in the decoded mesh.
