@@ -30,6 +30,7 @@
 #include <cmath>
 #include <cstdint>
 #include <numeric>
+#include <utility>
 #include <vector>
 
 #include "common/grid.h"
@@ -371,36 +372,51 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
   }
 }
 
-// Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face: an
-// open-addressing table counts the undirected edges.
+// Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face. The
+// face edges are bucketed by their lower vertex (a counting sort), and each bucket, a
+// vertex's few edges, is scanned for repeats of the upper vertex.
 inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
-  size_t cap = 16;
-  while (cap < static_cast<size_t>(6 * nf + 1)) cap *= 2;
-  const size_t mask = cap - 1;
-  std::vector<uint64_t> keys(cap, ~uint64_t{0});
-  std::vector<uint8_t> count(cap, 0);
-  auto slot = [&](uint64_t key) {
-    uint64_t x = key * 0x9E3779B97F4A7C15ULL;
-    size_t h = static_cast<size_t>(x ^ (x >> 31)) & mask;
-    while (keys[h] != key && keys[h] != ~uint64_t{0}) h = (h + 1) & mask;
-    return h;
-  };
-  auto key_of = [&](int64_t t, int k) {
-    const uint64_t a = static_cast<uint32_t>(F[3 * t + k]);
-    const uint64_t b = static_cast<uint32_t>(F[3 * t + (k + 1) % 3]);
-    return a < b ? (a << 32) | b : (b << 32) | a;
-  };
+  int64_t nv = 0;
+  for (int64_t i = 0; i < 3 * nf; ++i) nv = std::max<int64_t>(nv, int64_t(F[i]) + 1);
+  std::vector<int64_t> start(nv + 1, 0);
   for (int64_t t = 0; t < nf; ++t)
-    for (int k = 0; k < 3; ++k) {
-      const uint64_t key = key_of(t, k);
-      const size_t h = slot(key);
-      keys[h] = key;
-      if (count[h] < 2) ++count[h];
-    }
+    for (int k = 0; k < 3; ++k) ++start[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3]) + 1];
+  for (int64_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<int64_t> edge(3 * nf);  // 3 t + k, bucketed by the lower vertex
+  {
+    std::vector<int64_t> fill(start.begin(), start.end() - 1);
+    for (int64_t t = 0; t < nf; ++t)
+      for (int k = 0; k < 3; ++k)
+        edge[fill[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3])]++] = 3 * t + k;
+  }
+  auto upper = [&](int64_t e) {
+    const int64_t t = e / 3;
+    const int k = static_cast<int>(e % 3);
+    return std::max(F[3 * t + k], F[3 * t + (k + 1) % 3]);
+  };
   std::vector<uint8_t> bits(nf, 0);
-  for (int64_t t = 0; t < nf; ++t)
-    for (int k = 0; k < 3; ++k)
-      if (count[slot(key_of(t, k))] == 1) bits[t] |= static_cast<uint8_t>(1u << k);
+  auto mark = [&](int64_t e) { bits[e / 3] |= static_cast<uint8_t>(1u << (e % 3)); };
+  std::vector<std::pair<int32_t, int64_t>> big;
+  for (int64_t v = 0; v < nv; ++v) {
+    const int64_t b = start[v], e = start[v + 1];
+    if (e - b <= 32) {
+      for (int64_t i = b; i < e; ++i) {
+        const int32_t u = upper(edge[i]);
+        bool shared = false;
+        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && upper(edge[j]) == u;
+        if (!shared) mark(edge[i]);
+      }
+    } else {  // a vertex of high degree: sort its edges by the upper vertex
+      big.clear();
+      for (int64_t i = b; i < e; ++i) big.emplace_back(upper(edge[i]), edge[i]);
+      std::sort(big.begin(), big.end());
+      for (size_t i = 0; i < big.size(); ++i) {
+        const bool prev = i > 0 && big[i - 1].first == big[i].first;
+        const bool next = i + 1 < big.size() && big[i + 1].first == big[i].first;
+        if (!prev && !next) mark(big[i].second);
+      }
+    }
+  }
   return bits;
 }
 
