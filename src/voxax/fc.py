@@ -947,7 +947,10 @@ def _insert_tips(tokens: Tokens, P, tris, used):
     verts = np.zeros(K, bool)
     verts[tris[ring].reshape(-1)] = True
     sub = verts[tris[:, 0]] | verts[tris[:, 1]] | verts[tris[:, 2]]  # near the tips, and their neighbours
-    new = _split_for_tips(P, tris[sub], todo)
+    # Work on the vertices of these triangles and the tips only (renumbered in order).
+    local = np.union1d(np.unique(tris[sub]), todo)
+    lt = np.searchsorted(local, tris[sub])
+    new = local[_split_for_tips(P[local], lt, np.searchsorted(local, todo))]
     used[new.reshape(-1)] = True  # the split triangles keep their corners
     return np.concatenate([tris[~sub], new]), used
 
