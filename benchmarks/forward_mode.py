@@ -38,6 +38,31 @@ import voxax  # noqa: E402
 from voxax import _voxelize_ops  # noqa: E402
 
 
+def _status(key: str) -> int:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def reset_peak() -> int:
+    """Resets the peak resident set size (Linux) and returns the current one."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+    return _status("VmRSS")
+
+
+def peak_since(base: int) -> float:
+    """GiB of resident memory above `base` at the peak since the last `reset_peak` (in the
+    JSON only: pages freed by an earlier variant stay resident, so the figure depends on
+    the order of the variants)."""
+    return (_status("VmHWM") - base) / 2**30
+
+
 def timed(fn, *args, repeats=5):
     jax.block_until_ready(fn(*args))  # compile and warm up
     times = []
@@ -121,9 +146,16 @@ def loops(n: int, subdivisions: int, steps: int, repeats: int) -> dict:
         return x, value, t
 
     out = {"grid": n, "faces": mesh.n_faces, "steps": steps, "kernels_per_step_s": kernel_s}
+    base = reset_peak()
     out["python_loop_per_step_s"] = timed(python_loop, v0, target, repeats=repeats) / steps
-    t_don = jnp.array(target)  # a private copy: donation consumes it
-    jax.block_until_ready(python_loop_donated(v0, jnp.array(target)))  # compile
+    out["python_loop_peak_gib"] = peak_since(base)
+    # One target buffer at a time (at 1024^3 each grid is 4 GiB): donation consumes it and
+    # each call hands it back.
+    t_don = target
+    del target
+    base = reset_peak()
+    x, value, t_don = python_loop_donated(v0, t_don)  # compile
+    jax.block_until_ready((x, value, t_don))
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -131,7 +163,10 @@ def loops(n: int, subdivisions: int, steps: int, repeats: int) -> dict:
         jax.block_until_ready((x, value, t_don))
         times.append(time.perf_counter() - t0)
     out["donated_loop_per_step_s"] = statistics.median(times) / steps
-    out["fori_loop_per_step_s"] = timed(run_loop, v0, target, repeats=repeats) / steps
+    out["donated_loop_peak_gib"] = peak_since(base)
+    base = reset_peak()
+    out["fori_loop_per_step_s"] = timed(run_loop, v0, t_don, repeats=repeats) / steps
+    out["fori_loop_peak_gib"] = peak_since(base)
     for k in ("python_loop", "donated_loop", "fori_loop"):
         out[f"{k}_over_kernels"] = out[f"{k}_per_step_s"] / kernel_s
     return out

@@ -1,6 +1,6 @@
 """Resolving self-intersections on the full set of cases, checked beyond the working grid.
 
-    PYTHONPATH=src python benchmarks/resolve.py [--resolution 64] [--cases bent_bar,letters,...]
+    PYTHONPATH=src python benchmarks/resolve.py [--resolution 128] [--cases bent_bar,letters,...]
 
 For each case: `voxax.apps.resolve_self_intersections` with default settings (at the given
 working resolution), then the exact intersection count of the result, the largest voxel
@@ -52,7 +52,7 @@ def check(out, report, resolution):
 
 def main(argv=None):
     parser = argparse.ArgumentParser()
-    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--resolution", type=int, default=128, help="the working grid (128: the default of resolve_self_intersections)")
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--json")
     args = parser.parse_args(argv)
@@ -70,7 +70,8 @@ def main(argv=None):
                    intersections_final=count, rounds=report.refinement_rounds,
                    refinement_steps=report.refinement_steps, voxel_steps=report.steps,
                    seconds=seconds, max_w=max_w, enclosed_volume_change=volume,
-                   signed_volume_change=report.volume_final / report.volume_initial - 1)
+                   signed_volume_change=report.volume_final / report.volume_initial - 1,
+                   volume_steps=report.volume_steps)
         rows.append(row)
         print(f"{name:11s} F={row['faces']:5d} resolved={report.resolved} pairs {report.intersections_initial}"
               f" -> {report.intersections_after_voxel_stage} (voxel stage) -> {count}; rounds {report.refinement_rounds}"

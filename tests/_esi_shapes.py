@@ -3,19 +3,7 @@
 import numpy as np
 
 from voxax import Mesh
-from voxax._mesh import from_manifold
-
-
-def mug(segments: int = 48) -> Mesh:
-    """A cup with a handle: a cylinder hollowed from the top, and a ring on its side."""
-    from manifold3d import CrossSection, Manifold
-
-    outer = Manifold.cylinder(1.0, 0.5, 0.5, segments)
-    inner = Manifold.cylinder(1.0, 0.42, 0.42, segments).translate((0, 0, 0.12))
-    ring = CrossSection.circle(0.07, 16).translate((0.28, 0)).revolve(segments)
-    handle = ring.rotate((90, 0, 0)).translate((0.5, 0, 0.5))
-    v, f = from_manifold((outer + handle) - inner)
-    return Mesh(v - np.array([0.15, 0.0, 0.5]), f.astype(np.int32))
+from voxax.data import mug  # noqa: F401 - the shared test shape
 
 
 def rotation(seed: int) -> np.ndarray:

@@ -63,6 +63,8 @@ def test_bent_bar_keeps_its_enclosed_volume(bent_bar_resolved):
     assert report.enclosed_volume_initial < mesh.signed_volume()
     # The resolved mesh's signed volume is its enclosed volume (no overlap left).
     assert abs(out.signed_volume() / report.enclosed_volume_initial - 1) < 0.02
+    if report.volume_steps:  # the verified Newton steps reach their tolerance (0.5%)
+        assert abs(out.signed_volume() / report.enclosed_volume_initial - 1) <= 0.005 + 1e-9
 
 
 def test_exhausted_budget_is_reported_unresolved():

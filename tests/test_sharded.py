@@ -54,7 +54,9 @@ def test_four_simulated_devices():
 
 def test_two_processes(tmp_path):
     """The same call on a mesh of two processes (jax.distributed on localhost, one CPU
-    device each): each process holds its slab, and the gradient sums across processes."""
+    device each): each process holds its slab, and the gradient sums across processes.
+    A 256^3 float32 grid (64 MiB) is voxelized within a budget of 0.6 of its size per
+    process: no process could hold the whole grid, each holds its slab."""
     import socket
 
     with socket.socket() as s:
@@ -83,3 +85,12 @@ def test_two_processes(tmp_path):
             np.testing.assert_array_equal(z["slab"], W[start : start + 4])
             np.testing.assert_allclose(z["grad"], g, rtol=0, atol=1e-13 * np.abs(g).max())
     assert sorted(starts) == [0, 4]
+    big = voxax.data.icosphere(3, radius=0.7)
+    Wb = np.asarray(voxax.voxelize(jnp.asarray(big.vertices, jnp.float32), big.faces, voxax.Grid.cube(256)))
+    budget = 0.6 * Wb.nbytes
+    for i in range(2):
+        with np.load(tmp_path / f"p{i}.npz") as z:
+            start = int(z["big_start"])
+            np.testing.assert_array_equal(z["big_slab"], Wb[start : start + 128])
+            peak = int(z["big_peak"])
+            assert 0.45 * Wb.nbytes <= peak <= budget, (peak, budget)  # holds its half, not the grid

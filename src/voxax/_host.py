@@ -57,7 +57,8 @@ def threads(threads: int | None) -> int:
     if threads is None:
         env = os.environ.get("VOXAX_NUM_THREADS")
         return int(env) if env else 0
-    threads = int(threads)
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)):
+        raise TypeError(f"`threads` must be an int or None, got {type(threads).__name__}")
     if threads < 1:
-        raise ValueError(f"threads must be >= 1 (or None for all cores), got {threads}")
-    return threads
+        raise ValueError(f"`threads` must be >= 1 (or None for all cores), got {threads}")
+    return int(threads)

@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import _ffi
+from . import _ffi, _host
 from ._constants import MAX_ABS_COORDINATE
 from ._mesh import Mesh
 
@@ -187,10 +187,7 @@ def intersections(
         vb, fb = _arrays(other, None, "voxax.intersections (other)")
     elif weld:
         va, fa = _weld(va, fa)
-    if threads is None:
-        threads = os.cpu_count() or 1
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be a positive int, got {threads!r}")
+    threads = _host.threads(threads) or (os.cpu_count() or 1)
     lib = _ffi.library()
     _setup(lib)
     handle = ctypes.c_void_p()

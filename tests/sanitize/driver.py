@@ -670,6 +670,16 @@ def run_raw_ffi(rng):
         "backward: cotangent batch": lambda: bwd(jnp.stack([v] * 2), jnp.stack([f] * 2), jnp.ones((3,) + g.shape),
                                                   shape=(2, f.shape[0], 3, 3)),
         "backward: index": lambda: bwd(v, f.at[0, 0].set(-3), cot),
+        "window x_first < 0": lambda: fwd(v, f, x_first=np.int64(-1), x_count=np.int64(2), shape=(2,) + g.shape[1:]),
+        "window past the frame": lambda: fwd(v, f, x_first=np.int64(g.shape[0] - 1), x_count=np.int64(2),
+                                             shape=(2,) + g.shape[1:]),
+        "window x_count < 0": lambda: fwd(v, f, x_first=np.int64(0), x_count=np.int64(-2)),
+        "window x_first without x_count": lambda: fwd(v, f, x_first=np.int64(1), x_count=np.int64(0)),
+        "window huge": lambda: fwd(v, f, x_first=np.int64(2**62), x_count=np.int64(2**62), shape=(2,) + g.shape[1:]),
+        "window output != x_count": lambda: fwd(v, f, x_first=np.int64(1), x_count=np.int64(2),
+                                                shape=(3,) + g.shape[1:]),
+        "backward: window cotangent": lambda: bwd(v, f, jnp.ones((3,) + g.shape[1:]), x_first=np.int64(1),
+                                                  x_count=np.int64(2)),
     }
     for name, fn in cases.items():
         try:
@@ -684,6 +694,20 @@ def run_raw_ffi(rng):
     # The handlers still work afterwards.
     W = jax.block_until_ready(fwd(v, f))
     check_result("raw FFI after errors", W, [], len(f), g)
+    # Random valid windows along x hold the frame's values bit for bit.
+    nx = g.shape[0]
+    for _ in range(6):
+        first = int(rng.integers(0, nx))
+        count = int(rng.integers(1, nx - first + 1))
+        Ww = jax.block_until_ready(fwd(v, f, x_first=np.int64(first), x_count=np.int64(count),
+                                       shape=(count,) + g.shape[1:]))
+        if not np.array_equal(np.asarray(Ww), np.asarray(W)[first : first + count]):
+            fail(f"raw FFI window [{first}, {first + count}) differs from the frame's cells")
+        gw = jax.block_until_ready(bwd(v, f, jnp.ones((count,) + g.shape[1:]), x_first=np.int64(first),
+                                       x_count=np.int64(count)))
+        if not np.all(np.isfinite(np.asarray(gw))):
+            fail(f"raw FFI window [{first}, {first + count}): non-finite backward")
+        CALLS["raw_ffi"] += 2
 
 
 # -- spatial queries (BVH) -----------------------------------------------------------------
