@@ -28,6 +28,7 @@ SMALL = {
     "05_tiling": {"RESOLUTION": 24, "MAX_STEPS": 10},
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},
     "07_meshsdf": {"RESOLUTION": 16},
+    "08_faithful_contouring": {"RESOLUTION": 32, "SAMPLES": 10_000},
     "10_explicit_surfaces": {"RESOLUTION": 32, "N_DHF": 4, "N_HF": 4, "MAX_HF": 1, "N_SAMPLES": 1000,
                              "N_POINTS": 2000, "MOLD_RESOLUTION": 16, "MOLD_STEPS": 5},
 }

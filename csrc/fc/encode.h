@@ -26,9 +26,11 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <numeric>
+#include <utility>
 #include <vector>
 
 #include "common/grid.h"
@@ -50,6 +52,9 @@ struct Params {
   // Per face, bit k set when its edge k (corners k, k + 1) is an open boundary of the mesh
   // (used by this face alone), or null.
   const uint8_t* open = nullptr;
+  // Cells (sorted) whose pieces get one anchor even with `components`.
+  const int64_t* joined = nullptr;
+  int64_t njoined = 0;
 };
 
 // One piece of a triangle in a cell: d is the area centroid relative to the
@@ -367,56 +372,117 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
   }
 }
 
-// Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face: an
-// open-addressing table counts the undirected edges.
+// Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face. The
+// face edges are bucketed by their lower vertex (a counting sort), and each bucket, a
+// vertex's few edges, is scanned for repeats of the upper vertex.
 inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
-  size_t cap = 16;
-  while (cap < static_cast<size_t>(6 * nf + 1)) cap *= 2;
-  const size_t mask = cap - 1;
-  std::vector<uint64_t> keys(cap, ~uint64_t{0});
-  std::vector<uint8_t> count(cap, 0);
-  auto slot = [&](uint64_t key) {
-    uint64_t x = key * 0x9E3779B97F4A7C15ULL;
-    size_t h = static_cast<size_t>(x ^ (x >> 31)) & mask;
-    while (keys[h] != key && keys[h] != ~uint64_t{0}) h = (h + 1) & mask;
-    return h;
-  };
-  auto key_of = [&](int64_t t, int k) {
-    const uint64_t a = static_cast<uint32_t>(F[3 * t + k]);
-    const uint64_t b = static_cast<uint32_t>(F[3 * t + (k + 1) % 3]);
-    return a < b ? (a << 32) | b : (b << 32) | a;
-  };
+  int64_t nv = 0;
+  for (int64_t i = 0; i < 3 * nf; ++i) nv = std::max<int64_t>(nv, int64_t(F[i]) + 1);
+  std::vector<int64_t> start(nv + 1, 0);
   for (int64_t t = 0; t < nf; ++t)
-    for (int k = 0; k < 3; ++k) {
-      const uint64_t key = key_of(t, k);
-      const size_t h = slot(key);
-      keys[h] = key;
-      if (count[h] < 2) ++count[h];
-    }
+    for (int k = 0; k < 3; ++k) ++start[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3]) + 1];
+  for (int64_t v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<int64_t> edge(3 * nf);  // 3 t + k, bucketed by the lower vertex
+  {
+    std::vector<int64_t> fill(start.begin(), start.end() - 1);
+    for (int64_t t = 0; t < nf; ++t)
+      for (int k = 0; k < 3; ++k)
+        edge[fill[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3])]++] = 3 * t + k;
+  }
+  auto upper = [&](int64_t e) {
+    const int64_t t = e / 3;
+    const int k = static_cast<int>(e % 3);
+    return std::max(F[3 * t + k], F[3 * t + (k + 1) % 3]);
+  };
   std::vector<uint8_t> bits(nf, 0);
-  for (int64_t t = 0; t < nf; ++t)
-    for (int k = 0; k < 3; ++k)
-      if (count[slot(key_of(t, k))] == 1) bits[t] |= static_cast<uint8_t>(1u << k);
+  auto mark = [&](int64_t e) { bits[e / 3] |= static_cast<uint8_t>(1u << (e % 3)); };
+  std::vector<std::pair<int32_t, int64_t>> big;
+  for (int64_t v = 0; v < nv; ++v) {
+    const int64_t b = start[v], e = start[v + 1];
+    if (e - b <= 32) {
+      for (int64_t i = b; i < e; ++i) {
+        const int32_t u = upper(edge[i]);
+        bool shared = false;
+        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && upper(edge[j]) == u;
+        if (!shared) mark(edge[i]);
+      }
+    } else {  // a vertex of high degree: sort its edges by the upper vertex
+      big.clear();
+      for (int64_t i = b; i < e; ++i) big.emplace_back(upper(edge[i]), edge[i]);
+      std::sort(big.begin(), big.end());
+      for (size_t i = 0; i < big.size(); ++i) {
+        const bool prev = i > 0 && big[i - 1].first == big[i].first;
+        const bool next = i + 1 < big.size() && big[i + 1].first == big[i].first;
+        if (!prev && !next) mark(big[i].second);
+      }
+    }
+  }
   return bits;
 }
 
-// Whether faces s and t share an edge (two vertex indices).
-inline bool share_edge(const int32_t* F, int32_t s, int32_t t) {
-  int common = 0;
+// Whether segment ab meets the closed box [lo, hi] (slab test).
+inline bool segment_meets_box(const double* a, const double* b, const double lo[3],
+                              const double hi[3]) {
+  double t0 = 0, t1 = 1;
+  for (int ax = 0; ax < 3; ++ax) {
+    const double d = b[ax] - a[ax];
+    if (d == 0) {
+      if (a[ax] < lo[ax] || a[ax] > hi[ax]) return false;
+      continue;
+    }
+    double s0 = (lo[ax] - a[ax]) / d, s1 = (hi[ax] - a[ax]) / d;
+    if (s0 > s1) std::swap(s0, s1);
+    t0 = std::max(t0, s0);
+    t1 = std::min(t1, s1);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
+// Whether the pieces of faces s and t in the closed cell [lo, hi] are joined: the faces
+// share a mesh edge (two vertex indices) and that edge passes through the cell.
+inline bool joined_in_cell(const double* V, const int32_t* F, int32_t s, int32_t t,
+                           const double lo[3], const double hi[3]) {
+  int32_t common[2] = {0, 0};
+  int n = 0;
   for (int c = 0; c < 3; ++c)
     for (int e = 0; e < 3; ++e)
       if (F[3 * int64_t(s) + c] == F[3 * int64_t(t) + e]) {
-        ++common;
+        if (n < 2) common[n] = F[3 * int64_t(s) + c];
+        ++n;
         break;
       }
-  return common >= 2;
+  if (n < 2) return false;
+  return segment_meets_box(V + 3 * int64_t(common[0]), V + 3 * int64_t(common[1]), lo, hi);
+}
+
+// Sorts `keys` stably by their high 32 bits, of which only the lowest `bits` may be set
+// (least significant digit first, 11-bit digits).
+inline void radix_sort_high(std::vector<uint64_t>* keys, int bits) {
+  constexpr int kDigit = 11;
+  std::vector<uint64_t> tmp(keys->size());
+  for (int shift = 0; shift < bits; shift += kDigit) {
+    std::vector<size_t> count((size_t{1} << kDigit) + 1, 0);
+    for (uint64_t k : *keys) ++count[((k >> (32 + shift)) & ((1u << kDigit) - 1)) + 1];
+    for (size_t d = 1; d < count.size(); ++d) count[d] += count[d - 1];
+    for (uint64_t k : *keys) tmp[count[(k >> (32 + shift)) & ((1u << kDigit) - 1)]++] = k;
+    keys->swap(tmp);
+  }
 }
 
 // The rows of the cells of one slab [ia, ib). With `pieces_only`, records the
 // pieces instead.
 inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
                         const Bins& bins, int64_t slab, int64_t ia, int64_t ib, bool pieces_only,
-                        Rows* out) {
+                        Rows* out, double* seconds = nullptr) {
+  using Clock = std::chrono::steady_clock;
+  auto t0 = Clock::now();
+  auto lap = [&](int k) {
+    if (!seconds) return;
+    const auto t = Clock::now();
+    seconds[k] += std::chrono::duration<double>(t - t0).count();
+    t0 = t;
+  };
   std::vector<Piece> pieces;
   const int64_t ny = g.n[1], nz = g.n[2];
   for (int64_t e = bins.start[slab]; e < bins.start[slab + 1]; ++e) {
@@ -435,11 +501,33 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
       pieces.push_back(pc);
     });
   }
-  std::sort(pieces.begin(), pieces.end(), [](const Piece& a, const Piece& b) {
-    return a.cell < b.cell || (a.cell == b.cell && a.face < b.face);
-  });
+  lap(0);
+  // Sort by (cell, face). The pieces come in increasing face order (the bins list faces in
+  // increasing order, and a face has one piece per cell), so a stable radix sort of packed
+  // keys (cell within the slab, position) by the cell gives the (cell, face) order; the
+  // pieces stay where they are and are visited through `order`.
+  const int64_t base = ia * ny * nz;
+  const int64_t span = (ib - ia) * ny * nz;
+  std::vector<uint32_t> order(pieces.size());
+  if (span <= INT64_C(0xFFFFFFFF) && pieces.size() <= size_t{0x7FFFFFFF}) {
+    std::vector<uint64_t> key(pieces.size());
+    for (size_t r = 0; r < pieces.size(); ++r)
+      key[r] = (static_cast<uint64_t>(pieces[r].cell - base) << 32) | r;
+    int bits = 0;
+    while (bits < 32 && (INT64_C(1) << bits) < span) ++bits;
+    radix_sort_high(&key, bits);
+    for (size_t r = 0; r < key.size(); ++r) order[r] = static_cast<uint32_t>(key[r]);
+  } else {
+    std::iota(order.begin(), order.end(), 0u);
+    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+      return pieces[a].cell < pieces[b].cell ||
+             (pieces[a].cell == pieces[b].cell && pieces[a].face < pieces[b].face);
+    });
+  }
+  lap(1);
   if (pieces_only) {
-    for (const Piece& pc : pieces) {
+    for (uint32_t r : order) {
+      const Piece& pc = pieces[r];
       const int64_t ijk[3] = {pc.cell / (ny * nz), (pc.cell / nz) % ny, pc.cell % nz};
       out->p_cell.push_back(pc.cell);
       out->p_face.push_back(pc.face);
@@ -455,17 +543,25 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
   std::vector<int32_t> ids, parent;
   std::vector<std::vector<int32_t>> groups;
   size_t s = 0;
-  while (s < pieces.size()) {
+  while (s < order.size()) {
     size_t e = s;
-    while (e < pieces.size() && pieces[e].cell == pieces[s].cell) ++e;
+    while (e < order.size() && pieces[order[e]].cell == pieces[order[s]].cell) ++e;
     const int32_t m = static_cast<int32_t>(e - s);
-    if (!prm.components || m == 1) {
+    const int64_t cell = pieces[order[s]].cell;
+    if (!prm.components || m == 1 ||
+        std::binary_search(prm.joined, prm.joined + prm.njoined, cell)) {
       ids.resize(m);
-      for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(s) + r;
+      for (int32_t r = 0; r < m; ++r) ids[r] = static_cast<int32_t>(order[s + r]);
       solve_row(g, prm, V, F, pieces, ids, 0, out);
     } else {
       // Union-find over pieces whose faces share a mesh edge; components are
       // numbered by their lowest face.
+      const int64_t ijk[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
+      double lo[3], hi[3];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = g.plane(a, ijk[a]);
+        hi[a] = g.plane(a, ijk[a] + 1);
+      }
       parent.resize(m);
       std::iota(parent.begin(), parent.end(), 0);
       auto find = [&](int32_t x) {
@@ -474,7 +570,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
       };
       for (int32_t a = 0; a < m; ++a)
         for (int32_t b = a + 1; b < m; ++b)
-          if (share_edge(F, pieces[s + a].face, pieces[s + b].face)) {
+          if (joined_in_cell(V, F, pieces[order[s + a]].face, pieces[order[s + b]].face, lo, hi)) {
             const int32_t ra = find(a), rb = find(b);
             if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
           }
@@ -483,12 +579,13 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
         if (find(a) != a) continue;
         ids.clear();
         for (int32_t b = a; b < m; ++b)
-          if (find(b) == a) ids.push_back(static_cast<int32_t>(s) + b);
+          if (find(b) == a) ids.push_back(static_cast<int32_t>(order[s + b]));
         solve_row(g, prm, V, F, pieces, ids, comp++, out);
       }
     }
     s = e;
   }
+  lap(2);
 }
 
 }  // namespace fc

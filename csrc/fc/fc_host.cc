@@ -5,8 +5,10 @@
 //
 //   voxax_fc_encode(V (nv, 3) f64, nv, F (nf, 3) i32, nf, open (nf,) u8 or null (bit k: edge k
 //                   of the face is an open boundary), box[6] (lower, upper), shape[3],
-//                   params[3] (lambda_n, lambda_d, weight_power), flags, threads,
-//                   &handle, sizes[3] (rows, faces, pieces), err, errlen)
+//                   params[3] (lambda_n, lambda_d, weight_power), flags, joined (J,) i64
+//                   sorted or null, J, threads, &handle, sizes[3] (rows, faces, pieces), err,
+//                   errlen)
+//       joined: cells that get one anchor for all their pieces even with components
 //       flags: 1 clamp, 2 components, 4 record faces per row, 8 pieces only, 16 find the
 //       open boundary edges here (instead of `open`)
 //   voxax_fc_rows(handle, index (K,) i64, component (K,) i32, offset (K, 3), normal (K, 3),
@@ -15,8 +17,11 @@
 //   voxax_fc_free(handle)
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <new>
@@ -28,6 +33,7 @@
 #include "common/host_errors.h"
 #include "fc/decode.h"
 #include "fc/encode.h"
+#include "fc/signs.h"
 #include "intersect/predicates.h"
 #include "spatial/host_pool.h"
 
@@ -37,20 +43,33 @@ namespace {
 
 using voxax::fc::Rows;
 
-using voxax::host_fail;
+// The rows of an encoding, as the slabs made them (concatenated in slab order).
+struct Encoded {
+  std::vector<Rows> parts;
+};
 
+// Copies the concatenation of field `member` of every part to `out` (when not null).
 template <typename T>
-void append(std::vector<T>* dst, const std::vector<T>& src) {
-  dst->insert(dst->end(), src.begin(), src.end());
+void copy_parts(const Encoded& e, std::vector<T> Rows::* member, T* out) {
+  if (!out) return;
+  for (const auto& p : e.parts) out = std::copy((p.*member).begin(), (p.*member).end(), out);
 }
+
+using voxax::host_fail;
 
 }  // namespace
 
 VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, int64_t nf,
                                  const uint8_t* open, const double* box, const int64_t* shape,
-                                 const double* params, int32_t flags, int32_t threads,
-                                 void** handle, int64_t* sizes, char* err, int64_t errlen) {
+                                 const double* params, int32_t flags, const int64_t* joined,
+                                 int64_t njoined, int32_t threads, void** handle, int64_t* sizes,
+                                 char* err, int64_t errlen) {
   if (handle) *handle = nullptr;
+  const auto t_start = std::chrono::steady_clock::now();
+  const bool profile = std::getenv("VOXAX_FC_PROFILE") != nullptr;
+  auto since = [&]() {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  };
   try {
     if (!handle || !sizes || !box || !shape || !params)
       return host_fail(err, errlen, "voxax: fc.encode got a null argument");
@@ -88,6 +107,7 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     prm.clamp = (flags & 1) != 0;
     prm.components = (flags & 2) != 0;
     prm.faces = (flags & 4) != 0;
+    const double t_checked = since();
     std::vector<uint8_t> open_bits;
     if (flags & 16) {
       open_bits = voxax::fc::open_edges(F, nf);
@@ -95,6 +115,13 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     } else {
       prm.open = open;
     }
+    if (njoined < 0 || (njoined > 0 && !joined))
+      return host_fail(err, errlen, "voxax: fc.encode got a bad list of joined cells");
+    for (int64_t r = 1; r < njoined; ++r)
+      if (joined[r] <= joined[r - 1])
+        return host_fail(err, errlen, "voxax: fc.encode: joined cells must be sorted and unique");
+    prm.joined = joined;
+    prm.njoined = njoined;
     const bool pieces_only = (flags & 8) != 0;
     g.build_planes();
 
@@ -124,36 +151,42 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
           return true;
         },
         &bins);
+    const double t_binned = since();
     const int64_t slabs = tl.ntx;
     std::vector<Rows> parts(slabs);
+    // VOXAX_FC_PROFILE=1 prints the times of the encoder's stages.
+    std::vector<double> seconds(profile ? 3 * slabs : 0, 0.0);
+    const auto t_bins = std::chrono::steady_clock::now();
     voxax::spatial::parallel_chunks(slabs, 1, threads, [&](int64_t s, int64_t, int64_t) {
       const int64_t ia = s * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
-      voxax::fc::encode_slab(g, prm, V, F, bins, s, ia, ib, pieces_only, &parts[s]);
+      voxax::fc::encode_slab(g, prm, V, F, bins, s, ia, ib, pieces_only, &parts[s],
+                             profile ? &seconds[3 * s] : nullptr);
     });
-    Rows* rows = new Rows();
-    try {
-      for (auto& p : parts) {
-        append(&rows->index, p.index);
-        append(&rows->component, p.component);
-        append(&rows->offset, p.offset);
-        append(&rows->normal, p.normal);
-        append(&rows->area, p.area);
-        append(&rows->clamped, p.clamped);
-        append(&rows->face_count, p.face_count);
-        append(&rows->faces, p.faces);
-        append(&rows->p_cell, p.p_cell);
-        append(&rows->p_face, p.p_face);
-        append(&rows->p_area, p.p_area);
-        append(&rows->p_centroid, p.p_centroid);
-        p = Rows();
-      }
-    } catch (...) {
-      delete rows;
-      throw;
+    if (profile) {
+      double sum[3] = {0, 0, 0};
+      for (int64_t s = 0; s < slabs; ++s)
+        for (int k = 0; k < 3; ++k) sum[k] += seconds[3 * s + k];
+      std::fprintf(stderr,
+                   "fc.encode: slabs %.3f s wall; CPU s: clip %.3f, sort %.3f, solve %.3f\n",
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t_bins).count(),
+                   sum[0], sum[1], sum[2]);
     }
-    sizes[0] = static_cast<int64_t>(rows->index.size());
-    sizes[1] = static_cast<int64_t>(rows->faces.size());
-    sizes[2] = static_cast<int64_t>(rows->p_cell.size());
+    // The slabs' rows stay where they are: the copy functions concatenate them in slab
+    // order.
+    auto* rows = new Encoded();
+    rows->parts.swap(parts);
+    int64_t k = 0, nfaces = 0, npieces = 0;
+    for (const auto& p : rows->parts) {
+      k += static_cast<int64_t>(p.index.size());
+      nfaces += static_cast<int64_t>(p.faces.size());
+      npieces += static_cast<int64_t>(p.p_cell.size());
+    }
+    if (profile)
+      std::fprintf(stderr, "fc.encode: checks %.3f s, open edges + bins %.3f s, total %.3f s\n",
+                   t_checked, t_binned - t_checked, since());
+    sizes[0] = k;
+    sizes[1] = nfaces;
+    sizes[2] = npieces;
     *handle = rows;
     return 0;
   } catch (const std::bad_alloc&) {
@@ -168,31 +201,31 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
 VOXAX_EXPORT void voxax_fc_rows(void* handle, int64_t* index, int32_t* component, double* offset,
                                 double* normal, double* area, int32_t* clamped, int64_t* face_count,
                                 int32_t* faces) {
-  const Rows* r = static_cast<const Rows*>(handle);
-  if (!r) return;
-  const size_t k = r->index.size();
-  if (index) std::copy(r->index.begin(), r->index.end(), index);
-  if (component) std::copy(r->component.begin(), r->component.end(), component);
-  if (offset) std::copy(r->offset.begin(), r->offset.end(), offset);
-  if (normal) std::copy(r->normal.begin(), r->normal.end(), normal);
-  if (area) std::copy(r->area.begin(), r->area.end(), area);
-  if (clamped) std::copy(r->clamped.begin(), r->clamped.end(), clamped);
-  if (face_count && r->face_count.size() == k)
-    std::copy(r->face_count.begin(), r->face_count.end(), face_count);
-  if (faces) std::copy(r->faces.begin(), r->faces.end(), faces);
+  const Encoded* e = static_cast<const Encoded*>(handle);
+  if (!e) return;
+  copy_parts(*e, &Rows::index, index);
+  copy_parts(*e, &Rows::component, component);
+  copy_parts(*e, &Rows::offset, offset);
+  copy_parts(*e, &Rows::normal, normal);
+  copy_parts(*e, &Rows::area, area);
+  copy_parts(*e, &Rows::clamped, clamped);
+  bool counted = true;
+  for (const auto& p : e->parts) counted = counted && p.face_count.size() == p.index.size();
+  if (counted) copy_parts(*e, &Rows::face_count, face_count);
+  copy_parts(*e, &Rows::faces, faces);
 }
 
 VOXAX_EXPORT void voxax_fc_pieces(void* handle, int64_t* cell, int32_t* face, double* area,
                                   double* centroid) {
-  const Rows* r = static_cast<const Rows*>(handle);
-  if (!r) return;
-  if (cell) std::copy(r->p_cell.begin(), r->p_cell.end(), cell);
-  if (face) std::copy(r->p_face.begin(), r->p_face.end(), face);
-  if (area) std::copy(r->p_area.begin(), r->p_area.end(), area);
-  if (centroid) std::copy(r->p_centroid.begin(), r->p_centroid.end(), centroid);
+  const Encoded* e = static_cast<const Encoded*>(handle);
+  if (!e) return;
+  copy_parts(*e, &Rows::p_cell, cell);
+  copy_parts(*e, &Rows::p_face, face);
+  copy_parts(*e, &Rows::p_area, area);
+  copy_parts(*e, &Rows::p_centroid, centroid);
 }
 
-VOXAX_EXPORT void voxax_fc_free(void* handle) { delete static_cast<Rows*>(handle); }
+VOXAX_EXPORT void voxax_fc_free(void* handle) { delete static_cast<Encoded*>(handle); }
 
 // voxax_fc_decode(index (K,) i64, P (K, 3), N (K, 3), S (K, 12) i8, K, shape[3], split, threads,
 //                 &handle, &count, err, errlen): triangles as row triples; copy with
@@ -317,5 +350,72 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
     return 0;
   } catch (...) {
     return host_fail(err, errlen, "voxax: unknown error in fc.node_side");
+  }
+}
+
+// voxax_fc_signs(index (K,) i64 sorted, K, shape[3], edge (C,) i64, sign (C,) i8, C, threads,
+//                S (K, 12) i8 (zeros), &handle, &count, err, errlen): writes the net sign of
+//                every crossed edge into the rows of its 4 cells; the cells without a row come
+//                back as `count` (cell, crossing) pairs, sorted by cell, one per cell (copy with
+//                voxax_fc_triangles(handle, out (count, 2) i64), free with
+//                voxax_fc_free_triangles).
+VOXAX_EXPORT int voxax_fc_signs(const int64_t* index, int64_t K, const int64_t* shape,
+                                const int64_t* edge, const int8_t* sign, int64_t C, int32_t threads,
+                                int8_t* S, void** handle, int64_t* count, char* err,
+                                int64_t errlen) {
+  if (handle) *handle = nullptr;
+  try {
+    if (!handle || !count || !shape || K < 0 || C < 0 || (K > 0 && (!index || !S)) ||
+        (C > 0 && (!edge || !sign)))
+      return host_fail(err, errlen, "voxax: fc.signs got a null argument");
+    int64_t n[3];
+    for (int a = 0; a < 3; ++a) {
+      if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
+        return host_fail(err, errlen, "voxax: fc.signs: bad grid shape");
+      n[a] = shape[a];
+    }
+    const int64_t edges = 3 * (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
+    for (int64_t c = 0; c < C; ++c)
+      if (edge[c] < 0 || edge[c] >= edges)
+        return host_fail(err, errlen, "voxax: fc.signs: edge id out of range");
+    const int64_t total = n[0] * n[1] * n[2];
+    for (int64_t r = 0; r < K; ++r)
+      if (index[r] < 0 || index[r] >= total || (r > 0 && index[r] < index[r - 1]))
+        return host_fail(err, errlen, "voxax: fc.signs: rows must be sorted cell indices");
+    const voxax::fc::EdgeNet en = voxax::fc::net_flux(edge, sign, C);
+    const int64_t E = static_cast<int64_t>(en.edge.size());
+    constexpr int64_t kChunk = 1 << 16;
+    std::vector<std::vector<int64_t>> parts((E + kChunk - 1) / kChunk);
+    voxax::spatial::parallel_chunks(E, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
+      voxax::fc::scatter_signs(en, b, e, index, K, n, S, &parts[c]);
+    });
+    std::vector<std::pair<int64_t, int64_t>> miss;  // (cell, order of appearance)
+    std::vector<int64_t> src;
+    for (const auto& p : parts)
+      for (size_t i = 0; i < p.size(); i += 2) {
+        miss.emplace_back(p[i], static_cast<int64_t>(src.size()));
+        src.push_back(p[i + 1]);
+      }
+    std::sort(miss.begin(), miss.end());
+    auto* out = new std::vector<int64_t>();
+    try {
+      for (size_t i = 0; i < miss.size(); ++i) {
+        if (i > 0 && miss[i].first == miss[i - 1].first) continue;
+        out->push_back(miss[i].first);
+        out->push_back(src[miss[i].second]);
+      }
+    } catch (...) {
+      delete out;
+      throw;
+    }
+    *count = static_cast<int64_t>(out->size() / 2);
+    *handle = out;
+    return 0;
+  } catch (const std::bad_alloc&) {
+    return host_fail(err, errlen, "voxax: out of memory in fc.signs");
+  } catch (const std::exception& e) {
+    return host_fail(err, errlen, std::string("voxax: fc.signs error: ") + e.what());
+  } catch (...) {
+    return host_fail(err, errlen, "voxax: unknown error in fc.signs");
   }
 }

@@ -17,8 +17,8 @@ normals taken in local coordinates). When the minimizer leaves the cell, it is c
 the cell and moved to the closest point of the cell's own pieces. Beyond the paper: open
 boundaries of the mesh add their lines to the QEF (`open_boundaries=True`), so open sheets
 keep their extent; with `anchors_per_cell="components"` every connected component of a
-cell's pieces (faces joined by mesh edges) gets its own anchor, so nearby sheets are no
-longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
+cell's pieces (faces joined by a mesh edge through the cell) gets its own anchor, so nearby
+sheets are no longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
 thinner than a cell) to the surface.
 
 Edge signs are the net flux of the surface through each lattice edge: the sum over the
@@ -81,6 +81,8 @@ _SIGNATURES = {
             _I64,
             _D,
             ctypes.c_int32,
+            _I64,
+            ctypes.c_int64,
             ctypes.c_int32,
             ctypes.POINTER(_VP),
             _I64,
@@ -126,6 +128,23 @@ _SIGNATURES = {
         ],
     ),
     "voxax_fc_free_triangles": (None, [_VP]),
+    "voxax_fc_signs": (
+        ctypes.c_int,
+        [
+            _I64,
+            ctypes.c_int64,
+            _I64,
+            _I64,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.c_int64,
+            ctypes.c_int32,
+            ctypes.POINTER(ctypes.c_int8),
+            ctypes.POINTER(_VP),
+            _I64,
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
+    ),
 }
 
 # Corner offsets of the 12 cell edges: EDGE_OFFSETS[e] is the lower end of edge e relative
@@ -151,13 +170,15 @@ def _threads(threads) -> int:
     return _host.threads(threads)
 
 
-def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False):
+def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False, joined=None):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int32)
     box = np.ascontiguousarray(np.concatenate([grid.lower, grid.upper]), dtype=np.float64)
     shape = np.ascontiguousarray(grid.shape, dtype=np.int64)
     prm = np.ascontiguousarray(params, dtype=np.float64)
+    if joined is not None:
+        joined = np.ascontiguousarray(joined, dtype=np.int64)
     handle = _VP()
     sizes = np.zeros(3, np.int64)
     err = _host.error_buffer()
@@ -171,6 +192,8 @@ def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=Fals
         shape.ctypes.data_as(_I64),
         prm.ctypes.data_as(_D),
         int(flags) | (16 if open_boundaries else 0),
+        None if joined is None else joined.ctypes.data_as(_I64),
+        0 if joined is None else len(joined),
         _threads(threads),
         ctypes.byref(handle),
         sizes.ctypes.data_as(_I64),
@@ -289,17 +312,31 @@ class Tokens:
     @property
     def cells(self) -> np.ndarray:
         """`(K, 3)` int32 cell indices `(i, j, k)`."""
-        return np.stack(np.unravel_index(self.index, self.grid.shape), axis=1).astype(np.int32)
+        return _unravel(self.index, self.grid.shape)
 
     @property
     def anchors(self) -> np.ndarray:
         """`(K, 3)` float64 anchors in world coordinates."""
         lo = np.asarray(self.grid.lower)
         h = np.asarray(self.grid.spacing)
-        return lo + (self.cells + 0.5 + self.offsets) * h
+        out = self.cells + 0.5
+        out += self.offsets
+        out *= h
+        out += lo
+        return out
 
     def __repr__(self) -> str:
         return f"Tokens({len(self)} rows on {self.grid})"
+
+
+def _unravel(index, shape) -> np.ndarray:
+    """`(K, 3)` int32 cell indices of C-order indices `index` on a grid of `shape`."""
+    out = np.empty((len(index), 3), np.int32)
+    rest = np.asarray(index, np.int64)
+    for a in (2, 1):
+        rest, out[:, a] = np.divmod(rest, shape[a])
+    out[:, 0] = rest
+    return out
 
 
 def _node_ids(grid: Grid, axis, nodes) -> np.ndarray:
@@ -445,10 +482,12 @@ def _token_edges(grid: Grid, cells: np.ndarray) -> np.ndarray:
     return _node_ids(grid, EDGE_AXIS[None, :], nodes)
 
 
-def _rows(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries=True):
+def _rows(
+    where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries=True, joined=None
+):
     flags = (1 if clamp else 0) | (2 | 4 if components else 0)
     handle, sizes = _call_encode(
-        where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries
+        where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries, joined=joined
     )
     lib = _lib()
     try:
@@ -501,29 +540,58 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
     shape = grid.shape
     h = np.asarray(grid.spacing)
     lo = np.asarray(grid.lower)
-    if components:
-        # Every crossing counts for the rows of its own sheet: all crossings need cells.
-        src_of = np.arange(len(cr.edge))
-        edge = cr.edge
-    else:
-        # Net flux per crossed edge; edges whose crossings cancel give no quad.
-        order, starts = _group(cr.edge)
-        net = np.add.reduceat(cr.sign[order].astype(np.int64), starts) if len(starts) else np.zeros(0, np.int64)
-        nz = net != 0
-        edge = cr.edge[order[starts]][nz]
-        src_of = order[starts][nz]  # the first crossing of each edge
-        net = net[nz]
+    if not components:
+        signs, missing, src = _net_signs_host(grid, index, cr, threads)
+        if len(missing):
+            # Cells that a crossing touches without a piece of positive area get a row at
+            # the crossing point, so every quad has its four vertices.
+            mcells = np.stack(np.unravel_index(missing, shape), axis=1)
+            moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
+            order = np.argsort(np.concatenate([index, missing]), kind="stable")
+            index = np.concatenate([index, missing])[order]
+            comp = np.concatenate([comp, np.zeros(len(missing), np.int32)])[order]
+            off = np.concatenate([off, moff])[order]
+            nrm = np.concatenate([nrm, face_normals(V, F)[cr.face[src]]])[order]
+            area = np.concatenate([area, np.zeros(len(missing))])[order]
+            signs, missing, _ = _net_signs_host(grid, index, cr, threads)
+            assert not len(missing)
+        return Tokens(grid, index, off, nrm, signs, comp, area)
+    # anchors_per_cell="components": every crossing counts for the rows of its own sheet,
+    # so every crossing needs its cells.
+    edge = cr.edge
     axis, nodes = _edge_geometry(grid, edge)
     cidx = _cells_around(grid, axis, nodes)
-    inside = cidx >= 0
-    # Cells that a crossing touches without a piece of positive area get a row at the
-    # crossing point, so every quad has its four vertices.
     flat = cidx.reshape(-1)
     forder, fstarts = _group(flat)
     want = flat[forder[fstarts]]
     firsts = forder[fstarts]
+    # A cell whose components split the crossings of an edge that one row of a neighbour
+    # holds together (two sheets that join just outside the cell) would leave holes: such
+    # cells get one anchor for all their pieces, until every edge's crossings are split
+    # alike in its 4 cells.
+    joined = np.zeros(0, np.int64)
+    for _ in range(64):
+        tok, bad = _component_tokens(V, F, grid, cr, cidx, want, firsts, index, comp, off, nrm, area, fcount, rfaces)
+        bad = np.setdiff1d(bad, joined)
+        if not len(bad):
+            break
+        joined = np.union1d(joined, bad)
+        index, comp, off, nrm, area, fcount, rfaces = _rows(
+            where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, True, threads, boundaries, joined=joined
+        )
+    return tok
+
+
+def _component_tokens(V, F, grid, cr, cidx, want, firsts, index, comp, off, nrm, area, fcount, rfaces):
+    """Tokens with several rows per cell, and the cells whose rows split an edge's group."""
+    shape = grid.shape
+    h = np.asarray(grid.spacing)
+    lo = np.asarray(grid.lower)
+    inside = cidx >= 0
+    # Cells that a crossing touches without a piece of positive area get a row at the
+    # crossing point, so every quad has its four vertices.
     keep = (want >= 0) & (_lookup(index, want) < 0)
-    missing, src = want[keep], src_of[firsts[keep] // 4]
+    missing, src = want[keep], firsts[keep] // 4
     if len(missing):
         mcells = np.stack(np.unravel_index(missing, shape), axis=1)
         moff = np.clip((cr.point[src] - lo) / h - mcells - 0.5, -0.5, 0.5)
@@ -533,27 +601,52 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
         off = np.concatenate([off, moff])
         nrm = np.concatenate([nrm, fn])
         area = np.concatenate([area, np.zeros(len(missing))])
-        if components:
-            fcount = np.concatenate([fcount, np.ones(len(missing), np.int64)])
-            rfaces_rows = np.split(rfaces, np.cumsum(fcount[: len(fcount) - len(missing)])[:-1])
-            rfaces_rows += [np.array([f], np.int32) for f in cr.face[src]]
+        fcount = np.concatenate([fcount, np.ones(len(missing), np.int64)])
+        rfaces_rows = np.split(rfaces, np.cumsum(fcount[: len(fcount) - len(missing)])[:-1])
+        rfaces_rows += [np.array([f], np.int32) for f in cr.face[src]]
         order = np.lexsort((comp, index))
         index, comp, off, nrm, area = index[order], comp[order], off[order], nrm[order], area[order]
-        if components:
-            rfaces_rows = [rfaces_rows[i] for i in order]
-            fcount = fcount[order]
-            rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
+        rfaces_rows = [rfaces_rows[i] for i in order]
+        fcount = fcount[order]
+        rfaces = np.concatenate(rfaces_rows) if rfaces_rows else np.zeros(0, np.int32)
+    signs, bad = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, len(index))
+    return Tokens(grid, index, off, nrm, signs, comp, area), bad
+
+
+def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
+    """`(K, 12)` int8 net signs of the rows' edges (one row per cell), and the cells around
+    signed edges that have no row with the crossing each takes its row from."""
+    lib = _lib()
     K = len(index)
-    if not components:
-        signs = np.zeros((K, 12), np.int8)
-        rows = _lookup(index, cidx)
-        slot = axis[:, None] * 4 + (np.arange(4)[None] + 2) % 4
-        ok = rows >= 0
-        val = np.broadcast_to(np.clip(net, -127, 127)[:, None], rows.shape)
-        signs[rows[ok], slot[ok]] = val[ok]
-    else:
-        signs = _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K)
-    return Tokens(grid, index, off, nrm, signs, comp, area)
+    index = np.ascontiguousarray(index, np.int64)
+    edge = np.ascontiguousarray(cr.edge, np.int64)
+    sign = np.ascontiguousarray(cr.sign, np.int8)
+    shape = np.ascontiguousarray(grid.shape, np.int64)
+    S = np.zeros((K, 12), np.int8)
+    handle = _VP()
+    count = np.zeros(1, np.int64)
+    err = _host.error_buffer()
+    status = lib.voxax_fc_signs(
+        index.ctypes.data_as(_I64),
+        K,
+        shape.ctypes.data_as(_I64),
+        edge.ctypes.data_as(_I64),
+        sign.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        len(edge),
+        _threads(threads),
+        S.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
+        ctypes.byref(handle),
+        count.ctypes.data_as(_I64),
+        err,
+        _host.ERRLEN,
+    )
+    _host.check(status, err)
+    try:
+        pairs = np.empty((int(count[0]), 2), np.int64)
+        lib.voxax_fc_triangles(handle, pairs.ctypes.data_as(_I64))
+    finally:
+        lib.voxax_fc_free_triangles(handle)
+    return S, pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
 def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
@@ -594,7 +687,7 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
                 rows[t, p] = a + int(np.argmin(d))
     signs = np.zeros((K, 12), np.int8)
     if C == 0:
-        return signs
+        return signs, np.zeros(0, np.int64)
     # Groups: crossings joined through a shared (edge, row) in any cell.
     t_idx, p_idx = np.nonzero(rows >= 0)
     ekey = np.stack([cr.edge[t_idx], rows[t_idx, p_idx]], 1)
@@ -612,6 +705,9 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     r = rows[t_idx, p_idx]
     trip = np.stack([g, p_idx, r], 1)
     uniq, counts = np.unique(trip, axis=0, return_counts=True)
+    # Cells where one group's crossings belong to several rows.
+    split = np.flatnonzero(np.all(uniq[1:, :2] == uniq[:-1, :2], axis=1))
+    bad = np.unique(index[np.concatenate([uniq[split, 2], uniq[split + 1, 2]])])
     order = np.lexsort((uniq[:, 2], -counts, uniq[:, 1], uniq[:, 0]))
     uniq = uniq[order]
     firsts = np.concatenate([[True], np.any(uniq[1:, :2] != uniq[:-1, :2], axis=1)])
@@ -620,7 +716,29 @@ def _component_signs(grid, cr, inside, cidx, index, off, fcount, rfaces, F, K):
     gaxis[group] = axis
     slot = gaxis[chosen[:, 0]] * 4 + (chosen[:, 1] + 2) % 4
     signs[chosen[:, 2], slot] = np.clip(net[chosen[:, 0]], -127, 127)
-    return signs
+    # The decoder pairs an edge's voting rows across its 4 cells in the order of their
+    # anchors along the edge: where that order differs between cells, the groups would be
+    # paired wrongly, so those cells join their components too.
+    cg = chosen[net[chosen[:, 0]] != 0]
+    if len(cg):
+        gedge = np.zeros(len(net), np.int64)
+        gedge[group] = cr.edge
+        e = gedge[cg[:, 0]]
+        coord = anchors[cg[:, 2], gaxis[cg[:, 0]]]
+        o = np.lexsort((cg[:, 2], coord, cg[:, 1], e))
+        cg, e = cg[o], e[o]
+        run = np.concatenate([[True], (e[1:] != e[:-1]) | (cg[1:, 1] != cg[:-1, 1])])
+        start = np.maximum.accumulate(np.where(run, np.arange(len(cg)), 0))
+        rank = np.arange(len(cg)) - start
+        lo_rank = np.full(len(net), np.iinfo(np.int64).max)
+        hi_rank = np.full(len(net), -1)
+        np.minimum.at(lo_rank, cg[:, 0], rank)
+        np.maximum.at(hi_rank, cg[:, 0], rank)
+        mixed = lo_rank[cg[:, 0]] != hi_rank[cg[:, 0]]
+        if mixed.any():
+            edges = np.unique(e[mixed])
+            bad = np.union1d(bad, index[cg[np.isin(e, edges), 2]])
+    return signs, bad
 
 
 def encode(
@@ -651,7 +769,12 @@ def encode(
     - `weight_power`: `p` in the piece weights `A^p` (0: uniform).
     - `clamp`: move anchors that leave their cell back onto the cell's pieces.
     - `anchors_per_cell`: `1`, or `"components"` for one anchor per connected component
-      of the cell's pieces.
+      of the cell's pieces (pieces of faces that share a mesh edge passing through the
+      cell are joined), so that nearby sheets, and the two faces of a sharp edge that
+      passes just outside the cell, get a vertex each. A cell keeps one anchor where its
+      components would split the crossings of one of its edges differently from the cells
+      around that edge (two sheets that join just outside the cell, or sheets in another
+      order along the edge), which would leave holes in the decoded mesh.
     - `open_boundaries`: where an open boundary of the mesh (an edge of one face only)
       passes through a cell, add its lines to the QEF with the weight of the tangent
       planes, so that the anchor lies on the boundary and open sheets keep their extent
@@ -787,10 +910,10 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
         lib.voxax_fc_triangles(handle, tris.ctypes.data_as(_I64))
     finally:
         lib.voxax_fc_free_triangles(handle)
-    if tips and len(tris):
-        tris = _insert_tips(tokens, P, tris)
     used = np.zeros(K, bool)
     used[tris.reshape(-1)] = True
+    if tips and len(tris):
+        tris, used = _insert_tips(tokens, P, tris, used)
     remap = np.cumsum(used) - 1
     return Mesh(P[used], remap[tris].astype(np.int32))
 
@@ -800,7 +923,7 @@ def _near_rows(tokens: Tokens, rows) -> np.ndarray:
     grid = tokens.grid
     shape = np.asarray(grid.shape, np.int64)
     d = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
-    cells = (tokens.cells[rows].astype(np.int64)[:, None, :] + d[None]).reshape(-1, 3)
+    cells = (_unravel(tokens.index[rows], grid.shape).astype(np.int64)[:, None, :] + d[None]).reshape(-1, 3)
     cells = cells[np.all((cells >= 0) & (cells < shape), axis=1)]
     lin = np.unique((cells[:, 0] * shape[1] + cells[:, 1]) * shape[2] + cells[:, 2])
     lo = np.searchsorted(tokens.index, lin, side="left")
@@ -811,22 +934,25 @@ def _near_rows(tokens: Tokens, rows) -> np.ndarray:
     return np.cumsum(mark)[:-1] > 0
 
 
-def _insert_tips(tokens: Tokens, P, tris):
+def _insert_tips(tokens: Tokens, P, tris, used):
     """Connects the anchors that no quad uses (cells a sharp tip pokes into without
-    crossing any of their edges): works on the triangles near them only."""
+    crossing any of their edges): works on the triangles near them only. `used` marks the
+    rows that `tris` uses; returns the new triangles and marks."""
     K = len(tokens)
-    used = np.zeros(K, bool)
-    used[tris.reshape(-1)] = True
     todo = np.flatnonzero(~used & ~(np.asarray(tokens.area) == 0))
     if not len(todo):
-        return tris
+        return tris, used
     near = _near_rows(tokens, todo)
-    ring = np.any(near[tris], axis=1)
+    ring = near[tris[:, 0]] | near[tris[:, 1]] | near[tris[:, 2]]
     verts = np.zeros(K, bool)
     verts[tris[ring].reshape(-1)] = True
-    sub = np.any(verts[tris], axis=1)  # the triangles near the tips and their neighbours
-    new = _split_for_tips(P, tris[sub], todo)
-    return np.concatenate([tris[~sub], new])
+    sub = verts[tris[:, 0]] | verts[tris[:, 1]] | verts[tris[:, 2]]  # near the tips, and their neighbours
+    # Work on the vertices of these triangles and the tips only (renumbered in order).
+    local = np.union1d(np.unique(tris[sub]), todo)
+    lt = np.searchsorted(local, tris[sub])
+    new = local[_split_for_tips(P[local], lt, np.searchsorted(local, todo))]
+    used[new.reshape(-1)] = True  # the split triangles keep their corners
+    return np.concatenate([tris[~sub], new]), used
 
 
 def _split_for_tips(P, tris, todo, rounds: int = 4):

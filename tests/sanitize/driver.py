@@ -1035,13 +1035,16 @@ def run_fc(rng, n_inputs):
     lib = _host.declare(fc._SIGNATURES)
     v, f = np.ascontiguousarray(rng.uniform(-1, 1, (30, 3))), np.arange(30, dtype=np.int32).reshape(10, 3)
 
-    def raw_encode(nv, nf, box, shape, params, flags=1):
+    def raw_encode(nv, nf, box, shape, params, flags=1, joined=None):
         err, handle = _host.error_buffer(), _host.VP()
         box, shape = np.ascontiguousarray(box, np.float64), np.ascontiguousarray(shape, np.int64)
         params, sizes = np.ascontiguousarray(params, np.float64), np.zeros(3, np.int64)
+        joined = None if joined is None else np.ascontiguousarray(joined, np.int64)
         status = lib.voxax_fc_encode(_host.pointer(v, _host.D), nv, _host.pointer(f, _host.I32), nf, None,
                                      _host.pointer(box, _host.D), _host.pointer(shape, _host.I64),
-                                     _host.pointer(params, _host.D), flags, 2, ctypes.byref(handle),
+                                     _host.pointer(params, _host.D), flags,
+                                     None if joined is None else _host.pointer(joined, _host.I64),
+                                     0 if joined is None else len(joined), 2, ctypes.byref(handle),
                                      _host.pointer(sizes, _host.I64), err, _host.ERRLEN)
         lib.voxax_fc_free(handle)
         _host.check(status, err)
@@ -1073,6 +1076,7 @@ def run_fc(rng, n_inputs):
         "raw lambda_d": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 0.0, 1]), "lambda_d"),
         "raw NaN power": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 1e-3, np.nan]), "weight_power"),
         "raw flags": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 1e-3, 1], flags=99), "flags"),
+        "raw joined unsorted": (lambda: raw_encode(30, 10, box, [4, 4, 4], [1, 1e-3, 1], 3, [5, 2]), "sorted"),
         "raw decode unsorted": (lambda: raw_decode([5, 3], [4, 4, 4]), "sorted"),
         "raw decode index": (lambda: raw_decode([5, 64], [4, 4, 4]), "range"),
         "raw decode shape": (lambda: raw_decode([0], [4, -1, 4]), "shape"),
