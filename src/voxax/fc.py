@@ -164,12 +164,6 @@ def _lib():
     return _host.declare(_SIGNATURES)
 
 
-def _threads(threads) -> int:
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))):
-        raise TypeError(f"voxax.fc: `threads` must be an int or None, got {type(threads).__name__}")
-    return _host.threads(threads)
-
-
 def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False, joined=None):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -194,7 +188,7 @@ def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=Fals
         int(flags) | (16 if open_boundaries else 0),
         None if joined is None else joined.ctypes.data_as(_I64),
         0 if joined is None else len(joined),
-        _threads(threads),
+        _host.threads(threads),
         ctypes.byref(handle),
         sizes.ctypes.data_as(_I64),
         err,
@@ -633,7 +627,7 @@ def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
         edge.ctypes.data_as(_I64),
         sign.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
         len(edge),
-        _threads(threads),
+        _host.threads(threads),
         S.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)),
         ctypes.byref(handle),
         count.ctypes.data_as(_I64),
@@ -794,7 +788,7 @@ def encode(
     weight_power = check.positive_float(where, "weight_power", weight_power, allow_zero=True)
     if weight_power > 16:
         raise ValueError(f"{where}: `weight_power` must lie in [0, 16], got {weight_power}")
-    _threads(threads)
+    _host.threads(threads)
     components = anchors_per_cell == "components"
     b = bool(open_boundaries)
     tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), components, threads, b)
@@ -897,7 +891,7 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
         K,
         shape.ctypes.data_as(_I64),
         {"normal": 0, "short": 1, "none": 2}[split],
-        _threads(threads),
+        _host.threads(threads),
         ctypes.byref(handle),
         count.ctypes.data_as(_I64),
         err,
