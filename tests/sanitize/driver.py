@@ -1100,7 +1100,7 @@ def run_fc(rng, n_inputs):
 
 def run_marching_cubes(rng, count):
     """Fuzzes the marching-cubes kernel: eager (exact size) and FFI (capacity) paths."""
-    from voxax._isosurface import host_topology
+    from voxax._isosurface import _Count, _isosurface_streamed, host_topology
 
     def field(shape, dtype):
         kind = rng.integers(6)
@@ -1128,6 +1128,23 @@ def run_marching_cubes(rng, count):
         COUNTS["marching_cubes"] += 1
         edges, faces = host_topology(f, level)
         CALLS["mc_host"] += 1
+        # The slab sweep's per-slice vertex counts: -1 outside the grid, summing to the total.
+        counted = _Count(f, level)
+        per_slice = [counted.slice_vertices(i) for i in range(shape[0])]
+        outside = [counted.slice_vertices(i) for i in (-1, shape[0], 2**62)]
+        counted.fill()
+        CALLS["mc_host"] += 1
+        if sum(per_slice) != counted.n_vertices or outside != [-1, -1, -1] or min(per_slice) < 0:
+            fail(f"{label}: slice vertex counts {per_slice} / {outside} for {counted.n_vertices} vertices")
+        if dim == 3 and np.isfinite(f).all():
+            grid = Grid((0.0,) * 3, tuple(float(n) for n in shape), shape)
+            whole = _isosurface_streamed(f, grid, level, "below", True, planes=10**6)
+            for planes in (1, 3):
+                part = _isosurface_streamed(f, grid, level, "below", True, planes=planes)
+                if not (np.array_equal(np.asarray(part.faces), np.asarray(whole.faces))
+                        and np.asarray(part.vertices).tobytes() == np.asarray(whole.vertices).tobytes()):
+                    fail(f"{label}: the slab sweep with {planes} planes differs from one sweep")
+            CALLS["mc_host"] += 3
         nv, cells = len(edges), f.size
         strides = {int(np.prod(shape[a + 1 :])) for a in range(dim)}
         if nv and (edges.min() < 0 or edges.max() >= cells or not set(np.unique(edges[:, 1] - edges[:, 0])) <= strides):
