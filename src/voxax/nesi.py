@@ -444,6 +444,41 @@ def fit(
 # ----------------------------------------------------------------------------- queries
 
 
+def _sin32(x):
+    """`sin` for float32 in one fused pass: reduction by pi in three parts (exact products
+    for |x| < 2^15), a degree-11 odd polynomial on [-pi/2, pi/2] and the sign of the
+    half-turn; absolute error below 2e-7 for |x| <= 100 (the sine layers' range), about
+    4x cheaper on CPU than XLA's `sin`."""
+    k = jnp.round(x * np.float32(1.0 / np.pi))
+    r = x - k * np.float32(3.140625)
+    r = r - k * np.float32(0.0009670257568359375)
+    r = r - k * np.float32(6.277114152908325e-07)
+    r2 = r * r
+    poly = np.float32(1.0 / 362880) + r2 * np.float32(-1.0 / 39916800)
+    poly = np.float32(-1.0 / 5040) + r2 * poly
+    poly = np.float32(1.0 / 120) + r2 * poly
+    poly = np.float32(-1.0 / 6) + r2 * poly
+    y = r + r * r2 * poly
+    odd = (k.astype(jnp.int32) & 1) == 1
+    return jnp.where(odd, -y, y)
+
+
+def _apply(net: Siren, x):
+    """A SIREN on a batch `x (n, in)` as batched matrix products; float32 networks use
+    `_sin32`. Returns `(n,)` or `(n, out)` like calling the network."""
+    h = x
+    last = len(net.weights) - 1
+    sin = _sin32 if x.dtype == jnp.float32 else jnp.sin
+    for i, (w, b) in enumerate(zip(net.weights, net.biases)):
+        z = h @ w.T.astype(x.dtype) + b.astype(x.dtype)
+        if i == last:
+            h = z
+        else:
+            omega = net.first_omega_0 if i == 0 else net.omega_0
+            h = sin(np.float32(omega) * z if x.dtype == jnp.float32 else omega * z)
+    return h[:, 0] if net.out_size == 1 else h
+
+
 def _local(net: NESI, p):
     q = (p - jnp.asarray(net.center, p.dtype)) * net.scale
     fr = jnp.asarray(net.frames, p.dtype)  # (m+1, 3, 3)
@@ -454,11 +489,11 @@ def _local(net: NESI, p):
 def _occupancy_flat(net: NESI, p):
     loc = _local(net, p)
     box = jnp.all(jnp.abs(loc[0]) <= 1.0, -1)
-    out = net.dhf(loc[0, :, :2])
+    out = _apply(net.dhf, loc[0, :, :2])
     inside = box & (loc[0, :, 2] <= out[:, 0]) & (loc[0, :, 2] >= out[:, 1])
     for k in range(net.n_hf):
         xy, z = loc[k + 1, :, :2], loc[k + 1, :, 2]
-        inside = inside & (net.masks[k](xy) > 0) & (z <= net.heights[k](xy))
+        inside = inside & (_apply(net.masks[k], xy) > 0) & (z <= _apply(net.heights[k], xy))
     return inside
 
 
