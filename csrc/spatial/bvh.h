@@ -564,18 +564,19 @@ class Bvh {
   std::vector<int32_t> ids_;
   std::vector<uint8_t> degenerate_;
   std::vector<Box3> tri_boxes_;
-  std::vector<std::array<int32_t, 2>> ranges_;  // per node: its triangles in tree order (build only)
+  std::vector<std::array<int32_t, 2>>
+      ranges_;  // per node: its triangles in tree order (build only)
 
   // The traversal layout: one 128-byte record per inner node with the bounds of
   // both children in float, rounded outwards (a float box contains the double
   // one, so it never prunes what the double box keeps), so that visiting a node
   // touches two cache lines.
   struct alignas(64) Pair {
-    float lo[3][2], hi[3][2];       // [axis][child]
-    float c[3][2], n[3][2];         // slab centre and axis per child
-    float r[2], h[2];               // slab radius and half-thickness per child
-    int32_t ref[2];                 // inner child: its Pair index; leaf: its first triangle
-    int32_t count[2];               // leaf: number of triangles; inner: 0
+    float lo[3][2], hi[3][2];  // [axis][child]
+    float c[3][2], n[3][2];    // slab centre and axis per child
+    float r[2], h[2];          // slab radius and half-thickness per child
+    int32_t ref[2];            // inner child: its Pair index; leaf: its first triangle
+    int32_t count[2];          // leaf: number of triangles; inner: 0
   };
   static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
   struct FSlab {
@@ -673,8 +674,8 @@ class Bvh {
     };
     tri_slabs_.resize(ids_.size());
     for (size_t i = 0; i < ids_.size(); ++i)
-      tri_slabs_[i] = make_slab_range(static_cast<int32_t>(i), static_cast<int32_t>(i) + 1,
-                                      tri_boxes_[i]);
+      tri_slabs_[i] =
+          make_slab_range(static_cast<int32_t>(i), static_cast<int32_t>(i) + 1, tri_boxes_[i]);
     root_box_ = nodes_[0].box;
     root_slab_ = make_slab(0);
     ref(0, &root_ref_, &root_count_);
