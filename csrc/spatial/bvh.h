@@ -6,6 +6,17 @@
 // single-threaded and deterministic. The triangles are stored in tree order as
 // nine doubles each, next to their original face indices.
 //
+// Traversal layout: one 128-byte record per inner node holds both children's
+// boxes in float (rounded outwards, so they contain the float64 boxes) and a flat
+// cylinder per child (disk around the area-weighted mean normal of its
+// triangles, thickened to contain their vertices). Closest-point searches prune
+// with the larger of the box and cylinder distances; the cylinder's distance is
+// shrunk by a margin far above its rounding and that of the point-triangle
+// distance, so no node holding the answer (or a tie) is ever pruned. On a smooth
+// surface the cylinder sticks out towards a far point only by the patch's
+// thickness where the box sticks out by its own size, which is what keeps the
+// search for points far from the surface to a few nodes per level.
+//
 // Closest point: the exact point-triangle distance by region classification
 // (vertex, edge and face regions of the triangle, tested on the dot products of
 // the point with the edges), with a fallback to the three edges as segments for
