@@ -600,12 +600,20 @@ class Bvh {
   FSlab root_slab_;
   int32_t root_ref_ = 0, root_count_ = 0;
 
+  // Outward float roundings, defined for every double (beyond the float range they
+  // saturate to the largest float or to infinity on the safe side).
   static float round_down(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    if (x > kMax) return std::numeric_limits<float>::max();
+    if (!(x >= -kMax)) return -std::numeric_limits<float>::infinity();
     float f = static_cast<float>(x);
     if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
     return f;
   }
   static float round_up(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    if (x < -kMax) return -std::numeric_limits<float>::max();
+    if (!(x <= kMax)) return std::numeric_limits<float>::infinity();
     float f = static_cast<float>(x);
     if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
     return f;
@@ -637,6 +645,8 @@ class Bvh {
     const double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
     if (!(len > 0.25 * area) || !std::isfinite(len)) return sl;
     double c[3], n[3];
+    for (int a = 0; a < 3; ++a)  // far from the float range: no slab (the box still prunes)
+      if (!(std::fabs(0.5 * (box.lo[a] + box.hi[a])) < 1e30)) return sl;
     for (int a = 0; a < 3; ++a) {
       sl.n[a] = static_cast<float>(m[a] / len);
       sl.c[a] = static_cast<float>(0.5 * (box.lo[a] + box.hi[a]));
