@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import voxax
-from voxax import data, fields
+from voxax import data, fields, metrics
 
 # -- independent oracles ---------------------------------------------------------------------
 
@@ -104,6 +104,27 @@ def test_closest_points_random_soup():
     res2 = voxax.closest_points((V, F), P[:12].reshape(3, 4, 3))
     assert res2.distance.shape == (3, 4) and res2.point.shape == (3, 4, 3)
     np.testing.assert_array_equal(res2.distance.ravel(), res.distance[:12])
+
+
+@pytest.mark.parametrize("shift", [0.0, 1e3])
+def test_closest_points_on_a_smooth_mesh_far_and_near(shift):
+    # a smooth surface is where the nodes' flat-cylinder bounds prune: points far from it
+    # (whole caps of triangles at nearly the same distance) and within 1e-9..1e-2 of it,
+    # also translated far from the origin, against the brute-force distance
+    m = data.torus(48, 24)
+    V = m.vertices + shift
+    F = np.asarray(m.faces)
+    rng = np.random.default_rng(3)
+    s = metrics.sample_surface(m, 150, seed=2)
+    eps = 10.0 ** rng.uniform(-9, -2, (150, 1)) * rng.choice([-1, 1], (150, 1))
+    P = np.concatenate([rng.uniform(-2.5, 2.5, (250, 3)), s.points + eps * s.normals]) + shift
+    res = voxax.closest_points((V, F), P)
+    np.testing.assert_allclose(
+        res.distance, brute_distance(P, V, F), rtol=1e-12, atol=1e-12 * (1 + shift)
+    )
+    np.testing.assert_allclose(
+        np.linalg.norm(P - res.point, axis=1), res.distance, rtol=1e-12, atol=1e-12 * (1 + shift)
+    )
 
 
 def test_closest_points_on_a_box_is_the_exact_box_distance():

@@ -73,6 +73,15 @@ def tiny_fit():
     return m, ax, nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, seed=0)
 
 
+def test_float32_sine_of_the_queries_matches_numpy():
+    # occupancy and ray casting evaluate float32 networks with a fused polynomial sine
+    from voxax.nesi import _sin32
+
+    x = np.linspace(-120.0, 120.0, 200_001).astype(np.float32)
+    y = np.asarray(jax.jit(_sin32)(x), np.float64)
+    assert np.max(np.abs(y - np.sin(x.astype(np.float64)))) < 3e-7
+
+
 def test_tiny_fit_agrees_with_the_exact_esi(tiny_fit):
     m, ax, net = tiny_fit
     p = np.random.default_rng(0).uniform(-1.0, 1.0, (20_000, 3))

@@ -6,6 +6,17 @@
 // single-threaded and deterministic. The triangles are stored in tree order as
 // nine doubles each, next to their original face indices.
 //
+// Traversal layout: one 128-byte record per inner node holds both children's
+// boxes in float (rounded outwards, so they contain the float64 boxes) and a flat
+// cylinder per child (disk around the area-weighted mean normal of its
+// triangles, thickened to contain their vertices). Closest-point searches prune
+// with the larger of the box and cylinder distances; the cylinder's distance is
+// shrunk by a margin far above its rounding and that of the point-triangle
+// distance, so no node holding the answer (or a tie) is ever pruned. On a smooth
+// surface the cylinder sticks out towards a far point only by the patch's
+// thickness where the box sticks out by its own size, which is what keeps the
+// search for points far from the surface to a few nodes per level.
+//
 // Closest point: the exact point-triangle distance by region classification
 // (vertex, edge and face regions of the triangle, tested on the dot products of
 // the point with the edges), with a fallback to the three edges as segments for
@@ -352,6 +363,7 @@ class Bvh {
     }
     if (n == 0) return;
     nodes_.reserve(2 * static_cast<size_t>(n / kMaxLeaf + 1));
+    ranges_.assign(2 * static_cast<size_t>(n) + 1, {0, 0});
     nodes_.emplace_back();
     struct Task {
       int32_t node, begin, end;
@@ -369,6 +381,7 @@ class Bvh {
       const int32_t count = task.end - task.begin;
       int32_t mid = -1;
       if (count > kMaxLeaf) mid = split(boxes, cent, order, task.begin, task.end, node.box, cb);
+      ranges_[task.node] = {task.begin, task.end};
       if (mid < 0) {
         nodes_[task.node].first = task.begin;
         nodes_[task.node].count = count;
@@ -393,6 +406,7 @@ class Bvh {
       degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
       tri_boxes_[i] = boxes[f];
     }
+    build_pairs();
   }
 
   int64_t node_count() const { return static_cast<int64_t>(nodes_.size()); }
@@ -404,9 +418,6 @@ class Bvh {
   ClosestResult closest(const double* p, int32_t hint = -1) const {
     ClosestResult best;
     if (nodes_.empty()) return best;
-    int32_t stack[128];
-    int sp = 0;
-    stack[sp++] = 0;
     double bary[3], q[3];
     if (hint >= 0 && hint < static_cast<int32_t>(ids_.size())) {
       const double* t = &tris_[9 * static_cast<size_t>(hint)];
@@ -418,12 +429,21 @@ class Bvh {
         best.point[a] = q[a];
       }
     }
+    // Entries: (ref, count, lower bound); count > 0 marks a leaf.
+    struct Entry {
+      int32_t ref, count;
+      double lower;
+    };
+    Entry stack[128];
+    int sp = 0;
+    stack[sp++] = {root_ref_, root_count_, root_lower(p)};
     while (sp > 0) {
-      const Node& node = nodes_[stack[--sp]];
-      if (node.box.dist2(p) > best.dist2) continue;
-      if (node.count > 0) {
-        for (int32_t i = node.first; i < node.first + node.count; ++i) {
-          if (tri_boxes_[i].dist2(p) > best.dist2) continue;
+      const Entry e = stack[--sp];
+      if (e.lower > best.dist2) continue;
+      if (e.count > 0) {
+        for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
+          const FSlab& ts = tri_slabs_[i];
+          if (slab_dist2(ts.c, ts.n, ts.r, ts.h, p, 1) > best.dist2) continue;
           const double* t = &tris_[9 * static_cast<size_t>(i)];
           const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[i] != 0);
           if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
@@ -438,18 +458,19 @@ class Bvh {
         }
         continue;
       }
-      const int32_t l = node.first, r = l + 1;
-      const double dl = nodes_[l].box.dist2(p), dr = nodes_[r].box.dist2(p);
+      const Pair& pr = pairs_[e.ref];
+      const double dl = pair_lower(pr, 0, p, best.dist2), dr = pair_lower(pr, 1, p, best.dist2);
       // Push the farther child first so that the nearer one is visited first.
       if (sp + 2 > 128) {  // cannot happen for trees of depth < 128; stay safe
         return brute_closest(p);
       }
+      const Entry el{pr.ref[0], pr.count[0], dl}, er{pr.ref[1], pr.count[1], dr};
       if (dl <= dr) {
-        if (dr <= best.dist2) stack[sp++] = r;
-        if (dl <= best.dist2) stack[sp++] = l;
+        if (dr <= best.dist2) stack[sp++] = er;
+        if (dl <= best.dist2) stack[sp++] = el;
       } else {
-        if (dl <= best.dist2) stack[sp++] = l;
-        if (dr <= best.dist2) stack[sp++] = r;
+        if (dl <= best.dist2) stack[sp++] = el;
+        if (dr <= best.dist2) stack[sp++] = er;
       }
     }
     return best;
@@ -461,21 +482,26 @@ class Bvh {
     best.t = ray.tmax;
     bool found = false;
     if (nodes_.empty()) return false;
-    int32_t stack[128];
+    constexpr double inf = std::numeric_limits<double>::infinity();
+    struct Entry {
+      int32_t ref, count;
+      double t;
+    };
+    Entry stack[128];
     int sp = 0;
-    if (ray_box(ray, nodes_[0].box, ray.tmax) == std::numeric_limits<double>::infinity())
-      return false;
-    stack[sp++] = 0;
+    const double t_root = ray_box(ray, root_box_, ray.tmax);
+    if (t_root == inf) return false;
+    stack[sp++] = {root_ref_, root_count_, t_root};
     RayHit h;
     while (sp > 0) {
-      const Node& node = nodes_[stack[--sp]];
+      const Entry e = stack[--sp];
       // Boxes are culled against the best t with a relative margin: a triangle's computed
       // t and its box's slab distance round differently, and a hit a few ulps before the
       // best one must not be culled (the result is the smallest computed t).
       const double cull = best.t + 1e-9 * std::fabs(best.t);
-      if (ray_box(ray, node.box, cull) == std::numeric_limits<double>::infinity()) continue;
-      if (node.count > 0) {
-        for (int32_t i = node.first; i < node.first + node.count; ++i) {
+      if (e.t > cull) continue;
+      if (e.count > 0) {
+        for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
           if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], best.t, &h)) {
             if (!found || h.t < best.t || (h.t == best.t && ids_[i] < best.face)) {
               best = h;
@@ -491,15 +517,15 @@ class Bvh {
         continue;
       }
       if (sp + 2 > 128) return brute_first(ray, any, out);
-      const int32_t l = node.first, r = l + 1;
-      const double tl = ray_box(ray, nodes_[l].box, cull), tr = ray_box(ray, nodes_[r].box, cull);
-      const double inf = std::numeric_limits<double>::infinity();
+      const Pair& pr = pairs_[e.ref];
+      const double tl = pair_ray_box(ray, pr, 0, cull), tr = pair_ray_box(ray, pr, 1, cull);
+      const Entry el{pr.ref[0], pr.count[0], tl}, er{pr.ref[1], pr.count[1], tr};
       if (tl <= tr) {
-        if (tr != inf) stack[sp++] = r;
-        if (tl != inf) stack[sp++] = l;
+        if (tr != inf) stack[sp++] = er;
+        if (tl != inf) stack[sp++] = el;
       } else {
-        if (tl != inf) stack[sp++] = l;
-        if (tr != inf) stack[sp++] = r;
+        if (tl != inf) stack[sp++] = el;
+        if (tr != inf) stack[sp++] = er;
       }
     }
     if (found) *out = best;
@@ -549,6 +575,210 @@ class Bvh {
   std::vector<int32_t> ids_;
   std::vector<uint8_t> degenerate_;
   std::vector<Box3> tri_boxes_;
+  std::vector<std::array<int32_t, 2>>
+      ranges_;  // per node: its triangles in tree order (build only)
+
+  // The traversal layout: one 128-byte record per inner node with the bounds of
+  // both children in float, rounded outwards (a float box contains the double
+  // one, so it never prunes what the double box keeps), so that visiting a node
+  // touches two cache lines.
+  struct alignas(64) Pair {
+    float lo[3][2], hi[3][2];  // [axis][child]
+    float c[3][2], n[3][2];    // slab centre and axis per child
+    float r[2], h[2];          // slab radius and half-thickness per child
+    int32_t ref[2];            // inner child: its Pair index; leaf: its first triangle
+    int32_t count[2];          // leaf: number of triangles; inner: 0
+  };
+  static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
+  struct FSlab {
+    float c[3] = {0, 0, 0}, n[3] = {0, 0, 1};
+    float r = std::numeric_limits<float>::infinity(), h = std::numeric_limits<float>::infinity();
+  };
+  std::vector<Pair> pairs_;
+  std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
+  Box3 root_box_;
+  FSlab root_slab_;
+  int32_t root_ref_ = 0, root_count_ = 0;
+
+  // Outward float roundings, defined for every double (beyond the float range they
+  // saturate to the largest float or to infinity on the safe side).
+  static float round_down(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    if (x > kMax) return std::numeric_limits<float>::max();
+    if (!(x >= -kMax)) return -std::numeric_limits<float>::infinity();
+    float f = static_cast<float>(x);
+    if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+    return f;
+  }
+  static float round_up(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    if (x < -kMax) return -std::numeric_limits<float>::max();
+    if (!(x <= kMax)) return std::numeric_limits<float>::infinity();
+    float f = static_cast<float>(x);
+    if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+    return f;
+  }
+
+  // The slab of node k: axis along the area-weighted mean normal of its
+  // triangles, centre at the box centre (both rounded to float and then used
+  // exactly), radius and half-thickness the largest radial and axial offsets of
+  // its vertices from them, rounded up. Nodes without a dominant normal get an
+  // infinite slab (it prunes nothing).
+  FSlab make_slab(int32_t k) const {
+    return make_slab_range(ranges_[k][0], ranges_[k][1], nodes_[k].box);
+  }
+  FSlab make_slab_range(int32_t b, int32_t e, const Box3& box) const {
+    FSlab sl;
+    double m[3] = {0, 0, 0}, area = 0.0;
+    for (int32_t i = b; i < e; ++i) {
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      double ab[3], ac[3];
+      for (int a = 0; a < 3; ++a) {
+        ab[a] = t[3 + a] - t[a];
+        ac[a] = t[6 + a] - t[a];
+      }
+      const double cr[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+                            ab[0] * ac[1] - ab[1] * ac[0]};
+      for (int a = 0; a < 3; ++a) m[a] += cr[a];
+      area += std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
+    }
+    const double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    if (!(len > 0.25 * area) || !std::isfinite(len)) return sl;
+    double c[3], n[3];
+    for (int a = 0; a < 3; ++a)  // far from the float range: no slab (the box still prunes)
+      if (!(std::fabs(0.5 * (box.lo[a] + box.hi[a])) < 1e30)) return sl;
+    for (int a = 0; a < 3; ++a) {
+      sl.n[a] = static_cast<float>(m[a] / len);
+      sl.c[a] = static_cast<float>(0.5 * (box.lo[a] + box.hi[a]));
+      n[a] = sl.n[a];
+      c[a] = sl.c[a];
+    }
+    double hmax = 0.0, rmax2 = 0.0;
+    for (int32_t i = b; i < e; ++i) {
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      for (int v = 0; v < 3; ++v) {
+        const double w[3] = {t[3 * v] - c[0], t[3 * v + 1] - c[1], t[3 * v + 2] - c[2]};
+        const double a = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
+        const double u[3] = {w[0] - a * n[0], w[1] - a * n[1], w[2] - a * n[2]};
+        hmax = std::max(hmax, std::fabs(a));
+        rmax2 = std::max(rmax2, u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      }
+    }
+    const double cm = std::max(std::fabs(c[0]), std::max(std::fabs(c[1]), std::fabs(c[2])));
+    const double rr = std::sqrt(rmax2);
+    // The offsets above carry rounding errors of a few ulps of this scale.
+    const double margin = 1e-12 * (cm + rr + hmax);
+    const FSlab none;
+    if (!std::isfinite(cm + rr + hmax) || !(cm < 1e30)) return none;
+    sl.r = round_up(rr + margin);
+    sl.h = round_up(hmax + margin);
+    return sl;
+  }
+
+  void build_pairs() {
+    pairs_.clear();
+    if (nodes_.empty()) return;
+    const size_t nn = nodes_.size();
+    std::vector<int32_t> pair_of(nn, -1);
+    int32_t np = 0;
+    for (size_t k = 0; k < nn; ++k)
+      if (nodes_[k].count == 0) pair_of[k] = np++;
+    pairs_.assign(np, Pair());
+    auto ref = [&](int32_t k, int32_t* r, int32_t* c) {
+      if (nodes_[k].count > 0) {
+        *r = nodes_[k].first;
+        *c = nodes_[k].count;
+      } else {
+        *r = pair_of[k];
+        *c = 0;
+      }
+    };
+    tri_slabs_.resize(ids_.size());
+    for (size_t i = 0; i < ids_.size(); ++i)
+      tri_slabs_[i] =
+          make_slab_range(static_cast<int32_t>(i), static_cast<int32_t>(i) + 1, tri_boxes_[i]);
+    root_box_ = nodes_[0].box;
+    root_slab_ = make_slab(0);
+    ref(0, &root_ref_, &root_count_);
+    for (size_t k = 0; k < nn; ++k) {
+      if (nodes_[k].count != 0) continue;
+      Pair& pr = pairs_[pair_of[k]];
+      for (int j = 0; j < 2; ++j) {
+        const int32_t ch = nodes_[k].first + j;
+        const Box3& bx = nodes_[ch].box;
+        for (int a = 0; a < 3; ++a) {
+          pr.lo[a][j] = round_down(bx.lo[a]);
+          pr.hi[a][j] = round_up(bx.hi[a]);
+        }
+        const FSlab sl = make_slab(ch);
+        for (int a = 0; a < 3; ++a) {
+          pr.c[a][j] = sl.c[a];
+          pr.n[a][j] = sl.n[a];
+        }
+        pr.r[j] = sl.r;
+        pr.h[j] = sl.h;
+        ref(ch, &pr.ref[j], &pr.count[j]);
+      }
+    }
+    ranges_.clear();
+    ranges_.shrink_to_fit();
+  }
+
+  // Squared distance from p to child j's box (the Box3::dist2 formula on the float box).
+  static double pair_box_dist2(const Pair& pr, int j, const double* p) {
+    double s = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double d = std::max(std::max(static_cast<double>(pr.lo[a][j]) - p[a],
+                                         p[a] - static_cast<double>(pr.hi[a][j])),
+                                0.0);
+      s += d * d;
+    }
+    return s;
+  }
+
+  // A lower bound of the squared distance from p to a slab: the squared
+  // distance to the cylinder, with both of its components shrunk by an absolute
+  // margin far above the rounding of this computation and of the point-triangle
+  // distance, and the sum shrunk by 4e-6 relatively (the float axis is unit only
+  // to 1e-7). One square root, and none when p is within the disk's radius.
+  static double slab_dist2(const float* c, const float* n, double r, double h, const double* p,
+                           int stride) {
+    const double c0 = c[0], c1 = c[stride], c2 = c[2 * stride];
+    const double n0 = n[0], n1 = n[stride], n2 = n[2 * stride];
+    const double w0 = p[0] - c0, w1 = p[1] - c1, w2 = p[2] - c2;
+    const double a = n0 * w0 + n1 * w1 + n2 * w2;
+    const double u0 = w0 - a * n0, u1 = w1 - a * n1, u2 = w2 - a * n2;
+    const double rho2 = u0 * u0 + u1 * u1 + u2 * u2;
+    const double m =
+        1e-11 * (std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2]))) +
+                 std::max(std::fabs(c0), std::max(std::fabs(c1), std::fabs(c2))) + r + h);
+    const double dn = std::max(std::fabs(a) - h - m, 0.0);
+    double dr = 0.0;
+    if (rho2 > r * r) dr = std::max(std::sqrt(rho2) - r - m, 0.0);
+    return (dn * dn + dr * dr) * (1.0 - 4e-6);
+  }
+
+  // ray_box on child j's float box (converted exactly to double).
+  static double pair_ray_box(const Ray& r, const Pair& pr, int j, double tfar) {
+    Box3 b;
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = pr.lo[a][j];
+      b.hi[a] = pr.hi[a][j];
+    }
+    return ray_box(r, b, tfar);
+  }
+
+  double pair_lower(const Pair& pr, int j, const double* p, double best) const {
+    const double d = pair_box_dist2(pr, j, p);
+    // Inside the box (or beyond the best distance) the slab seldom pays for its square roots.
+    if (d > best || d == 0.0) return d;
+    return std::max(d, slab_dist2(&pr.c[0][j], &pr.n[0][j], pr.r[j], pr.h[j], p, 2));
+  }
+
+  double root_lower(const double* p) const {
+    const double d = root_box_.dist2(p);
+    return std::max(d, slab_dist2(root_slab_.c, root_slab_.n, root_slab_.r, root_slab_.h, p, 1));
+  }
 
   ClosestResult brute_closest(const double* p) const {
     ClosestResult best;

@@ -444,6 +444,42 @@ def fit(
 # ----------------------------------------------------------------------------- queries
 
 
+def _sin32(x):
+    """`sin` for float32 in one fused pass: reduction by pi in three parts (exact products
+    for |x| < 2^15), a degree-11 odd polynomial on [-pi/2, pi/2] and the sign of the
+    half-turn; absolute error below 2e-7 for |x| <= 100 (the sine layers' range), about
+    4x cheaper on CPU than XLA's `sin`."""
+    k = jnp.round(x * np.float32(1.0 / np.pi))
+    r = x - k * np.float32(3.140625)
+    r = r - k * np.float32(0.0009670257568359375)
+    r = r - k * np.float32(6.277114152908325e-07)
+    r2 = r * r
+    poly = np.float32(1.0 / 362880) + r2 * np.float32(-1.0 / 39916800)
+    poly = np.float32(-1.0 / 5040) + r2 * poly
+    poly = np.float32(1.0 / 120) + r2 * poly
+    poly = np.float32(-1.0 / 6) + r2 * poly
+    y = r + r * r2 * poly
+    odd = (k.astype(jnp.int32) & 1) == 1
+    return jnp.where(odd, -y, y)
+
+
+def _apply(net: Siren, x):
+    """A SIREN on a batch `x (n, in)` as batched matrix products; float32 networks use
+    `_sin32`. Returns `(n,)` or `(n, out)` like calling the network."""
+    x = x.astype(net.weights[0].dtype)
+    h = x
+    last = len(net.weights) - 1
+    sin = _sin32 if x.dtype == jnp.float32 else jnp.sin
+    for i, (w, b) in enumerate(zip(net.weights, net.biases)):
+        z = h @ w.T.astype(x.dtype) + b.astype(x.dtype)
+        if i == last:
+            h = z
+        else:
+            omega = net.first_omega_0 if i == 0 else net.omega_0
+            h = sin(np.float32(omega) * z if x.dtype == jnp.float32 else omega * z)
+    return h[:, 0] if net.out_size == 1 else h
+
+
 def _local(net: NESI, p):
     q = (p - jnp.asarray(net.center, p.dtype)) * net.scale
     fr = jnp.asarray(net.frames, p.dtype)  # (m+1, 3, 3)
@@ -454,11 +490,11 @@ def _local(net: NESI, p):
 def _occupancy_flat(net: NESI, p):
     loc = _local(net, p)
     box = jnp.all(jnp.abs(loc[0]) <= 1.0, -1)
-    out = net.dhf(loc[0, :, :2])
+    out = _apply(net.dhf, loc[0, :, :2])
     inside = box & (loc[0, :, 2] <= out[:, 0]) & (loc[0, :, 2] >= out[:, 1])
     for k in range(net.n_hf):
         xy, z = loc[k + 1, :, :2], loc[k + 1, :, 2]
-        inside = inside & (net.masks[k](xy) > 0) & (z <= net.heights[k](xy))
+        inside = inside & (_apply(net.masks[k], xy) > 0) & (z <= _apply(net.heights[k], xy))
     return inside
 
 
@@ -466,13 +502,76 @@ def occupancy(net: NESI, points) -> jax.Array:
     """Inside/outside of a NESI at world points: inside the DHF (`f_b <= z <= f_a`) and,
     for every HF, inside its mask and below its height. Traceable (jit, vmap).
 
+    Called on concrete points, it evaluates each network only where the answer is still
+    open (points outside the DHF's box or volume skip the HFs), in fixed chunks of
+    `2^16` points (one compilation per network); under a trace every network sees every
+    point. Float32 networks use a polynomial sine (absolute error < 2e-7).
+
     **Arguments:** `net`; `points`: `(..., 3)` float. **Returns:** `(...)` bool.
     """
+    if not isinstance(points, jax.core.Tracer):
+        p = np.asarray(points)
+        if p.ndim < 1 or p.shape[-1] != 3:
+            raise ValueError(f"nesi.occupancy: points must have shape (..., 3), got {p.shape}")
+        lead = p.shape[:-1]
+        return jnp.asarray(_occupancy_eager(net, p.reshape(-1, 3))).reshape(lead)
     p = jnp.asarray(points)
     if p.ndim < 1 or p.shape[-1] != 3:
         raise ValueError(f"nesi.occupancy: points must have shape (..., 3), got {p.shape}")
     lead = p.shape[:-1]
     return _occupancy_flat(net, p.reshape(-1, 3)).reshape(lead)
+
+
+_CHUNK = 1 << 16
+
+
+@eqx.filter_jit
+def _local_chunk(net: NESI, p):
+    return _local(net, p).astype(net.dhf.weights[0].dtype)
+
+
+@eqx.filter_jit
+def _apply_chunk(siren: Siren, x):
+    return _apply(siren, x)
+
+
+def _chunked(fn, first, x, axis=0):
+    """`fn(first, chunk)` over fixed-size chunks of `x` (the last one padded), the outputs
+    joined along `axis` (their point axis); NumPy out."""
+    n = len(x)
+    out = []
+    for i in range(0, n, _CHUNK):
+        xi = x[i : i + _CHUNK]
+        k = len(xi)
+        if k < _CHUNK:
+            xi = np.concatenate([xi, np.zeros((_CHUNK - k,) + xi.shape[1:], xi.dtype)])
+        out.append(np.take(np.asarray(fn(first, xi)), np.arange(k), axis=axis))
+    return np.concatenate(out, axis=axis)
+
+
+def _occupancy_eager(net: NESI, p):
+    n = len(p)
+    result = np.zeros(n, bool)
+    if n == 0:
+        return result
+    dt = np.dtype(jnp.result_type(float))
+    loc = _chunked(_local_chunk, net, np.asarray(p, dt), axis=1)  # (m+1, n, 3)
+    idx = np.flatnonzero(np.all(np.abs(loc[0]) <= 1.0, -1))
+    if len(idx):
+        out = _chunked(_apply_chunk, net.dhf, loc[0, idx, :2])
+        z = loc[0, idx, 2]
+        idx = idx[(z <= out[:, 0]) & (z >= out[:, 1])]
+    for k in range(net.n_hf):
+        if not len(idx):
+            break
+        xy, z = loc[k + 1, idx, :2], loc[k + 1, idx, 2]
+        keep = _chunked(_apply_chunk, net.masks[k], xy) > 0
+        idx, xy, z = idx[keep], xy[keep], z[keep]
+        if not len(idx):
+            break
+        idx = idx[z <= _chunked(_apply_chunk, net.heights[k], xy)]
+    result[idx] = True
+    return result
 
 
 def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int = 3):
