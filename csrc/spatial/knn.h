@@ -99,33 +99,20 @@ class PointGrid {
     for (int64_t c = 0; c < total; ++c) start_[c + 1] += start_[c];
     order_.resize(n);
     std::vector<int64_t> fill(start_.begin(), start_.end() - 1);
-    rank_.resize(n);
-    for (int64_t i = 0; i < n; ++i) {
-      rank_[i] = static_cast<int32_t>(fill[cell[i]]);
-      order_[fill[cell[i]]++] = static_cast<int32_t>(i);
-    }
+    for (int64_t i = 0; i < n; ++i) order_[fill[cell[i]]++] = static_cast<int32_t>(i);
     // Coordinates in cell order, so that a cell's points are contiguous in memory.
     for (int64_t s = 0; s < n; ++s)
       for (int a = 0; a < 3; ++a) pts_[3 * s + a] = S[3 * static_cast<int64_t>(order_[s]) + a];
   }
 
   // The k nearest data points to q (k <= kMaxNeighbours), by (distance, index).
-  // `hint` (k == 1 only; ignored if negative): the index of any data point, typically
-  // the answer of a nearby query; it only speeds the search up (the result is the same).
-  void query(const double* q, int k, int32_t* idx, double* dist, int32_t hint = -1) const {
+  void query(const double* q, int k, int32_t* idx, double* dist) const {
     double bd[kMaxNeighbours];
     int32_t bi[kMaxNeighbours];
     int have = 0;
     for (int j = 0; j < k; ++j) {
       bd[j] = std::numeric_limits<double>::infinity();
       bi[j] = -1;
-    }
-    if (k == 1 && hint >= 0 && hint < n_) {
-      const double* x = &pts_[3 * static_cast<size_t>(rank_[hint])];
-      const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
-      bd[0] = dx * dx + dy * dy + dz * dz;
-      bi[0] = hint;
-      have = 1;
     }
     if (n_ > 0) {
       int64_t c[3];
@@ -236,7 +223,7 @@ class PointGrid {
  private:
   std::vector<double> pts_;
   std::vector<int64_t> start_;
-  std::vector<int32_t> order_, rank_;  // cell-order position -> index, and back
+  std::vector<int32_t> order_;
   int64_t n_ = 0;
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0}, h_[3] = {1, 1, 1};
   int64_t dim_[3] = {1, 1, 1};
