@@ -151,22 +151,29 @@ class PointGrid {
         }
         return d2;
       };
-      // Rings 0 and 1: nine runs of up to three cells along z, nearest rows first.
+      // Rings 0 and 1: nine runs of up to three cells along z, nearest rows first. A
+      // row's box distance is a sum of per-axis terms: along x and y to the (grown)
+      // cells c - 1, c, c + 1, along z to the run of cells k0..k1.
       {
         const int64_t k0 = std::max<int64_t>(0, c[2] - 1), k1 = std::min(dim_[2] - 1, c[2] + 1);
+        auto axis_d2 = [&](int a, int64_t from, int64_t to) {
+          const double l = lo_[a] + static_cast<double>(from) * h_[a] - tol;
+          const double u = lo_[a] + static_cast<double>(to + 1) * h_[a] + tol;
+          const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
+          return e * e;
+        };
+        double ax[2][3];
+        for (int a = 0; a < 2; ++a)
+          for (int o = 0; o < 3; ++o) ax[a][o] = axis_d2(a, c[a] + o - 1, c[a] + o - 1);
+        const double az = axis_d2(2, k0, k1);
         static constexpr int kOrder[9][2] = {{0, 0},   {-1, 0}, {1, 0},  {0, -1}, {0, 1},
                                              {-1, -1}, {-1, 1}, {1, -1}, {1, 1}};
         for (const auto& o : kOrder) {
           const int64_t i = c[0] + o[0], j = c[1] + o[1];
           if (i < 0 || i >= dim_[0] || j < 0 || j >= dim_[1]) continue;
+          if (have == k && ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > bd[k - 1]) continue;
           const int64_t row = (i * dim_[1] + j) * dim_[2];
-          const int64_t b = start_[row + k0], e = start_[row + k1 + 1];
-          if (b == e) continue;
-          if (have == k) {
-            const int64_t lo[3] = {i, j, k0}, hi[3] = {i, j, k1};
-            if (box_d2(lo, hi) > bd[k - 1]) continue;
-          }
-          scan(b, e);
+          scan(start_[row + k0], start_[row + k1 + 1]);
         }
       }
       for (int64_t r = 1; r <= rmax; ++r) {
