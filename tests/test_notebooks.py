@@ -28,6 +28,7 @@ SMALL = {
     "05_tiling": {"RESOLUTION": 24, "MAX_STEPS": 10},
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},
     "07_meshsdf": {"RESOLUTION": 16},
+    "09_cvt": {"N_SEEDS": 200, "METHOD": "lloyd", "STEPS": 10},
 }
 
 
