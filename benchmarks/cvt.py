@@ -117,6 +117,7 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
                 "time_s": rep["time"]["total"],
             }
         )
+        print(json.dumps(rows[-1], default=str), flush=True)  # progress: one line per scene
     ok = [r for r in rows if "error" not in r]
     return {
         "scenes": len(rows),
