@@ -157,6 +157,8 @@ def main():
     out["fragments"] = rep["n_fragments"]
     out["alpha"] = rep["alpha"]
     out["optimizer_steps"] = rep["steps"]
+    out["polish_steps"] = rep["polish"]
+    out["manifold_rounds"], out["balls"] = rep["rounds"], rep["balls"]
     out["rdt"] = rep["rdt"]._asdict()
     out["cvt"] = summary(mesh, ref, diag)
     frag = cvt.fragments(octic, rep["grid"])
