@@ -151,7 +151,9 @@ def main():
 
     # fragments, nearest-seed pass, Lloyd step at n seeds
     t = time.perf_counter()
-    mesh, rep = cvt.remesh(octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps, polish=args.polish)
+    mesh, rep = cvt.remesh(
+        octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps, polish=args.polish
+    )
     out["remesh_s"] = time.perf_counter() - t
     out["remesh_times"] = rep["time"]
     out["fragments"] = rep["n_fragments"]
@@ -213,7 +215,11 @@ def main():
 
         t = time.perf_counter()
         m2, rep2 = cvt.remesh(
-            octic, 2 * n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps,
+            octic,
+            2 * n,
+            grid=voxax.Grid.cube(64, half_width=HALF),
+            method=args.method,
+            steps=args.steps,
             polish=args.polish,
         )
         out["remesh_2x_s"] = time.perf_counter() - t
