@@ -7,11 +7,11 @@
 // 3 x 3 x 3 block of cells around its own as nine contiguous runs of points (the
 // cells are stored in x-y-z order, so three cells along z are one run), then visits
 // further Chebyshev rings while needed. It keeps the k best candidates ordered by
-// (squared distance, index); it
-// stops once the k-th candidate is strictly closer than the nearest point of
-// space outside the rings searched (a conservative bound), so the result is the
-// exact k smallest (distance, index) pairs, deterministic and independent of
-// threads. Missing neighbours (k > N) are index -1 at distance +inf.
+// (squared distance, index); it stops once the k-th candidate is strictly closer
+// than the nearest point of space outside the rings searched (a conservative
+// bound), so the result is the exact k smallest (distance, index) pairs,
+// deterministic and independent of threads. Missing neighbours (k > N) are index
+// -1 at distance +inf.
 #pragma once
 
 #include <algorithm>
