@@ -323,7 +323,7 @@ def test_remesh_hand_is_manifold():
 
 @pytest.mark.slow
 def test_remesh_thin_plate_is_a_closed_sphere():
-    # a 1 x 1 x 0.02 box: both faces are closer than the seed spacing (about 0.03)
+    # a 1 x 1 x 0.02 box: both faces are closer than the seed spacing (about 0.035)
     v = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.01, 0.01)])
     f = np.array(
         [0, 1, 3, 0, 3, 2, 4, 6, 7, 4, 7, 5, 0, 4, 5, 0, 5, 1, 2, 3, 7, 2, 7, 6, 0, 2, 6, 0, 6, 4, 1, 5, 7, 1, 7, 3]
