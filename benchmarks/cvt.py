@@ -5,13 +5,14 @@ Measures the nearest-seed pass and a Lloyd step at 20k seeds / ~1M fragments, th
 reference, time), marching cubes at the same vertex count, marching cubes followed by
 pymeshlab's isotropic remeshing, and the time ratio t(40k) / t(20k).
 
-    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--method lbfgs|lloyd] [--quick]
+    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--polish 40] [--method lbfgs|lloyd] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import jax
@@ -95,7 +96,7 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
         if solid.volume() < 0.02:
             continue  # (nearly) empty scene
         try:
-            mesh, rep = cvt.remesh(expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40)
+            mesh, rep = cvt.remesh(expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40, polish=20)
         except ValueError as err:
             rows.append({"scene": i, "ops": ops, "error": str(err)})
             continue
@@ -116,6 +117,7 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
                 "time_s": rep["time"]["total"],
             }
         )
+        print(json.dumps(rows[-1], default=str), flush=True)  # progress: one line per scene
     ok = [r for r in rows if "error" not in r]
     return {
         "scenes": len(rows),
@@ -133,6 +135,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20000)
     ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--polish", type=int, default=40, help="Lloyd steps after L-BFGS")
     ap.add_argument("--method", default="lbfgs")
     ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
@@ -142,26 +145,50 @@ def main():
         return
     n = args.seeds
     diag = 2 * HALF * np.sqrt(3)
-    out = {"seeds": n, "cores": jax.device_count("cpu"), "threads": "all"}
+    out = {"seeds": n, "cores": os.cpu_count(), "threads": "all", "load_average_start": os.getloadavg()}
     ref, _ = mc_mesh(300)  # fine reference surface
     out["reference_vertices"] = len(ref.vertices)
 
     # fragments, nearest-seed pass, Lloyd step at n seeds
     t = time.perf_counter()
-    mesh, rep = cvt.remesh(octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps)
+    mesh, rep = cvt.remesh(
+        octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps, polish=args.polish
+    )
     out["remesh_s"] = time.perf_counter() - t
     out["remesh_times"] = rep["time"]
     out["fragments"] = rep["n_fragments"]
     out["alpha"] = rep["alpha"]
     out["optimizer_steps"] = rep["steps"]
+    out["polish_steps"] = rep["polish"]
+    out["manifold_rounds"], out["balls"] = rep["rounds"], rep["balls"]
     out["rdt"] = rep["rdt"]._asdict()
     out["cvt"] = summary(mesh, ref, diag)
     frag = cvt.fragments(octic, rep["grid"])
     seeds = cvt.init_seeds(frag, n, 0)
-    out["nearest_seed_s"], _ = best_of(lambda: voxax.nearest_neighbors(seeds, frag.points, k=1))
-    step = jax.jit(lambda y: cvt.lloyd_step(y, frag))
+    out["nearest_seed_s"], _ = best_of(lambda: voxax.nearest_neighbors(seeds, frag.points, k=1), 5)
+    c = time.process_time()
+    voxax.nearest_neighbors(seeds, frag.points, k=1, threads=1)
+    out["nearest_seed_1thread_cpu_s"] = time.process_time() - c
+    x, w = jax.numpy.asarray(frag.points), jax.numpy.asarray(frag.weights)
+
+    @jax.jit
+    def lloyd(y, x, w):  # one Lloyd step with the fragments as arguments, as cvt.optimize runs it
+        idx = voxax.nearest_neighbors(y, x, k=1)[1][:, 0]
+        mass = jax.ops.segment_sum(w, idx, num_segments=n)
+        first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+        return jax.numpy.where(mass[:, None] > 0, first / jax.numpy.where(mass > 0, mass, 1.0)[:, None], y)
+
+    seeds = jax.numpy.asarray(seeds)
+
+    def step(y):
+        return lloyd(y, x, w)
+
     jax.block_until_ready(step(seeds))
-    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(step(seeds)))
+    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(step(seeds)), 5)
+    c = time.process_time()
+    for _ in range(3):
+        jax.block_until_ready(step(seeds))
+    out["lloyd_step_cpu_s"] = (time.process_time() - c) / 3
 
     # marching cubes at about the same vertex count
     best = None
@@ -188,11 +215,17 @@ def main():
 
         t = time.perf_counter()
         m2, rep2 = cvt.remesh(
-            octic, 2 * n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps
+            octic,
+            2 * n,
+            grid=voxax.Grid.cube(64, half_width=HALF),
+            method=args.method,
+            steps=args.steps,
+            polish=args.polish,
         )
         out["remesh_2x_s"] = time.perf_counter() - t
         out["t2x_over_t"] = out["remesh_2x_s"] / out["remesh_s"]
         out["cvt_2x"] = {"fragments": rep2["n_fragments"], **summary(m2, ref, diag)}
+    out["load_average_end"] = os.getloadavg()
     print(json.dumps(out, indent=1, default=str))
 
 

@@ -344,6 +344,11 @@ def test_nearest_neighbors_vs_brute_force_and_ckdtree():
         "few": rng.uniform(-1, 1, (5, 3)),
         "one point": np.zeros((1, 3)),
     }
+    # points on a surface and on a curve: most cells of a volume grid stay empty
+    u = rng.normal(size=(3000, 3))
+    cases["sphere surface"] = 0.8 * u / np.linalg.norm(u, axis=1, keepdims=True)
+    t = rng.uniform(0, 2 * np.pi, 1500)
+    cases["circle"] = np.stack([np.cos(t), np.sin(t), 0.3 * np.cos(3 * t)], axis=1)
     for name, S in cases.items():
         Q = np.concatenate([rng.uniform(-1.5, 1.5, (300, 3)), S[:20], [[0, 0, 5.0], [-9, 3, 0]]])
         for k in (1, 4, 8):

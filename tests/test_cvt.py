@@ -246,6 +246,8 @@ def test_remesh_mesh_and_open_mesh_error():
         cvt.remesh(open_mesh, 100)
     with pytest.raises(ValueError, match="fragments"):
         cvt.remesh(mesh, 10**6, alpha=0.001)
+    with pytest.raises(ValueError, match="polish"):
+        cvt.remesh(mesh, 100, polish=-1)
 
 
 def test_cli_remesh(tmp_path, capsys):
@@ -317,6 +319,21 @@ def test_remesh_hand_is_manifold():
     m, rep = cvt.remesh(voxax.data.hand(), 3000, max_rounds=30)
     assert rep["closed"] and rep["manifold"] and rep["rounds"] <= 30
     assert rep["euler_characteristic"] == metrics.euler_characteristic(voxax.data.hand())
+
+
+@pytest.mark.slow
+def test_remesh_thin_plate_is_a_closed_sphere():
+    # a 1 x 1 x 0.02 box: both faces are closer than the seed spacing (about 0.035)
+    v = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.01, 0.01)])
+    f = np.array(
+        [0, 1, 3, 0, 3, 2, 4, 6, 7, 4, 7, 5, 0, 4, 5, 0, 5, 1, 2, 3, 7, 2, 7, 6, 0, 2, 6, 0, 6, 4, 1, 5, 7, 1, 7, 3]
+    )
+    f = f.reshape(-1, 3)
+    plate = voxax.Mesh(v, f)
+    assert metrics.manifold_report(plate).closed and _volume(plate) > 0
+    m, rep = cvt.remesh(plate, 2000)
+    assert rep["closed"] and rep["manifold"] and rep["euler_characteristic"] == 2
+    assert metrics.hausdorff(m, plate) < 0.05
 
 
 @pytest.mark.slow

@@ -29,6 +29,7 @@ SMALL = {
     "06_batches": {"RESOLUTION": 16, "FAMILY": 4},
     "07_meshsdf": {"RESOLUTION": 16},
     "08_faithful_contouring": {"RESOLUTION": 32, "SAMPLES": 10_000},
+    "09_cvt": {"N_SEEDS": 200, "METHOD": "lloyd", "STEPS": 10},
     "10_explicit_surfaces": {"RESOLUTION": 32, "N_DHF": 4, "N_HF": 4, "MAX_HF": 1, "N_SAMPLES": 1000,
                              "N_POINTS": 2000, "MOLD_RESOLUTION": 16, "MOLD_STEPS": 5},
 }

@@ -1,12 +1,17 @@
 // Exact k nearest neighbours in 3D with a uniform grid (counting-sorted cells).
 //
-// The data points are binned into a grid of about two points per cell over their
-// bounding box. A query visits the cells in growing Chebyshev rings around its
-// cell and keeps the k best candidates ordered by (squared distance, index); it
-// stops once the k-th candidate is strictly closer than the nearest point of
-// space outside the rings searched (a conservative bound), so the result is the
-// exact k smallest (distance, index) pairs, deterministic and independent of
-// threads. Missing neighbours (k > N) are index -1 at distance +inf.
+// The data points are binned into a grid sized for about two points per occupied
+// cell: first for points filling their bounding box, then refined while most cells
+// are empty (points on a surface or a curve leave most of a volume grid empty, and
+// large cells would make every query scan many points). A query first scans the
+// 3 x 3 x 3 block of cells around its own as nine contiguous runs of points (the
+// cells are stored in x-y-z order, so three cells along z are one run), then visits
+// further Chebyshev rings while needed. It keeps the k best candidates ordered by
+// (squared distance, index); it stops once the k-th candidate is strictly closer
+// than the nearest point of space outside the rings searched (a conservative
+// bound), so the result is the exact k smallest (distance, index) pairs,
+// deterministic and independent of threads. Missing neighbours (k > N) are index
+// -1 at distance +inf.
 #pragma once
 
 #include <algorithm>
@@ -53,20 +58,40 @@ class PointGrid {
       if (dims > 0) h = std::pow(2.0 * vol / static_cast<double>(n), 1.0 / dims);
       h = std::max(h, maxext / 1024.0);
     }
-    int64_t total = 1;
-    for (int attempt = 0; attempt < 200; ++attempt) {
-      total = 1;
-      for (int a = 0; a < 3; ++a) {
-        dim_[a] = std::max<int64_t>(
-            1, std::min<int64_t>(1024, static_cast<int64_t>(std::ceil(ext[a] / h))));
-        h_[a] = ext[a] > 0.0 ? ext[a] / static_cast<double>(dim_[a]) : 1.0;
-        total *= dim_[a];
+    // Bounded memory for any point distribution: at most this many cells.
+    const int64_t cap = 16 * n + 4096;
+    int64_t total = set_cells(ext, h);
+    for (int attempt = 0; attempt < 200 && total > cap; ++attempt)
+      total = set_cells(ext, h *= 1.25);
+    // Refine while the occupied cells hold many more than two points each (points on a
+    // lower-dimensional set): the cell count then grows about like 1/h^2.
+    std::vector<int64_t> cell(n);
+    for (int refine = 0; refine < 6; ++refine) {
+      std::vector<uint8_t> seen(static_cast<size_t>(total), 0);
+      int64_t occupied = 0;
+      for (int64_t i = 0; i < n; ++i) {
+        const int64_t c = cell_of(S + 3 * i);
+        occupied += seen[c] == 0;
+        seen[c] = 1;
       }
-      if (total <= 4 * n + 64) break;  // bounded memory for any point distribution
-      h *= 1.25;
+      const double per = static_cast<double>(n) / static_cast<double>(occupied);
+      if (per <= 3.0) break;
+      const double hn = h * std::sqrt(2.0 / per);
+      if (!(hn < h) || hn < maxext / 1024.0) break;
+      double save[3] = {h_[0], h_[1], h_[2]};
+      int64_t dsave[3] = {dim_[0], dim_[1], dim_[2]};
+      const int64_t tn = set_cells(ext, hn);
+      if (tn > cap) {  // keep the last size within the bound
+        for (int a = 0; a < 3; ++a) {
+          h_[a] = save[a];
+          dim_[a] = dsave[a];
+        }
+        break;
+      }
+      h = hn;
+      total = tn;
     }
     start_.assign(total + 1, 0);
-    std::vector<int64_t> cell(n);
     for (int64_t i = 0; i < n; ++i) {
       cell[i] = cell_of(S + 3 * i);
       start_[cell[i] + 1]++;
@@ -96,44 +121,80 @@ class PointGrid {
       // Rounding allowance of the cell boxes (binning rounds differently).
       const double tol = 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) +
                                  std::fabs(q[1]) + std::fabs(q[2]));
-      for (int64_t r = 0; r <= rmax; ++r) {
-        for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
-          if (i < 0 || i >= dim_[0]) continue;
-          const bool ei = i == c[0] - r || i == c[0] + r;
-          for (int64_t j = c[1] - r; j <= c[1] + r; ++j) {
-            if (j < 0 || j >= dim_[1]) continue;
-            const bool ej = ei || j == c[1] - r || j == c[1] + r;
-            // Only the ring's shell: the k range is all of it on the faces, else its two ends.
-            for (int64_t kk = c[2] - r; kk <= c[2] + r; kk += (ej || r == 0) ? 1 : 2 * r) {
-              if (kk < 0 || kk >= dim_[2]) continue;
-              const int64_t cell = (i * dim_[1] + j) * dim_[2] + kk;
-              if (start_[cell] == start_[cell + 1]) continue;
-              if (have == k) {
-                // Skip cells whose (slightly grown) box is beyond the k-th candidate.
-                const int64_t cc[3] = {i, j, kk};
-                double d2 = 0.0;
-                for (int a = 0; a < 3; ++a) {
-                  const double lo = lo_[a] + static_cast<double>(cc[a]) * h_[a] - tol;
-                  const double hi = lo_[a] + static_cast<double>(cc[a] + 1) * h_[a] + tol;
-                  const double e = q[a] < lo ? lo - q[a] : (q[a] > hi ? q[a] - hi : 0.0);
-                  d2 += e * e;
+      // Offers the points in cell-order positions [b, e) to the candidate list.
+      auto scan = [&](int64_t b, int64_t e) {
+        for (int64_t s = b; s < e; ++s) {
+          const double* x = &pts_[3 * static_cast<size_t>(s)];
+          const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
+          const double d2 = dx * dx + dy * dy + dz * dz;
+          if (have == k && d2 > bd[k - 1]) continue;
+          const int32_t p = order_[s];
+          if (have == k && !(d2 < bd[k - 1] || p < bi[k - 1])) continue;
+          int pos = have < k ? have++ : k - 1;
+          while (pos > 0 && (d2 < bd[pos - 1] || (d2 == bd[pos - 1] && p < bi[pos - 1]))) {
+            bd[pos] = bd[pos - 1];
+            bi[pos] = bi[pos - 1];
+            --pos;
+          }
+          bd[pos] = d2;
+          bi[pos] = p;
+        }
+      };
+      // Squared distance from q to the (slightly grown) box of cells [lo, hi] (inclusive).
+      auto box_d2 = [&](const int64_t* lo, const int64_t* hi) {
+        double d2 = 0.0;
+        for (int a = 0; a < 3; ++a) {
+          const double l = lo_[a] + static_cast<double>(lo[a]) * h_[a] - tol;
+          const double u = lo_[a] + static_cast<double>(hi[a] + 1) * h_[a] + tol;
+          const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
+          d2 += e * e;
+        }
+        return d2;
+      };
+      // Rings 0 and 1: nine runs of up to three cells along z, nearest rows first. A
+      // row's box distance is a sum of per-axis terms: along x and y to the (grown)
+      // cells c - 1, c, c + 1, along z to the run of cells k0..k1.
+      {
+        const int64_t k0 = std::max<int64_t>(0, c[2] - 1), k1 = std::min(dim_[2] - 1, c[2] + 1);
+        auto axis_d2 = [&](int a, int64_t from, int64_t to) {
+          const double l = lo_[a] + static_cast<double>(from) * h_[a] - tol;
+          const double u = lo_[a] + static_cast<double>(to + 1) * h_[a] + tol;
+          const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
+          return e * e;
+        };
+        double ax[2][3];
+        for (int a = 0; a < 2; ++a)
+          for (int o = 0; o < 3; ++o) ax[a][o] = axis_d2(a, c[a] + o - 1, c[a] + o - 1);
+        const double az = axis_d2(2, k0, k1);
+        static constexpr int kOrder[9][2] = {{0, 0},   {-1, 0}, {1, 0},  {0, -1}, {0, 1},
+                                             {-1, -1}, {-1, 1}, {1, -1}, {1, 1}};
+        for (const auto& o : kOrder) {
+          const int64_t i = c[0] + o[0], j = c[1] + o[1];
+          if (i < 0 || i >= dim_[0] || j < 0 || j >= dim_[1]) continue;
+          if (have == k && ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > bd[k - 1]) continue;
+          const int64_t row = (i * dim_[1] + j) * dim_[2];
+          scan(start_[row + k0], start_[row + k1 + 1]);
+        }
+      }
+      for (int64_t r = 1; r <= rmax; ++r) {
+        if (r >= 2) {
+          for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
+            if (i < 0 || i >= dim_[0]) continue;
+            const bool ei = i == c[0] - r || i == c[0] + r;
+            for (int64_t j = c[1] - r; j <= c[1] + r; ++j) {
+              if (j < 0 || j >= dim_[1]) continue;
+              const bool ej = ei || j == c[1] - r || j == c[1] + r;
+              // Only the ring's shell: the k range is all of it on the faces, else its two ends.
+              for (int64_t kk = c[2] - r; kk <= c[2] + r; kk += ej ? 1 : 2 * r) {
+                if (kk < 0 || kk >= dim_[2]) continue;
+                const int64_t cell = (i * dim_[1] + j) * dim_[2] + kk;
+                if (start_[cell] == start_[cell + 1]) continue;
+                if (have == k) {
+                  // Skip cells whose (slightly grown) box is beyond the k-th candidate.
+                  const int64_t cc[3] = {i, j, kk};
+                  if (box_d2(cc, cc) > bd[k - 1]) continue;
                 }
-                if (d2 > bd[k - 1]) continue;
-              }
-              for (int64_t s = start_[cell]; s < start_[cell + 1]; ++s) {
-                const int32_t p = order_[s];
-                const double* x = &pts_[3 * static_cast<size_t>(s)];
-                const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
-                const double d2 = dx * dx + dy * dy + dz * dz;
-                if (have == k && !(d2 < bd[k - 1] || (d2 == bd[k - 1] && p < bi[k - 1]))) continue;
-                int pos = have < k ? have++ : k - 1;
-                while (pos > 0 && (d2 < bd[pos - 1] || (d2 == bd[pos - 1] && p < bi[pos - 1]))) {
-                  bd[pos] = bd[pos - 1];
-                  bi[pos] = bi[pos - 1];
-                  --pos;
-                }
-                bd[pos] = d2;
-                bi[pos] = p;
+                scan(start_[cell], start_[cell + 1]);
               }
             }
           }
@@ -174,6 +235,17 @@ class PointGrid {
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0}, h_[3] = {1, 1, 1};
   int64_t dim_[3] = {1, 1, 1};
 
+  // Cells of side about h over the extents (at most 1024 along an axis); returns their count.
+  int64_t set_cells(const double* ext, double h) {
+    int64_t total = 1;
+    for (int a = 0; a < 3; ++a) {
+      dim_[a] = std::max<int64_t>(
+          1, std::min<int64_t>(1024, static_cast<int64_t>(std::ceil(ext[a] / h))));
+      h_[a] = ext[a] > 0.0 ? ext[a] / static_cast<double>(dim_[a]) : 1.0;
+      total *= dim_[a];
+    }
+    return total;
+  }
   int64_t coord(const double* p, int a) const {
     const double u = (p[a] - lo_[a]) / h_[a];
     if (!(u > 0.0)) return 0;
