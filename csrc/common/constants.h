@@ -11,6 +11,11 @@ namespace voxax {
 // triangle normals (fourth powers of coordinates) stay finite in double.
 constexpr double kMaxAbsCoordinate = 1e75;
 
+// The spatial queries (BVH, kNN) reject a set of coordinates whose largest magnitude is
+// non-zero and below this: their squared distances and fourth powers would leave the
+// normal double range, where XLA's threads (flush-to-zero) and plain threads disagree.
+constexpr double kMinLargestAbsCoordinate = 1e-75;
+
 // Accepted range of a grid cell's volume (its area in 2D): cell sizes, their
 // inverses and the products the kernels form stay finite and non-zero.
 constexpr double kMinCellVolume = 1e-300;

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <exception>
 #include <new>
@@ -70,6 +71,22 @@ inline bool check_host_coordinates(const double* x, int64_t count, const char* w
              std::to_string(i / 3) + ")";
       return false;
     }
+  }
+  return true;
+}
+
+// Rejects a coordinate array whose largest magnitude is non-zero and below
+// kMinLargestAbsCoordinate (the whole set is too small to compute with; see constants.h).
+inline bool check_coordinate_scale(const double* x, int64_t count, const char* what,
+                                   std::string* msg) {
+  double largest = 0.0;
+  for (int64_t i = 0; i < count; ++i) largest = std::max(largest, std::fabs(x[i]));
+  if (largest > 0.0 && largest < kMinLargestAbsCoordinate) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.3g", largest);
+    *msg = std::string("voxax: ") + what + " are all below 1e-75 in magnitude (largest " + buf +
+           "): scale the input";
+    return false;
   }
   return true;
 }

@@ -601,22 +601,37 @@ class Bvh {
   int32_t root_ref_ = 0, root_count_ = 0;
 
   // Outward float roundings, defined for every double (beyond the float range they
-  // saturate to the largest float or to infinity on the safe side).
+  // saturate to the largest float or to infinity on the safe side). They never return a
+  // subnormal float: XLA's threads run with flush-to-zero and denormals-are-zero, so a
+  // subnormal bound would read as 0 there and no longer bound anything. Below the normal
+  // range they round outwards to 0 or to the smallest normal float instead.
   static float round_down(double x) {
     constexpr double kMax = std::numeric_limits<float>::max();
+    constexpr float kMin = std::numeric_limits<float>::min();
     if (x > kMax) return std::numeric_limits<float>::max();
     if (!(x >= -kMax)) return -std::numeric_limits<float>::infinity();
+    if (std::fabs(x) < kMin) return x >= 0.0 ? 0.0f : -kMin;
     float f = static_cast<float>(x);
     if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+    if (std::fabs(f) < kMin) f = f >= 0.0f ? 0.0f : -kMin;
     return f;
   }
   static float round_up(double x) {
     constexpr double kMax = std::numeric_limits<float>::max();
+    constexpr float kMin = std::numeric_limits<float>::min();
     if (x < -kMax) return -std::numeric_limits<float>::max();
     if (!(x <= kMax)) return std::numeric_limits<float>::infinity();
+    if (std::fabs(x) < kMin) return x <= 0.0 ? 0.0f : kMin;
     float f = static_cast<float>(x);
     if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+    if (std::fabs(f) < kMin) f = f <= 0.0f ? 0.0f : kMin;
     return f;
+  }
+  // The nearest float, or 0 below the normal range (see above): a value stored once and
+  // then used exactly, as float and as double, by every thread.
+  static float to_normal_float(double x) {
+    const float f = static_cast<float>(x);
+    return std::fabs(f) < std::numeric_limits<float>::min() ? 0.0f : f;
   }
 
   // The slab of node k: axis along the area-weighted mean normal of its
@@ -648,8 +663,8 @@ class Bvh {
     for (int a = 0; a < 3; ++a)  // far from the float range: no slab (the box still prunes)
       if (!(std::fabs(0.5 * (box.lo[a] + box.hi[a])) < 1e30)) return sl;
     for (int a = 0; a < 3; ++a) {
-      sl.n[a] = static_cast<float>(m[a] / len);
-      sl.c[a] = static_cast<float>(0.5 * (box.lo[a] + box.hi[a]));
+      sl.n[a] = to_normal_float(m[a] / len);
+      sl.c[a] = to_normal_float(0.5 * (box.lo[a] + box.hi[a]));
       n[a] = sl.n[a];
       c[a] = sl.c[a];
     }

@@ -17,6 +17,7 @@
 #include "common/constants.h"
 #include "common/errors.h"
 #include "common/grid.h"
+#include "common/host_errors.h"
 #include "common/parallel.h"
 #include "common/validate.h"
 #include "spatial/bvh.h"
@@ -50,6 +51,9 @@ ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S
   int64_t nv = 0;
   ffi::Error err = check_rows3(vertices, "vertices", &nv);
   if (err.failure()) return err;
+  std::string msg;
+  if (!check_coordinate_scale(vertices.typed_data(), 3 * nv, "vertices", &msg))
+    return ffi::Error::InvalidArgument(msg);
   auto fd = faces.dimensions();
   if (fd.size() != 2 || fd[1] != 3)
     return ffi::Error::InvalidArgument("voxax: faces must have shape (F, 3), got " + dims_str(fd));

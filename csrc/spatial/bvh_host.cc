@@ -104,7 +104,9 @@ VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, 
       *msg = "voxax: the BVH takes at most 2^30 faces";
       return false;
     }
-    if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg)) return false;
+    if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg) ||
+        !voxax::check_coordinate_scale(V, 3 * nv, "vertices", msg))
+      return false;
     for (int64_t i = 0; i < 3 * nf; ++i) {
       if (F[i] < 0 || F[i] >= nv) {
         *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +

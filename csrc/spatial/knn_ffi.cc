@@ -41,6 +41,7 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
     if (pd[0] > INT32_MAX) return ffi::Error::InvalidArgument("voxax: at most 2^31 - 1 points");
     std::string msg;
     if (!check_host_coordinates(points.typed_data(), 3 * pd[0], "points", &msg) ||
+        !check_coordinate_scale(points.typed_data(), 3 * pd[0], "points", &msg) ||
         !check_host_coordinates(queries.typed_data(), 3 * qd[0], "queries", &msg))
       return ffi::Error::InvalidArgument(msg);
     spatial::PointGrid grid;
@@ -76,6 +77,7 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
       return false;
     }
     if (!voxax::check_host_coordinates(S, 3 * n, "points", msg) ||
+        !voxax::check_coordinate_scale(S, 3 * n, "points", msg) ||
         !voxax::check_host_coordinates(Q, 3 * m, "queries", msg))
       return false;
     voxax::spatial::PointGrid grid;

@@ -725,7 +725,7 @@ def _spatial_soup(rng, kind):
     elif kind == "huge":
         v = v * 10.0 ** rng.integers(20, 75)
     elif kind == "tiny":
-        v = v * 10.0 ** -rng.integers(20, 300)
+        v = v * 10.0 ** -rng.integers(20, 70)  # sets below 1e-75 are rejected (see the hostile inputs)
     elif kind == "flat":
         v[:, 2] = 0.0  # every face in one plane, rays in it
     elif kind == "grid":
@@ -802,6 +802,12 @@ def run_spatial(rng, n_inputs):
         "zero direction": (lambda: voxax.all_hits((v, f), [[0, 0, 0]], [[0, 0, 0]]), "zero"),
         "index high": (lambda: voxax.BVH(v, f.clip(max=29) + 1), "range"),
         "huge vertex": (lambda: voxax.BVH(v * 1e80, f), "1e75"),
+        "tiny mesh": (lambda: voxax.BVH(v * 10.0 ** -int(rng.integers(76, 320)), f), "below 1e-75"),
+        "jit tiny mesh": (lambda: jax.jit(lambda vv: voxax.closest_points((vv, f), jnp.zeros((1, 3))))(v * 1e-200),
+                          "below 1e-75"),
+        "kNN tiny points": (lambda: voxax.nearest_neighbors(v * 1e-90, v, 2), "below 1e-75"),
+        "jit kNN tiny points": (lambda: jax.jit(lambda pp: voxax.nearest_neighbors(pp, jnp.zeros((2, 3)), 2))(
+            v * 1e-300), "below 1e-75"),
         "jit NaN point": (lambda: jax.jit(lambda pp: voxax.closest_points((v, f), pp))(jnp.full((3, 3), jnp.nan)),
                           "NaN"),
         "jit index": (lambda: jax.jit(lambda ff: voxax.closest_points((v, ff), jnp.zeros((1, 3))))(f + 100),
