@@ -41,7 +41,7 @@ def _run(*args, timeout=1200):
 @pytest.fixture(scope="module")
 def fuzz_run():
     _require_tools()
-    return _run("--inputs", "300", "--spatial-inputs", "150", "--seed", "0")
+    return _run("--inputs", "220", "--spatial-inputs", "110", "--seed", "0")
 
 
 def _tail(proc, n=6000):
