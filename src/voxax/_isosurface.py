@@ -282,6 +282,18 @@ def _padded(grid: Grid) -> Grid:
     )
 
 
+def _explicit_pad(close, level: float, inside: str) -> float:
+    """The pad value given as `close=<value>`: finite, and on the outside of the level."""
+    pad = float(close)
+    ok = pad > level if inside == "below" else pad < level
+    if not np.isfinite(pad) or not ok:
+        side = "above" if inside == "below" else "below"
+        raise ValueError(
+            f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+        )
+    return pad
+
+
 def _pad(values, grid: Grid, level: float, inside: str, close):
     """Pads the field with one layer of an outside value; returns (values, grid)."""
     d = grid.dim
@@ -294,13 +306,7 @@ def _pad(values, grid: Grid, level: float, inside: str, close):
             )
             pad = level + outward * np.where(span > 0, span, 1.0)
         else:
-            pad = float(close)
-            ok = pad > level if inside == "below" else pad < level
-            if not np.isfinite(pad) or not ok:
-                side = "above" if inside == "below" else "below"
-                raise ValueError(
-                    f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
-                )
+            pad = _explicit_pad(close, level, inside)
         pad = np.broadcast_to(
             np.asarray(pad, values.dtype), values.shape[: values.ndim - d]
         )
@@ -318,14 +324,7 @@ def _pad(values, grid: Grid, level: float, inside: str, close):
         )
         pad = level + outward * jnp.where(span > 0, span, 1.0)
     else:
-        pad = float(close)
-        ok = pad > level if inside == "below" else pad < level
-        if not np.isfinite(pad) or not ok:
-            side = "above" if inside == "below" else "below"
-            raise ValueError(
-                f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
-            )
-        pad = jnp.full((1,) * values.ndim, pad, values.dtype)
+        pad = jnp.full((1,) * values.ndim, _explicit_pad(close, level, inside), values.dtype)
     pad = jnp.broadcast_to(
         pad.astype(values.dtype), values.shape[: values.ndim - d] + (1,) * d
     )
@@ -421,14 +420,7 @@ def _close_value(values: np.ndarray, level: float, inside: str, close, planes: i
                 span = max(span, hi - level, level - lo)
         outward = 1.0 if inside == "below" else -1.0
         return np.asarray(level + outward * (span if span > 0 else 1.0), values.dtype)
-    pad = float(close)
-    ok = pad > level if inside == "below" else pad < level
-    if not np.isfinite(pad) or not ok:
-        side = "above" if inside == "below" else "below"
-        raise ValueError(
-            f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
-        )
-    return np.asarray(pad, values.dtype)
+    return np.asarray(_explicit_pad(close, level, inside), values.dtype)
 
 
 def _edge_keys(edges: np.ndarray, strides: np.ndarray, offset: int) -> np.ndarray:
