@@ -125,6 +125,18 @@ inline void clip_triangle(const GridSpec& g, const double p[3][3], int64_t ia, i
   i0 = std::max(i0, ia);
   i1 = std::min(i1, ib - 1);
   if (i0 > i1) return;
+  // A triangle inside one cell (below its upper planes) is its own piece: the sweeps would
+  // pass it on unsplit, so it is visited as it is (most triangles of a fine mesh).
+  if (i0 == i1 && j0 == j1 && k0 == k1) {
+    const int64_t c[3] = {i0, j0, k0};
+    bool inside = true;
+    for (int a = 0; a < 3 && inside; ++a)
+      inside = P.min(a) >= g.plane(a, c[a]) && P.max(a) < g.plane(a, c[a] + 1);
+    if (inside) {
+      visit(i0, j0, k0, P);
+      return;
+    }
+  }
   sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
     int64_t ja, jb;
     if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
@@ -484,6 +496,7 @@ inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, c
     t0 = t;
   };
   std::vector<Piece> pieces;
+  pieces.reserve(static_cast<size_t>(bins.start[slab + 1] - bins.start[slab]));
   const int64_t ny = g.n[1], nz = g.n[2];
   for (int64_t e = bins.start[slab]; e < bins.start[slab + 1]; ++e) {
     const int32_t t = bins.items[e];
