@@ -74,41 +74,6 @@ bool check_lines(const double* L, int64_t n, const char* what, std::string* msg)
   return true;
 }
 
-// Positions in strictly increasing line coordinates L[0..n), the same as std::lower_bound
-// (`lower`) and std::upper_bound (`upper`) give: a guess for evenly spaced lines (a grid's)
-// and a short walk to the exact position; unevenly spaced lines fall back to the binary
-// search.
-class LineSearch {
- public:
-  LineSearch(const double* L, int64_t n) : L_(L), n_(n) {
-    if (n >= 2 && L[n - 1] > L[0]) scale_ = static_cast<double>(n - 1) / (L[n - 1] - L[0]);
-  }
-  int64_t lower(double x) const { return find(x, false); }
-  int64_t upper(double x) const { return find(x, true); }
-
- private:
-  int64_t find(double x, bool upper) const {
-    // Whether L[i] lies before the position: L[i] < x (lower), L[i] <= x (upper).
-    auto before = [&](int64_t i) { return upper ? L_[i] <= x : L_[i] < x; };
-    if (scale_ > 0) {
-      const double g = (x - L_[0]) * scale_;
-      int64_t i = g > 0 ? (g < static_cast<double>(n_) ? static_cast<int64_t>(g) : n_) : 0;
-      for (int step = 0; step < 4; ++step) {
-        if (i > 0 && !before(i - 1))
-          --i;
-        else if (i < n_ && before(i))
-          ++i;
-        else
-          return i;  // before(i - 1) and not before(i): the partition point
-      }
-    }
-    return (upper ? std::upper_bound(L_, L_ + n_, x) : std::lower_bound(L_, L_ + n_, x)) - L_;
-  }
-  const double* L_;
-  int64_t n_;
-  double scale_ = 0.0;
-};
-
 // The crossings of faces [begin, end) with every line, appended to `out`.
 void cross_faces(const double* V, const int32_t* F, int64_t begin, int64_t end, int axis,
                  const double* L0, int64_t n0, const double* L1, int64_t n1,
@@ -120,7 +85,7 @@ void cross_faces(const double* V, const int32_t* F, int64_t begin, int64_t end, 
   const double* Lu = u_first ? L0 : L1;
   const double* Lv = u_first ? L1 : L0;
   const int64_t nu = u_first ? n0 : n1, nv = u_first ? n1 : n0;
-  const LineSearch su(Lu, nu), sv(Lv, nv);
+  const voxax::raster::LineSearch su(Lu, nu), sv(Lv, nv);
   for (int64_t f = begin; f < end; ++f) {
     double p[3][2], z[3];
     for (int c = 0; c < 3; ++c) {
