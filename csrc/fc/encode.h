@@ -393,8 +393,9 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
 }
 
 // Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face. The
-// face edges are bucketed by their lower vertex (a counting sort), and each bucket, a
-// vertex's few edges, is scanned for repeats of the upper vertex.
+// face edges are bucketed by their lower vertex (a counting sort, each with its upper
+// vertex beside it), and each bucket, a vertex's few edges, is scanned for repeats of the
+// upper vertex.
 inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
   int64_t nv = 0;
   for (int64_t i = 0; i < 3 * nf; ++i) nv = std::max<int64_t>(nv, int64_t(F[i]) + 1);
@@ -403,17 +404,17 @@ inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
     for (int k = 0; k < 3; ++k) ++start[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3]) + 1];
   for (int64_t v = 0; v < nv; ++v) start[v + 1] += start[v];
   std::vector<int64_t> edge(3 * nf);  // 3 t + k, bucketed by the lower vertex
+  std::vector<int32_t> up(3 * nf);    // the upper vertex of each bucketed edge
   {
     std::vector<int64_t> fill(start.begin(), start.end() - 1);
     for (int64_t t = 0; t < nf; ++t)
-      for (int k = 0; k < 3; ++k)
-        edge[fill[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3])]++] = 3 * t + k;
+      for (int k = 0; k < 3; ++k) {
+        const int32_t a = F[3 * t + k], b = F[3 * t + (k + 1) % 3];
+        const int64_t at = fill[std::min(a, b)]++;
+        edge[at] = 3 * t + k;
+        up[at] = std::max(a, b);
+      }
   }
-  auto upper = [&](int64_t e) {
-    const int64_t t = e / 3;
-    const int k = static_cast<int>(e % 3);
-    return std::max(F[3 * t + k], F[3 * t + (k + 1) % 3]);
-  };
   std::vector<uint8_t> bits(nf, 0);
   auto mark = [&](int64_t e) { bits[e / 3] |= static_cast<uint8_t>(1u << (e % 3)); };
   std::vector<std::pair<int32_t, int64_t>> big;
@@ -421,14 +422,13 @@ inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
     const int64_t b = start[v], e = start[v + 1];
     if (e - b <= 32) {
       for (int64_t i = b; i < e; ++i) {
-        const int32_t u = upper(edge[i]);
         bool shared = false;
-        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && upper(edge[j]) == u;
+        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && up[j] == up[i];
         if (!shared) mark(edge[i]);
       }
     } else {  // a vertex of high degree: sort its edges by the upper vertex
       big.clear();
-      for (int64_t i = b; i < e; ++i) big.emplace_back(upper(edge[i]), edge[i]);
+      for (int64_t i = b; i < e; ++i) big.emplace_back(up[i], edge[i]);
       std::sort(big.begin(), big.end());
       for (size_t i = 0; i < big.size(); ++i) {
         const bool prev = i > 0 && big[i - 1].first == big[i].first;

@@ -139,13 +139,9 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     voxax::bin_faces(
         nullptr, tl, nf,
         [&](int64_t t, int32_t* r) {
-          double p[3][3];
-          voxax::fc::load_tri(V, F, t, p);
-          double lo = p[0][0], hi = p[0][0];
-          for (int c = 1; c < 3; ++c) {
-            lo = std::min(lo, p[c][0]);
-            hi = std::max(hi, p[c][0]);
-          }
+          const double x[3] = {V[3 * int64_t(F[3 * t])], V[3 * int64_t(F[3 * t + 1])],
+                               V[3 * int64_t(F[3 * t + 2])]};
+          const double lo = std::min({x[0], x[1], x[2]}), hi = std::max({x[0], x[1], x[2]});
           int64_t i0, i1;
           if (!g.span(0, lo, hi, &i0, &i1)) return false;
           r[0] = static_cast<int32_t>(i0 / tl.tx);
