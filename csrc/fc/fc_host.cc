@@ -115,7 +115,9 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     std::vector<uint8_t> open_bits;
     if (flags & 16) {
       open_bits = voxax::fc::open_edges(F, nf);
-      prm.open = open_bits.data();
+      // A closed mesh has no boundary lines: the solves need not look for them.
+      const bool any = std::any_of(open_bits.begin(), open_bits.end(), [](uint8_t b) { return b; });
+      prm.open = any ? open_bits.data() : nullptr;
     } else {
       prm.open = open;
     }
