@@ -111,6 +111,26 @@ def test_tokens_are_sorted_and_independent_of_threads():
     assert np.array_equal(a.to_array("fct19"), b.to_array("fct19"))
 
 
+def test_line_search_finds_the_lines_of_unevenly_spaced_coordinates():
+    # The crossings' line search guesses positions from even spacing and walks a few steps,
+    # falling back to bisection: coordinates that crowd in places and thin out in others
+    # must give the crossings that every line gives on its own (where no search is needed),
+    # also for faces whose bounding box ends exactly on a line.
+    m = voxax.data.icosphere(2, radius=0.8)
+    rng = np.random.default_rng(3)
+    l0 = np.unique(np.concatenate([np.linspace(-0.9, -0.5, 40), [-0.31, 0.0, 0.02], np.geomspace(0.05, 0.9, 9), m.vertices[:4, 1]]))
+    l1 = np.unique(np.concatenate([rng.uniform(-0.9, 0.9, 12), m.vertices[:4, 2]]))
+    both = voxax.raster.line_crossings(m, voxax.Grid.cube(4), 0, lines=(l0, l1))
+    counts = both.counts().reshape(len(l0), len(l1))
+    assert counts.sum() > 50
+    for i in range(len(l0)):
+        for j in range(0, len(l1), 3):
+            one = voxax.raster.line_crossings(m, voxax.Grid.cube(4), 0, lines=(l0[i : i + 1], l1[j : j + 1]))
+            line = i * len(l1) + j
+            sl = slice(both.offsets[line], both.offsets[line + 1])
+            assert np.array_equal(both.depth[sl], one.depth) and np.array_equal(both.face[sl], one.face)
+
+
 @pytest.mark.parametrize("name", ["torus", "hand", "bent_bar"])
 def test_edge_signs_are_winding_number_differences(name):
     m = voxax.data.get(name)
