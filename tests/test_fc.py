@@ -118,15 +118,16 @@ def test_line_search_finds_the_lines_of_unevenly_spaced_coordinates():
     # also for faces whose bounding box ends exactly on a line.
     m = voxax.data.icosphere(2, radius=0.8)
     rng = np.random.default_rng(3)
-    l0 = np.unique(
-        np.concatenate([np.linspace(-0.9, -0.5, 40), [-0.31, 0.0, 0.02], np.geomspace(0.05, 0.9, 9), m.vertices[:4, 1]])
-    )
-    l1 = np.unique(np.concatenate([rng.uniform(-0.9, 0.9, 12), m.vertices[:4, 2]]))
+    # Lines through 8 vertices too: each crosses one face of the vertex's fan, where the
+    # vertex ends the face's extent.
+    crowd = [np.linspace(-0.9, -0.5, 40), [-0.31, 0.0, 0.02], np.geomspace(0.05, 0.9, 9)]
+    l0 = np.unique(np.concatenate(crowd + [m.vertices[:8, 1]]))
+    l1 = np.unique(np.concatenate([rng.uniform(-0.9, 0.9, 6), m.vertices[:8, 2]]))
     both = voxax.raster.line_crossings(m, voxax.Grid.cube(4), 0, lines=(l0, l1))
     counts = both.counts().reshape(len(l0), len(l1))
     assert counts.sum() > 50
     for i in range(len(l0)):
-        for j in range(0, len(l1), 3):
+        for j in range(len(l1)):
             one = voxax.raster.line_crossings(m, voxax.Grid.cube(4), 0, lines=(l0[i : i + 1], l1[j : j + 1]))
             line = i * len(l1) + j
             sl = slice(both.offsets[line], both.offsets[line + 1])
