@@ -5,7 +5,7 @@ Measures the nearest-seed pass and a Lloyd step at 20k seeds / ~1M fragments, th
 reference, time), marching cubes at the same vertex count, marching cubes followed by
 pymeshlab's isotropic remeshing, and the time ratio t(40k) / t(20k).
 
-    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--polish 40] [--method lbfgs|lloyd] [--quick]
+    PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--polish 40] [--method lbfgs|lloyd] [--alpha 50] [--quick]
 """
 
 from __future__ import annotations
@@ -156,6 +156,7 @@ def main():
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--polish", type=int, default=40, help="Lloyd steps after L-BFGS")
     ap.add_argument("--method", default="lbfgs")
+    ap.add_argument("--alpha", type=float, default=50.0, help="fragments per seed")
     ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
     args = ap.parse_args()
@@ -165,14 +166,26 @@ def main():
         return
     n = args.seeds
     diag = 2 * HALF * np.sqrt(3)
-    out = {"seeds": n, "cores": os.cpu_count(), "threads": "all", "load_average_start": os.getloadavg()}
+    out = {
+        "seeds": n,
+        "alpha_asked": args.alpha,
+        "cores": os.cpu_count(),
+        "threads": "all",
+        "load_average_start": os.getloadavg(),
+    }
     ref, _ = mc_mesh(300)  # fine reference surface
     out["reference_vertices"] = len(ref.vertices)
 
     # fragments, nearest-seed pass, Lloyd step at n seeds
     t = time.perf_counter()
     mesh, rep = cvt.remesh(
-        octic, n, grid=voxax.Grid.cube(64, half_width=HALF), method=args.method, steps=args.steps, polish=args.polish
+        octic,
+        n,
+        grid=voxax.Grid.cube(64, half_width=HALF),
+        method=args.method,
+        steps=args.steps,
+        polish=args.polish,
+        alpha=args.alpha,
     )
     out["remesh_s"] = time.perf_counter() - t
     out["remesh_times"] = rep["time"]
@@ -241,6 +254,7 @@ def main():
             method=args.method,
             steps=args.steps,
             polish=args.polish,
+            alpha=args.alpha,
         )
         out["remesh_2x_s"] = time.perf_counter() - t
         out["t2x_over_t"] = out["remesh_2x_s"] / out["remesh_s"]

@@ -72,9 +72,17 @@ class CSG:
     fields, grids, other `CSG` nodes). Along every grid line the inside intervals of `a` and
     `b` are merged exactly, so the result is sampled on the same lines as its operands.
 
+    Fields given as `jax.tree_util.Partial(fields.sphere, radius=0.5, center=(0.6, 0.0, 0.0))`
+    (or equinox modules) compile once per function: their float parameters are passed to the
+    compiled sampler as arrays, so many scenes of the same primitives compile nothing new
+    (a closure such as `lambda p: fields.sphere(p, 0.5, c)` compiles once per closure).
+    Operands may reach beyond the grid: which lines start inside each operand is tracked
+    (from the field values, or from the first crossing of a mesh's line).
+
     >>> import voxax
+    >>> from jax.tree_util import Partial
     >>> from voxax import fields
-    >>> scene = voxax.cvt.CSG("difference", fields.sphere, lambda p: fields.sphere(p, 0.5, (0.6, 0, 0)))
+    >>> scene = voxax.cvt.CSG("difference", fields.sphere, Partial(fields.sphere, radius=0.5, center=(0.6, 0.0, 0.0)))
     """
 
     op: str
@@ -552,7 +560,9 @@ def fragments(
           normals (outward for an outward-oriented mesh);
         - a callable `f(points (N, 3)) -> (N,)` (a `voxax.fields` function or any JAX
           function), negative inside: sign changes between consecutive cell centres,
-          refined by bracketed regula falsi (`iterations` steps); normals `grad f / |grad f|`;
+          refined by bracketed regula falsi (`iterations` steps); normals `grad f / |grad f|`.
+          A `jax.tree_util.Partial` or an equinox module compiles once per function (its
+          float parameters are traced); any other callable once per object;
         - a tuple `(values, level)` of samples `(*grid.shape)` at the cell centres: linear
           interpolation of the level crossings (inside below the level, or above with
           `inside="above"`), normals from the interpolated central-difference gradient;
