@@ -195,7 +195,10 @@ def remesh(
       the surface found on the coarser one; for a mesh the default box is the mesh's
       bounding box.
       A `(values, level)` source is sampled on its own grid as given.
-    - `alpha`: fragments per seed (the paper uses > 50).
+    - `alpha`: fragments per seed (the paper uses > 50). The fragments quantise the
+      regions' centroids, and that limits the triangle quality: on the Chebyshev octic at
+      20,000 seeds, `alpha=50` gives a mean quality of 0.864 and `alpha=100` 0.885 (minimum
+      0.41 against 0.55), for about twice the time.
     - `method`, `steps`: the optimiser (`"lbfgs"`, or `"lloyd"`: cheaper steps, one
       nearest-seed pass each against about three, but slower convergence) and its step
       budget.
