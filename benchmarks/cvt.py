@@ -63,7 +63,7 @@ def summary(m, ref, diag):
     }
 
 
-def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
+def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10):
     """`count` random 3-primitive scenes (spheres and boxes; union, intersection, difference)
     meshed at `seeds` seeds: closed 2-manifold?, volume against manifold3d's exact boolean,
     and Hausdorff distance against manifold3d's mesh in units of the CVT mesh's mean edge.
@@ -105,7 +105,9 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0):
             redrawn += 1
             continue  # (nearly) empty scene: draw another
         try:
-            mesh, rep = cvt.remesh(expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40, polish=20)
+            mesh, rep = cvt.remesh(
+                expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40, polish=20, max_rounds=max_rounds
+            )
         except ValueError as err:
             rows.append({"scene": i, "ops": ops, "error": str(err)})
             print(json.dumps(rows[-1], default=str), flush=True)
@@ -159,10 +161,11 @@ def main():
     ap.add_argument("--alpha", type=float, default=50.0, help="fragments per seed")
     ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
+    ap.add_argument("--csg-rounds", type=int, default=30, help="manifold rounds per CSG scene")
     args = ap.parse_args()
     if args.csg:
         print(json.dumps({"load_average_start": os.getloadavg()}), flush=True)
-        print(json.dumps(csg_scenes(args.csg, 2000), indent=1, default=str))
+        print(json.dumps(csg_scenes(args.csg, 2000, max_rounds=args.csg_rounds), indent=1, default=str))
         return
     n = args.seeds
     diag = 2 * HALF * np.sqrt(3)

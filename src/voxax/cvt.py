@@ -175,7 +175,7 @@ def remesh(
     orient: bool = True,
     project: bool = True,
     weighted: bool = True,
-    max_rounds: int = 10,
+    max_rounds: int = 30,
     round_steps: int = 20,
     inside: str = "below",
     key=0,
