@@ -126,6 +126,13 @@ def test_dexel_csg_with_an_operand_beyond_the_grid():
         assert len(fr.points) == len(expect) > 0
         assert np.allclose(fr.points[key(fr.points)], expect[key(expect)])
         assert cvt._open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
+    # a box face through cell centres: lines along y and z run inside the face, where the
+    # normal is perpendicular to them; enter/exit comes from the samples' order
+    c = g.lower[0] + 15.5 * g.spacing[0]
+    fr = cvt.fragments(Partial(fields.box, half_extents=(0.25, 0.3, 0.3), center=(c - 0.25, 0.01, 0.02)), g)
+    along = fr.normals[np.arange(fr.size), fr.axis.astype(np.int64)]
+    assert np.any(np.abs(along) < 1e-6)  # grazing fragments exist
+    assert cvt._open_lines(fr) == 0
 
 
 def test_fragments_bad_input():

@@ -109,9 +109,14 @@ def _line_coords(grid: Grid, axis: int):
 
 
 def _assemble(parts, grid: Grid) -> Fragments:
-    """Concatenates per-axis pieces `(axis, line, depth, normals)` into sorted fragments."""
-    pts, nrm, ax, ln = [], [], [], []
-    for axis, line, depth, normals in parts:
+    """Concatenates per-axis pieces `(axis, line, depth, normals[, exits])` into sorted
+    fragments. `exits` (bool) says where the solid is left along `+axis` (from the samples'
+    order, which stays right where the normal is perpendicular to the line); without it the
+    normal's sign along the axis decides."""
+    pts, nrm, ax, ln, sg = [], [], [], [], []
+    for part in parts:
+        axis, line, depth, normals = part[:4]
+        exits = part[4] if len(part) > 4 else normals[:, axis] > 0
         u, v, cu, cv = _line_coords(grid, axis)
         nv = len(cv)
         p = np.empty((len(line), 3))
@@ -123,11 +128,12 @@ def _assemble(parts, grid: Grid) -> Fragments:
         nrm.append(normals[order])
         ax.append(np.full(len(line), axis, np.int8))
         ln.append(line[order].astype(np.int64))
+        sg.append(np.where(exits[order], 1, -1).astype(np.int8))
     points = np.concatenate(pts) if pts else np.zeros((0, 3))
     normals = np.concatenate(nrm) if nrm else np.zeros((0, 3))
     axis = np.concatenate(ax) if ax else np.zeros(0, np.int8)
     line = np.concatenate(ln) if ln else np.zeros(0, np.int64)
-    sign = np.where(normals[np.arange(len(axis)), axis.astype(np.int64)] > 0, 1, -1).astype(np.int8)
+    sign = np.concatenate(sg) if sg else np.zeros(0, np.int8)
     return Fragments(points, normals, _weights(normals, grid), axis, line, sign, grid)
 
 
@@ -379,10 +385,11 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | N
         p[s : s + n] = np.asarray(pc)[:n]
         g[s : s + n] = np.asarray(gc)[:n]
     parts, at = [], 0
+    exits = flat[f0] < 0  # inside at the lower sample: the line leaves the solid
     for axis, line, _, _ in segs:
         n = len(line)
         if n:
-            parts.append((axis, line, p[at : at + n, axis], _unit(g[at : at + n], "field")))
+            parts.append((axis, line, p[at : at + n, axis], _unit(g[at : at + n], "field"), exits[at : at + n]))
         at += n
     return _assemble(parts, grid)
 
@@ -418,7 +425,7 @@ def _grid_fragments(values, level: float, inside: str, grid: Grid, starts: list 
         fallback = np.zeros_like(g)
         fallback[:, axis] = np.sign(s1 - s0)
         g = np.where((gn > 0)[:, None], g, fallback)
-        parts.append((axis, iu.astype(np.int64) * grid.shape[v] + iv, depth, _unit(g, "grid")))
+        parts.append((axis, iu.astype(np.int64) * grid.shape[v] + iv, depth, _unit(g, "grid"), s0 < 0))
     if not parts:
         raise ValueError("cvt.fragments: the grid has no crossing of the level (empty surface)")
     return _assemble(parts, grid)
