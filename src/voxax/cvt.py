@@ -188,6 +188,8 @@ def remesh(
     - `source`: a closed [`Mesh`][voxax.Mesh], a field `f(points) -> values` (negative
       inside; needs `grid`), a `(values, level)` grid (needs `grid`), a
       [`CSG`][voxax.cvt.CSG] expression (needs `grid`) or ready [`Fragments`][voxax.cvt.Fragments].
+      Fields given as `jax.tree_util.Partial(fields.sphere, radius=r, center=c)` compile
+      once per function, so meshing many scenes of the same primitives compiles nothing new.
     - `n_seeds`: the number of seeds (vertices; seeds whose regions end up without a
       triangle are dropped).
     - `grid`: the box to sample in. Its shape is refined (cubic cells) until there are about
