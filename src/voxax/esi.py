@@ -565,6 +565,19 @@ class _Problem:
             idx = idx[self.hit(k, k2, idx)]
         return idx
 
+    def _known_floaters(self, k: int, others):
+        """`floaters(k, others)` if every ray it needs has been cast, else None."""
+        idx = np.arange(len(self.B[k]))
+        for k2 in others:
+            h = self._hit.get((k, k2))
+            if h is None:
+                return None
+            v = h[idx]
+            if (v < 0).any():
+                return None
+            idx = idx[v == 1]
+        return idx
+
     def prefetch(self, combos, only=None) -> None:
         """Cast the rays that `energy` needs for every combination in `combos` (for the
         floaters of the directions in `only`, default all), in one call per filtering step
@@ -627,7 +640,9 @@ class _Problem:
                 tot_on += float(self.T(k, k, angle)[f].sum())
                 n += len(f)
             else:
-                n += len(self.B[k])
+                # an HF's floaters lie inside the DHF: count those when their rays are known
+                f = self._known_floaters(k, sorted(dhf))
+                n += len(self.B[k]) if f is None else len(f)
         if n == 0:
             return cd_st
         dist = cd_st + tot_d / n
