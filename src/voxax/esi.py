@@ -734,8 +734,8 @@ _CHUNK = 8  # leaves whose rays are cast together
 
 def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
-    HFs from `hk`, by branch and bound on `CD(S, S~) <= E`, counting leaves and full
-    evaluations."""
+    HFs from `hk`, by branch and bound on `CD(S, S~) <= E` (partial choices and leaves)
+    and on `_Problem.floater_bound` (leaves), counting leaves and full evaluations."""
     n_h = len(hk)
     best = [math.inf, math.inf, ()]
     leaves = math.comb(n_h, m) * len(dk)
@@ -873,7 +873,9 @@ def select(
     pixel centres, linear in between). `m = 0, 1, ...` HFs are tried in turn; for each,
     every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree
     whose partial choices are bounded below by `CD(S, S~)` with the best remaining
-    candidates, so most leaves are never evaluated (`ESI.prune_rate`). The search stops
+    candidates, and whose leaves are bounded again from the DHF's own floaters (which
+    need only the DHF's boundary rays) before the HFs' rays are cast, so most leaves are
+    never evaluated (`ESI.prune_rate`). The search stops
     at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
     (default `eps1`: an extra height field must be worth more than the noise of the
     sampled energy).
