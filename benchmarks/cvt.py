@@ -152,6 +152,38 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10):
     }
 
 
+def kernel_times(n: int, alpha: float, repeat: int = 7) -> dict:
+    """Best-of-`repeat` wall time of the nearest-seed pass and of one jitted Lloyd step (FFI
+    search plus segment sums, the fragments as arguments), on the octic's fragments from a
+    cubic grid sized for about `alpha * n` fragments, with `n` area-proportional seeds."""
+    out = {"seeds": n, "cores": os.cpu_count(), "load_average_start": os.getloadavg()}
+    cells = 64
+    for _ in range(3):
+        frag = cvt.fragments(octic, voxax.Grid.cube(cells, half_width=HALF))
+        ratio = frag.size / (alpha * n)
+        if 0.9 <= ratio <= 1.1:
+            break
+        cells = int(round(cells / np.sqrt(ratio)))
+    out["cells"], out["fragments"] = cells, int(frag.size)
+    seeds = cvt.init_seeds(frag, n, 0)
+    voxax.nearest_neighbors(seeds, frag.points, k=1)
+    out["nearest_seed_s"], _ = best_of(lambda: voxax.nearest_neighbors(seeds, frag.points, k=1), repeat)
+    x, w = jax.numpy.asarray(frag.points), jax.numpy.asarray(frag.weights)
+
+    @jax.jit
+    def lloyd(y, x, w):
+        idx = voxax.nearest_neighbors(y, x, k=1)[1][:, 0]
+        mass = jax.ops.segment_sum(w, idx, num_segments=n)
+        first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+        return jax.numpy.where(mass[:, None] > 0, first / jax.numpy.where(mass > 0, mass, 1.0)[:, None], y)
+
+    y = jax.numpy.asarray(seeds)
+    jax.block_until_ready(lloyd(y, x, w))
+    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(lloyd(y, x, w)), repeat)
+    out["load_average_end"] = os.getloadavg()
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20000)
@@ -162,7 +194,15 @@ def main():
     ap.add_argument("--quick", action="store_true", help="skip the 40k run and pymeshlab")
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
     ap.add_argument("--csg-rounds", type=int, default=30, help="manifold rounds per CSG scene")
+    ap.add_argument(
+        "--kernels",
+        action="store_true",
+        help="only the nearest-seed pass and the Lloyd step at --seeds seeds and about alpha x seeds fragments",
+    )
     args = ap.parse_args()
+    if args.kernels:
+        print(json.dumps(kernel_times(args.seeds, args.alpha), indent=1))
+        return
     if args.csg:
         print(json.dumps({"load_average_start": os.getloadavg()}), flush=True)
         print(json.dumps(csg_scenes(args.csg, 2000, max_rounds=args.csg_rounds), indent=1, default=str))
