@@ -125,7 +125,8 @@ def _siren(in_size, out_size, width, depth, rng, dtype) -> Siren:
 
 def _init(lod, hf_axes, *, key, frames, center=(0.0, 0.0, 0.0), scale=1.0, dtype=None) -> NESI:
     lod = _check_lod(lod)
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().tolist())
+    raw = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    rng = np.random.default_rng(np.asarray(raw).ravel().tolist())
     dhf = _siren(2, 2, DHF_WIDTHS[lod - 1], _DEPTH, rng, dtype)
     hs, ms = [], []
     for _ in hf_axes:
@@ -495,8 +496,8 @@ def _sin32(x):
     """`sin` for float32 in one fused pass: reduction by pi in three parts (exact products
     for |x| < 2^15), a degree-11 odd polynomial on [-pi/2, pi/2] and the sign of the
     half-turn; absolute error below 2e-7 for |x| <= 100 (the sine layers' range), about
-    4x cheaper on CPU than XLA's `sin`. Its derivative is [`_cos32`][voxax.nesi._cos32]
-    (so training differentiates the sine, not the polynomial)."""
+    4x cheaper on CPU than XLA's `sin`. Its derivative is `_cos32` (so training
+    differentiates the sine, not the polynomial)."""
     return _sin32_poly(x)
 
 
