@@ -11,6 +11,8 @@ Cases (run from the repository root, `PYTHONPATH=src` when voxax is not installe
   the ESI mesh, of the DHF alone and of the bandsaw cut shape
   (`voxax.fabricate.cut_solid`, the three axis silhouettes extruded and intersected), next
   to the shape's self-Chamfer.
+- `levels`: the selection of `select`, level by level (preparation, then m = 0, 1, ...
+  HFs, each timed in wall and CPU seconds), without the meshing.
 - `nesi`: `voxax.nesi.fit` of the torus (DHF along z) and of the mug (its selected axes)
   at levels of detail 1 and 2, Chamfer of the neural mesh against the ESI mesh's, and
   level-4 occupancy throughput.
@@ -113,6 +115,38 @@ def bench_select(shapes, max_hf, n_dhf=50, n_hf=80):
             f"volume ratio to the shape: ESI {full.signed_volume() / m.signed_volume():.3f}, "
             f"bandsaw {cut.signed_volume() / m.signed_volume():.3f}"
         )
+
+
+def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
+    """The selection of `bench_select`, level by level: the preparation, then the branch and
+    bound for m = 0, 1, ... HFs (with `select`'s stopping rule), each with its wall and CPU
+    time, so that a run stopped early still reports the levels it finished."""
+    from _esi_shapes import mug
+
+    cases = {"knot100k": lambda: data.large(100_000), "mug": lambda: mug(64)}
+    eps1, eps2, angle, tol = 1e-4, 1e-3, 85.0, 1e-4
+    for name in shapes:
+        m = cases[name]()
+        cdhf, chf = esi.candidates(n_dhf, n_hf)
+        t0, c0 = time.perf_counter(), time.process_time()
+        prob, dk, hk = esi._prepare("levels", m, None, cdhf, chf, 128, 10_000, 0, None)
+        print(
+            f"levels {name}: preparation {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU "
+            f"({len(prob.vec)} signed directions)"
+        )
+        chosen = None
+        for level in range(max_hf + 1):
+            t1, c1 = time.perf_counter(), time.process_time()
+            best, leaves, evals = esi._search(prob, dk, hk, level, eps1, eps2, angle, False)
+            print(
+                f"  m = {level}: E {best[0]:.6f}, DHF {best[1]}, HFs {best[2]}; {evals} of {leaves} leaves evaluated; "
+                f"{time.perf_counter() - t1:.1f} s wall, {time.process_time() - c1:.1f} s CPU; "
+                f"total {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU"
+            )
+            if chosen is None or best[0] < chosen - tol:
+                chosen = best[0]
+            else:
+                break
 
 
 def _load():
@@ -298,6 +332,8 @@ def main(argv=None) -> int:
         bench_depth()
     if "select" in args.cases:
         bench_select(args.shapes, args.max_hf, args.n_dhf, args.n_hf)
+    if "levels" in args.cases:
+        bench_levels(args.shapes, args.max_hf, args.n_dhf, args.n_hf)
     if "nesi" in args.cases:
         bench_nesi(args.steps, args.lods)
     if "siren" in args.cases:

@@ -189,6 +189,8 @@ def main(argv=None):
             )
         print("\n".join(lines))
         return 0
+    with open("/proc/loadavg") as fh:
+        load_start = fh.read().split()[:3]
     rows = []
     for faces in args.faces:
         for n in args.sizes:
@@ -216,7 +218,7 @@ def main(argv=None):
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     table = [
-        "| faces | grid | path | tokens | encode | decode | total (CPU) | us / token | peak memory | Hausdorff |",
+        "| faces | grid | path | tokens | encode | decode | total (CPU) | us / token (CPU) | peak memory | Hausdorff |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -225,8 +227,8 @@ def main(argv=None):
             continue
         name = "FC encode + decode" if r["kind"] == "fc" else "voxelize + isosurface"
         tok = f"{r['tokens']:,}" if r["tokens"] else "-"
-        per = f"{r['us_per_token']:.2f}" if r.get("us_per_token") else "-"
         cpu = r["encode_cpu_s"] + r["decode_cpu_s"]
+        per = f"{r['us_per_token']:.2f} ({1e6 * cpu / r['tokens']:.2f})" if r.get("us_per_token") else "-"
         table.append(
             f"| {r['faces']:,} | {r['n']}^3 | {name} | {tok} | {r['encode_s']:.2f} s | {r['decode_s']:.2f} s | "
             f"{r['total_s']:.2f} s ({cpu:.2f} s) | {per} | {r['peak_gib']:.2f} GiB | {r['hausdorff_cells']:.3f} h |"
@@ -240,7 +242,8 @@ def main(argv=None):
         cmd = "python benchmarks/fc.py " + " ".join(argv if argv is not None else sys.argv[1:])
         start, end = "<!-- fc-results:start -->", "<!-- fc-results:end -->"
         body = (
-            f"{start}\n\nMachine: {machine}; load average at the end {', '.join(load)} (the machine is shared, "
+            f"{start}\n\nMachine: {machine}; load average at the start {', '.join(load_start)}, at the end "
+            f"{', '.join(load)} (the machine is shared, "
             f"so wall times are inflated; the CPU column is the process CPU time). Command: `{cmd}`.\n\n"
             f"{text}\n\n{end}"
         )

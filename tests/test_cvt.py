@@ -105,6 +105,36 @@ def test_dexel_csg_against_the_fields():
             assert np.all(np.sum(fr.normals[on_b] * (fr.points[on_b] - center), axis=1) < 0)
 
 
+def test_dexel_csg_with_an_operand_beyond_the_grid():
+    # a box reaching far beyond the grid: lines across it start inside it
+    from jax.tree_util import Partial
+
+    g = voxax.Grid.cube(24, half_width=0.5)
+    a = Partial(fields.sphere, radius=0.4, center=(0.0, 0.0, 0.0))
+    b = Partial(fields.box, half_extents=(2.0, 2.0, 2.0), center=(2.2, 0.0, 0.0))
+    pa = cvt.fragments(a, g)
+    pb = cvt.fragments(b, g)
+    for op, keep_a, keep_b in [
+        ("intersection", lambda fb: fb < 0, lambda fa: fa < 0),
+        ("difference", lambda fb: fb > 0, lambda fa: fa < 0),
+    ]:
+        fr = cvt.fragments(cvt.CSG(op, a, b), g)
+        expect = np.concatenate(
+            [pa.points[keep_a(np.asarray(b(pa.points)))], pb.points[keep_b(np.asarray(a(pb.points)))]]
+        )
+        key = lambda p: np.lexsort(p.T[::-1])  # noqa: E731
+        assert len(fr.points) == len(expect) > 0
+        assert np.allclose(fr.points[key(fr.points)], expect[key(expect)])
+        assert cvt._open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
+    # a box face through cell centres: lines along y and z run inside the face, where the
+    # normal is perpendicular to them; enter/exit comes from the samples' order
+    c = g.lower[0] + 15.5 * g.spacing[0]
+    fr = cvt.fragments(Partial(fields.box, half_extents=(0.25, 0.3, 0.3), center=(c - 0.25, 0.01, 0.02)), g)
+    along = fr.normals[np.arange(fr.size), fr.axis.astype(np.int64)]
+    assert np.any(np.abs(along) < 1e-6)  # grazing fragments exist
+    assert cvt._open_lines(fr) == 0
+
+
 def test_fragments_bad_input():
     g = voxax.Grid.cube(16)
     with pytest.raises(ValueError, match="empty surface"):

@@ -209,3 +209,27 @@ def test_select_and_occupancy_reject_bad_input():
         esi.occupancy(((0, 0, 1), ()), cube, np.zeros((2, 2)))
     with pytest.raises(TypeError):
         esi.occupancy("x", cube, np.zeros((2, 3)))
+
+
+def test_selection_rays_cached_per_sample_and_the_floater_bound_holds():
+    m = mug(24)
+    cd, ch = esi.candidates(3, 4)
+    prob, dk, hk = esi._prepare("t", m, None, cd, ch, 32, 400, 0, None)
+    rng = np.random.default_rng(0)
+    combos = [[kp, km] + [hk[j] for j in rng.choice(len(hk), size=s, replace=False)] for kp, km in dk for s in (1, 2)]
+    prob.prefetch(combos[:3])
+    for ks in combos:
+        kp, km = ks[:2]
+        E = prob.energy(ks, 1e-4, 1e-3)
+        cd_st = prob.cd_st(ks)
+        assert prob.floater_bound((kp, km), ks, cd_st, 1e-4, 1e-3, 85.0) <= E["E"] * (1 + 1e-12)
+        # the floaters: the boundary samples whose rays along every other direction hit S,
+        # against rays cast here one direction at a time on every sample
+        for k in ks:
+            inside = np.ones(len(prob.B[k]), bool)
+            for k2 in ks:
+                if k2 != k:
+                    inside &= voxax.any_hits(
+                        prob.mesh, prob.B[k], np.broadcast_to(prob.vec[k2], prob.B[k].shape), t_min=prob.eps
+                    )
+            assert np.array_equal(prob.floaters(k, sorted(k2 for k2 in ks if k2 != k)), np.flatnonzero(inside))

@@ -26,9 +26,9 @@
 #pragma once
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <ctime>
 #include <numeric>
 #include <utility>
 #include <vector>
@@ -85,6 +85,14 @@ struct Rows {
   size_t size() const { return index.size(); }
 };
 
+// CPU time of the calling thread in seconds (for the stage times of VOXAX_FC_PROFILE, which
+// should not count the time other processes take on a shared machine).
+inline double thread_seconds() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
 inline void load_tri(const double* V, const int32_t* F, int64_t t, double p[3][3]) {
   for (int c = 0; c < 3; ++c)
     for (int a = 0; a < 3; ++a) p[c][a] = V[3 * int64_t(F[3 * t + c]) + a];
@@ -125,6 +133,18 @@ inline void clip_triangle(const GridSpec& g, const double p[3][3], int64_t ia, i
   i0 = std::max(i0, ia);
   i1 = std::min(i1, ib - 1);
   if (i0 > i1) return;
+  // A triangle inside one cell (below its upper planes) is its own piece: the sweeps would
+  // pass it on unsplit, so it is visited as it is (most triangles of a fine mesh).
+  if (i0 == i1 && j0 == j1 && k0 == k1) {
+    const int64_t c[3] = {i0, j0, k0};
+    bool inside = true;
+    for (int a = 0; a < 3 && inside; ++a)
+      inside = P.min(a) >= g.plane(a, c[a]) && P.max(a) < g.plane(a, c[a] + 1);
+    if (inside) {
+      visit(i0, j0, k0, P);
+      return;
+    }
+  }
   sweep<3>(g, P, 0, i0, i1, [&](int64_t i, const Poly<3>& Px) {
     int64_t ja, jb;
     if (!g.span(1, Px.min(1), Px.max(1), &ja, &jb)) return;
@@ -373,8 +393,9 @@ inline void solve_row(const GridSpec& g, const Params& prm, const double* V, con
 }
 
 // Per face, bit k set when its edge k (corners k, k + 1) belongs to no other face. The
-// face edges are bucketed by their lower vertex (a counting sort), and each bucket, a
-// vertex's few edges, is scanned for repeats of the upper vertex.
+// face edges are bucketed by their lower vertex (a counting sort, each with its upper
+// vertex beside it), and each bucket, a vertex's few edges, is scanned for repeats of the
+// upper vertex.
 inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
   int64_t nv = 0;
   for (int64_t i = 0; i < 3 * nf; ++i) nv = std::max<int64_t>(nv, int64_t(F[i]) + 1);
@@ -383,17 +404,17 @@ inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
     for (int k = 0; k < 3; ++k) ++start[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3]) + 1];
   for (int64_t v = 0; v < nv; ++v) start[v + 1] += start[v];
   std::vector<int64_t> edge(3 * nf);  // 3 t + k, bucketed by the lower vertex
+  std::vector<int32_t> up(3 * nf);    // the upper vertex of each bucketed edge
   {
     std::vector<int64_t> fill(start.begin(), start.end() - 1);
     for (int64_t t = 0; t < nf; ++t)
-      for (int k = 0; k < 3; ++k)
-        edge[fill[std::min(F[3 * t + k], F[3 * t + (k + 1) % 3])]++] = 3 * t + k;
+      for (int k = 0; k < 3; ++k) {
+        const int32_t a = F[3 * t + k], b = F[3 * t + (k + 1) % 3];
+        const int64_t at = fill[std::min(a, b)]++;
+        edge[at] = 3 * t + k;
+        up[at] = std::max(a, b);
+      }
   }
-  auto upper = [&](int64_t e) {
-    const int64_t t = e / 3;
-    const int k = static_cast<int>(e % 3);
-    return std::max(F[3 * t + k], F[3 * t + (k + 1) % 3]);
-  };
   std::vector<uint8_t> bits(nf, 0);
   auto mark = [&](int64_t e) { bits[e / 3] |= static_cast<uint8_t>(1u << (e % 3)); };
   std::vector<std::pair<int32_t, int64_t>> big;
@@ -401,14 +422,13 @@ inline std::vector<uint8_t> open_edges(const int32_t* F, int64_t nf) {
     const int64_t b = start[v], e = start[v + 1];
     if (e - b <= 32) {
       for (int64_t i = b; i < e; ++i) {
-        const int32_t u = upper(edge[i]);
         bool shared = false;
-        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && upper(edge[j]) == u;
+        for (int64_t j = b; j < e && !shared; ++j) shared = j != i && up[j] == up[i];
         if (!shared) mark(edge[i]);
       }
     } else {  // a vertex of high degree: sort its edges by the upper vertex
       big.clear();
-      for (int64_t i = b; i < e; ++i) big.emplace_back(upper(edge[i]), edge[i]);
+      for (int64_t i = b; i < e; ++i) big.emplace_back(up[i], edge[i]);
       std::sort(big.begin(), big.end());
       for (size_t i = 0; i < big.size(); ++i) {
         const bool prev = i > 0 && big[i - 1].first == big[i].first;
@@ -475,15 +495,15 @@ inline void radix_sort_high(std::vector<uint64_t>* keys, int bits) {
 inline void encode_slab(const GridSpec& g, const Params& prm, const double* V, const int32_t* F,
                         const Bins& bins, int64_t slab, int64_t ia, int64_t ib, bool pieces_only,
                         Rows* out, double* seconds = nullptr) {
-  using Clock = std::chrono::steady_clock;
-  auto t0 = Clock::now();
+  double t0 = seconds ? thread_seconds() : 0.0;
   auto lap = [&](int k) {
     if (!seconds) return;
-    const auto t = Clock::now();
-    seconds[k] += std::chrono::duration<double>(t - t0).count();
+    const double t = thread_seconds();
+    seconds[k] += t - t0;
     t0 = t;
   };
   std::vector<Piece> pieces;
+  pieces.reserve(static_cast<size_t>(bins.start[slab + 1] - bins.start[slab]));
   const int64_t ny = g.n[1], nz = g.n[2];
   for (int64_t e = bins.start[slab]; e < bins.start[slab + 1]; ++e) {
     const int32_t t = bins.items[e];

@@ -15,6 +15,7 @@
 //                 area (K,), clamped (K,) i32, face_count (K,) i64, faces (sum,) i32)
 //   voxax_fc_pieces(handle, cell (P,) i64, face (P,) i32, area (P,), centroid (P, 3))
 //   voxax_fc_free(handle)
+//   voxax_fc_decode, voxax_fc_node_side, voxax_fc_signs: see below
 
 #include <algorithm>
 #include <chrono>
@@ -23,8 +24,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <exception>
-#include <new>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -55,7 +55,14 @@ void copy_parts(const Encoded& e, std::vector<T> Rows::* member, T* out) {
   for (const auto& p : e.parts) out = std::copy((p.*member).begin(), (p.*member).end(), out);
 }
 
-using voxax::host_fail;
+// Stores the message of a rejected input for `host_guarded` and returns false.
+struct Reject {
+  std::string* msg;
+  bool operator()(std::string m) const {
+    *msg = std::move(m);
+    return false;
+  }
+};
 
 }  // namespace
 
@@ -65,45 +72,42 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
                                  int64_t njoined, int32_t threads, void** handle, int64_t* sizes,
                                  char* err, int64_t errlen) {
   if (handle) *handle = nullptr;
-  const auto t_start = std::chrono::steady_clock::now();
+  const double t_start = voxax::fc::thread_seconds();
   const bool profile = std::getenv("VOXAX_FC_PROFILE") != nullptr;
-  auto since = [&]() {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-  };
-  try {
+  auto since = [&]() { return voxax::fc::thread_seconds() - t_start; };
+  return voxax::host_guarded("fc.encode", err, errlen, [&](std::string* msg) {
+    const Reject fail{msg};
     if (!handle || !sizes || !box || !shape || !params)
-      return host_fail(err, errlen, "voxax: fc.encode got a null argument");
+      return fail("voxax: fc.encode got a null argument");
     if (nv < 0 || nf < 0 || nv > INT32_MAX || nf > INT32_MAX)
-      return host_fail(err, errlen, "voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
-    if ((nv > 0 && !V) || (nf > 0 && !F))
-      return host_fail(err, errlen, "voxax: fc.encode got a null mesh array");
+      return fail("voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
+    if ((nv > 0 && !V) || (nf > 0 && !F)) return fail("voxax: fc.encode got a null mesh array");
     for (int64_t i = 0; i < 3 * nv; ++i)
       if (!std::isfinite(V[i]) || std::fabs(V[i]) > voxax::kMaxAbsCoordinate)
-        return host_fail(err, errlen,
-                         "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
-                         "(row " +
-                             std::to_string(i / 3) + ")");
+        return fail(
+            "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
+            "(row " +
+            std::to_string(i / 3) + ")");
     for (int64_t i = 0; i < 3 * nf; ++i)
       if (F[i] < 0 || F[i] >= nv)
-        return host_fail(err, errlen,
-                         "voxax: fc.encode: face index " + std::to_string(F[i]) +
-                             " is out of range [0, " + std::to_string(nv) + ") (face " +
-                             std::to_string(i / 3) + ")");
+        return fail("voxax: fc.encode: face index " + std::to_string(F[i]) +
+                    " is out of range [0, " + std::to_string(nv) + ") (face " +
+                    std::to_string(i / 3) + ")");
     voxax::GridSpec g;
     const voxax::ffi::Error ge = voxax::check_grid(3, box[0], box[3], shape[0], box[1], box[4],
                                                    shape[1], box[2], box[5], shape[2], 0, 0, &g);
-    if (ge.failure()) return host_fail(err, errlen, ge.message());
+    if (ge.failure()) return fail(ge.message());
     voxax::fc::Params prm;
     prm.lambda_n = params[0];
     prm.lambda_d = params[1];
     prm.power = params[2];
     if (!(prm.lambda_n >= 0) || !std::isfinite(prm.lambda_n))
-      return host_fail(err, errlen, "voxax: fc.encode: lambda_n must be >= 0 and finite");
+      return fail("voxax: fc.encode: lambda_n must be >= 0 and finite");
     if (!(prm.lambda_d > 0) || !std::isfinite(prm.lambda_d))
-      return host_fail(err, errlen, "voxax: fc.encode: lambda_d must be > 0 and finite");
+      return fail("voxax: fc.encode: lambda_d must be > 0 and finite");
     if (!(prm.power >= 0) || !(prm.power <= 16))
-      return host_fail(err, errlen, "voxax: fc.encode: weight_power must lie in [0, 16]");
-    if (flags < 0 || flags > 31) return host_fail(err, errlen, "voxax: fc.encode: bad flags");
+      return fail("voxax: fc.encode: weight_power must lie in [0, 16]");
+    if (flags < 0 || flags > 31) return fail("voxax: fc.encode: bad flags");
     prm.clamp = (flags & 1) != 0;
     prm.components = (flags & 2) != 0;
     prm.faces = (flags & 4) != 0;
@@ -111,15 +115,17 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     std::vector<uint8_t> open_bits;
     if (flags & 16) {
       open_bits = voxax::fc::open_edges(F, nf);
-      prm.open = open_bits.data();
+      // A closed mesh has no boundary lines: the solves need not look for them.
+      const bool any = std::any_of(open_bits.begin(), open_bits.end(), [](uint8_t b) { return b; });
+      prm.open = any ? open_bits.data() : nullptr;
     } else {
       prm.open = open;
     }
     if (njoined < 0 || (njoined > 0 && !joined))
-      return host_fail(err, errlen, "voxax: fc.encode got a bad list of joined cells");
+      return fail("voxax: fc.encode got a bad list of joined cells");
     for (int64_t r = 1; r < njoined; ++r)
       if (joined[r] <= joined[r - 1])
-        return host_fail(err, errlen, "voxax: fc.encode: joined cells must be sorted and unique");
+        return fail("voxax: fc.encode: joined cells must be sorted and unique");
     prm.joined = joined;
     prm.njoined = njoined;
     const bool pieces_only = (flags & 8) != 0;
@@ -135,13 +141,9 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     voxax::bin_faces(
         nullptr, tl, nf,
         [&](int64_t t, int32_t* r) {
-          double p[3][3];
-          voxax::fc::load_tri(V, F, t, p);
-          double lo = p[0][0], hi = p[0][0];
-          for (int c = 1; c < 3; ++c) {
-            lo = std::min(lo, p[c][0]);
-            hi = std::max(hi, p[c][0]);
-          }
+          const double x[3] = {V[3 * int64_t(F[3 * t])], V[3 * int64_t(F[3 * t + 1])],
+                               V[3 * int64_t(F[3 * t + 2])]};
+          const double lo = std::min({x[0], x[1], x[2]}), hi = std::max({x[0], x[1], x[2]});
           int64_t i0, i1;
           if (!g.span(0, lo, hi, &i0, &i1)) return false;
           r[0] = static_cast<int32_t>(i0 / tl.tx);
@@ -167,13 +169,13 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
       for (int64_t s = 0; s < slabs; ++s)
         for (int k = 0; k < 3; ++k) sum[k] += seconds[3 * s + k];
       std::fprintf(stderr,
-                   "fc.encode: slabs %.3f s wall; CPU s: clip %.3f, sort %.3f, solve %.3f\n",
+                   "fc.encode: slabs %.3f s wall; thread CPU s: clip %.3f, sort %.3f, solve %.3f\n",
                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t_bins).count(),
                    sum[0], sum[1], sum[2]);
     }
     // The slabs' rows stay where they are: the copy functions concatenate them in slab
     // order.
-    auto* rows = new Encoded();
+    auto rows = std::make_unique<Encoded>();
     rows->parts.swap(parts);
     int64_t k = 0, nfaces = 0, npieces = 0;
     for (const auto& p : rows->parts) {
@@ -182,20 +184,15 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
       npieces += static_cast<int64_t>(p.p_cell.size());
     }
     if (profile)
-      std::fprintf(stderr, "fc.encode: checks %.3f s, open edges + bins %.3f s, total %.3f s\n",
+      std::fprintf(stderr,
+                   "fc.encode: thread CPU s: checks %.3f, open edges + bins %.3f, total %.3f\n",
                    t_checked, t_binned - t_checked, since());
     sizes[0] = k;
     sizes[1] = nfaces;
     sizes[2] = npieces;
-    *handle = rows;
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return host_fail(err, errlen, "voxax: out of memory in fc.encode");
-  } catch (const std::exception& e) {
-    return host_fail(err, errlen, std::string("voxax: fc.encode error: ") + e.what());
-  } catch (...) {
-    return host_fail(err, errlen, "voxax: unknown error in fc.encode");
-  }
+    *handle = rows.release();
+    return true;
+  });
 }
 
 VOXAX_EXPORT void voxax_fc_rows(void* handle, int64_t* index, int32_t* component, double* offset,
@@ -235,10 +232,11 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
                                  int32_t threads, void** handle, int64_t* count, char* err,
                                  int64_t errlen) {
   if (handle) *handle = nullptr;
-  try {
+  return voxax::host_guarded("fc.decode", err, errlen, [&](std::string* msg) {
+    const Reject fail{msg};
     if (!handle || !count || !shape || K < 0 || (K > 0 && (!index || !P || !N || !S)))
-      return host_fail(err, errlen, "voxax: fc.decode got a null argument");
-    if (split < 0 || split > 2) return host_fail(err, errlen, "voxax: fc.decode: bad split mode");
+      return fail("voxax: fc.decode got a null argument");
+    if (split < 0 || split > 2) return fail("voxax: fc.decode: bad split mode");
     voxax::fc::DecodeInput in;
     in.K = K;
     in.index = index;
@@ -248,52 +246,39 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
     in.split = split;
     for (int a = 0; a < 3; ++a) {
       if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
-        return host_fail(err, errlen, "voxax: fc.decode: bad grid shape");
+        return fail("voxax: fc.decode: bad grid shape");
       in.n[a] = shape[a];
     }
     const double cells = double(in.n[0]) * double(in.n[1]) * double(in.n[2]);
-    if (!(cells < 9.2e18)) return host_fail(err, errlen, "voxax: fc.decode: the grid is too large");
+    if (!(cells < 9.2e18)) return fail("voxax: fc.decode: the grid is too large");
     const int64_t total = in.n[0] * in.n[1] * in.n[2];
     for (int64_t r = 0; r < K; ++r) {
       if (index[r] < 0 || index[r] >= total)
-        return host_fail(
-            err, errlen,
-            "voxax: fc.decode: cell index out of range (row " + std::to_string(r) + ")");
+        return fail("voxax: fc.decode: cell index out of range (row " + std::to_string(r) + ")");
       if (r > 0 && index[r] < index[r - 1])
-        return host_fail(err, errlen, "voxax: fc.decode: rows must be sorted by cell index");
+        return fail("voxax: fc.decode: rows must be sorted by cell index");
     }
     for (int64_t i = 0; i < 3 * K; ++i)
       if (!std::isfinite(P[i]) || !std::isfinite(N[i]))
-        return host_fail(err, errlen, "voxax: fc.decode: anchors and normals must be finite");
+        return fail("voxax: fc.decode: anchors and normals must be finite");
     constexpr int64_t kChunk = 4096;
     const int64_t chunks = (K + kChunk - 1) / kChunk;
     std::vector<std::vector<int64_t>> parts(chunks);
     voxax::spatial::parallel_chunks(K, kChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
       voxax::fc::decode_rows(in, b, e, &parts[c]);
     });
-    auto* out = new std::vector<int64_t>();
-    try {
-      size_t n = 0;
-      for (const auto& p : parts) n += p.size();
-      out->reserve(n);
-      for (auto& p : parts) {
-        out->insert(out->end(), p.begin(), p.end());
-        std::vector<int64_t>().swap(p);
-      }
-    } catch (...) {
-      delete out;
-      throw;
+    auto out = std::make_unique<std::vector<int64_t>>();
+    size_t n = 0;
+    for (const auto& p : parts) n += p.size();
+    out->reserve(n);
+    for (auto& p : parts) {
+      out->insert(out->end(), p.begin(), p.end());
+      std::vector<int64_t>().swap(p);
     }
     *count = static_cast<int64_t>(out->size() / 3);
-    *handle = out;
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return host_fail(err, errlen, "voxax: out of memory in fc.decode");
-  } catch (const std::exception& e) {
-    return host_fail(err, errlen, std::string("voxax: fc.decode error: ") + e.what());
-  } catch (...) {
-    return host_fail(err, errlen, "voxax: unknown error in fc.decode");
-  }
+    *handle = out.release();
+    return true;
+  });
 }
 
 VOXAX_EXPORT void voxax_fc_triangles(void* handle, int64_t* out) {
@@ -313,17 +298,17 @@ VOXAX_EXPORT void voxax_fc_free_triangles(void* handle) {
 VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* F, int64_t nf,
                                     int64_t m, const int32_t* faces, const double* nodes,
                                     const int32_t* axis, int8_t* out, char* err, int64_t errlen) {
-  try {
+  return voxax::host_guarded("fc.node_side", err, errlen, [&](std::string* msg) {
+    const Reject fail{msg};
     if (nv < 0 || nf < 0 || m < 0 || (m > 0 && (!faces || !nodes || !axis || !out)) ||
         (nf > 0 && !F) || (nv > 0 && !V))
-      return host_fail(err, errlen, "voxax: fc.node_side got a bad argument");
+      return fail("voxax: fc.node_side got a bad argument");
     for (int64_t i = 0; i < m; ++i) {
       if (faces[i] < 0 || faces[i] >= nf || axis[i] < 0 || axis[i] > 2)
-        return host_fail(err, errlen, "voxax: fc.node_side: face or axis out of range");
+        return fail("voxax: fc.node_side: face or axis out of range");
       for (int c = 0; c < 3; ++c) {
         const int32_t v = F[3 * int64_t(faces[i]) + c];
-        if (v < 0 || v >= nv)
-          return host_fail(err, errlen, "voxax: fc.node_side: vertex out of range");
+        if (v < 0 || v >= nv) return fail("voxax: fc.node_side: vertex out of range");
       }
     }
     for (int64_t i = 0; i < m; ++i) {
@@ -347,10 +332,8 @@ VOXAX_EXPORT int voxax_fc_node_side(const double* V, int64_t nv, const int32_t* 
       // The crossing lies below the node (t* < d_a) when n . (d - a) and n_a agree.
       out[i] = static_cast<int8_t>(s * na > 0 ? -1 : (s * na < 0 ? 1 : 0));
     }
-    return 0;
-  } catch (...) {
-    return host_fail(err, errlen, "voxax: unknown error in fc.node_side");
-  }
+    return true;
+  });
 }
 
 // voxax_fc_signs(index (K,) i64 sorted, K, shape[3], edge (C,) i64, sign (C,) i8, C, threads,
@@ -364,24 +347,24 @@ VOXAX_EXPORT int voxax_fc_signs(const int64_t* index, int64_t K, const int64_t* 
                                 int8_t* S, void** handle, int64_t* count, char* err,
                                 int64_t errlen) {
   if (handle) *handle = nullptr;
-  try {
+  return voxax::host_guarded("fc.signs", err, errlen, [&](std::string* msg) {
+    const Reject fail{msg};
     if (!handle || !count || !shape || K < 0 || C < 0 || (K > 0 && (!index || !S)) ||
         (C > 0 && (!edge || !sign)))
-      return host_fail(err, errlen, "voxax: fc.signs got a null argument");
+      return fail("voxax: fc.signs got a null argument");
     int64_t n[3];
     for (int a = 0; a < 3; ++a) {
       if (shape[a] < 1 || shape[a] > voxax::kMaxCellsPerAxis)
-        return host_fail(err, errlen, "voxax: fc.signs: bad grid shape");
+        return fail("voxax: fc.signs: bad grid shape");
       n[a] = shape[a];
     }
     const int64_t edges = 3 * (n[0] + 1) * (n[1] + 1) * (n[2] + 1);
     for (int64_t c = 0; c < C; ++c)
-      if (edge[c] < 0 || edge[c] >= edges)
-        return host_fail(err, errlen, "voxax: fc.signs: edge id out of range");
+      if (edge[c] < 0 || edge[c] >= edges) return fail("voxax: fc.signs: edge id out of range");
     const int64_t total = n[0] * n[1] * n[2];
     for (int64_t r = 0; r < K; ++r)
       if (index[r] < 0 || index[r] >= total || (r > 0 && index[r] < index[r - 1]))
-        return host_fail(err, errlen, "voxax: fc.signs: rows must be sorted cell indices");
+        return fail("voxax: fc.signs: rows must be sorted cell indices");
     const voxax::fc::EdgeNet en = voxax::fc::net_flux(edge, sign, C);
     const int64_t E = static_cast<int64_t>(en.edge.size());
     constexpr int64_t kChunk = 1 << 16;
@@ -397,25 +380,14 @@ VOXAX_EXPORT int voxax_fc_signs(const int64_t* index, int64_t K, const int64_t* 
         src.push_back(p[i + 1]);
       }
     std::sort(miss.begin(), miss.end());
-    auto* out = new std::vector<int64_t>();
-    try {
-      for (size_t i = 0; i < miss.size(); ++i) {
-        if (i > 0 && miss[i].first == miss[i - 1].first) continue;
-        out->push_back(miss[i].first);
-        out->push_back(src[miss[i].second]);
-      }
-    } catch (...) {
-      delete out;
-      throw;
+    auto out = std::make_unique<std::vector<int64_t>>();
+    for (size_t i = 0; i < miss.size(); ++i) {
+      if (i > 0 && miss[i].first == miss[i - 1].first) continue;
+      out->push_back(miss[i].first);
+      out->push_back(src[miss[i].second]);
     }
     *count = static_cast<int64_t>(out->size() / 2);
-    *handle = out;
-    return 0;
-  } catch (const std::bad_alloc&) {
-    return host_fail(err, errlen, "voxax: out of memory in fc.signs");
-  } catch (const std::exception& e) {
-    return host_fail(err, errlen, std::string("voxax: fc.signs error: ") + e.what());
-  } catch (...) {
-    return host_fail(err, errlen, "voxax: unknown error in fc.signs");
-  }
+    *handle = out.release();
+    return true;
+  });
 }

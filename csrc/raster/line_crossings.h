@@ -37,6 +37,41 @@ inline int orient_perturbed(const double* a, const double* b, const double* q, b
   return du != 0 ? du : -dv;  // 0 only when a == b: a triangle of zero projected area
 }
 
+// Positions in strictly increasing line coordinates L[0..n), the same as std::lower_bound
+// (`lower`) and std::upper_bound (`upper`) give: a guess for evenly spaced lines (a grid's)
+// and a short walk to the exact position; unevenly spaced lines fall back to the binary
+// search.
+class LineSearch {
+ public:
+  LineSearch(const double* L, int64_t n) : L_(L), n_(n) {
+    if (n >= 2 && L[n - 1] > L[0]) scale_ = static_cast<double>(n - 1) / (L[n - 1] - L[0]);
+  }
+  int64_t lower(double x) const { return find(x, false); }
+  int64_t upper(double x) const { return find(x, true); }
+
+ private:
+  int64_t find(double x, bool upper) const {
+    // Whether L[i] lies before the position: L[i] < x (lower), L[i] <= x (upper).
+    auto before = [&](int64_t i) { return upper ? L_[i] <= x : L_[i] < x; };
+    if (scale_ > 0) {
+      const double g = (x - L_[0]) * scale_;
+      int64_t i = g > 0 ? (g < static_cast<double>(n_) ? static_cast<int64_t>(g) : n_) : 0;
+      for (int step = 0; step < 4; ++step) {
+        if (i > 0 && !before(i - 1))
+          --i;
+        else if (i < n_ && before(i))
+          ++i;
+        else
+          return i;  // before(i - 1) and not before(i): the partition point
+      }
+    }
+    return (upper ? std::upper_bound(L_, L_ + n_, x) : std::lower_bound(L_, L_ + n_, x)) - L_;
+  }
+  const double* L_;
+  int64_t n_;
+  double scale_ = 0.0;
+};
+
 struct Crossing {
   double depth;  // coordinate along the line's axis
   int64_t line;  // line index

@@ -85,6 +85,7 @@ void cross_faces(const double* V, const int32_t* F, int64_t begin, int64_t end, 
   const double* Lu = u_first ? L0 : L1;
   const double* Lv = u_first ? L1 : L0;
   const int64_t nu = u_first ? n0 : n1, nv = u_first ? n1 : n0;
+  const voxax::raster::LineSearch su(Lu, nu), sv(Lv, nv);
   for (int64_t f = begin; f < end; ++f) {
     double p[3][2], z[3];
     for (int c = 0; c < 3; ++c) {
@@ -93,18 +94,19 @@ void cross_faces(const double* V, const int32_t* F, int64_t begin, int64_t end, 
       p[c][1] = x[v];
       z[c] = x[axis];
     }
-    const int orientation = voxax::exact::orient2d(p[0], p[1], p[2]);
-    if (orientation == 0) continue;
+    // Lines on the bounding box's border may be crossed (the perturbation decides).
+    // Small faces between the lines (most faces of a fine mesh) stop at the first test.
     const double umin = std::min({p[0][0], p[1][0], p[2][0]});
     const double umax = std::max({p[0][0], p[1][0], p[2][0]});
+    const int64_t iu0 = su.lower(umin), iu1 = su.upper(umax);
+    if (iu0 >= iu1) continue;
     const double vmin = std::min({p[0][1], p[1][1], p[2][1]});
     const double vmax = std::max({p[0][1], p[1][1], p[2][1]});
+    const int64_t iv0 = sv.lower(vmin), iv1 = sv.upper(vmax);
+    if (iv0 >= iv1) continue;
+    const int orientation = voxax::exact::orient2d(p[0], p[1], p[2]);
+    if (orientation == 0) continue;
     const double zmin = std::min({z[0], z[1], z[2]}), zmax = std::max({z[0], z[1], z[2]});
-    // Lines on the bounding box's border may be crossed (the perturbation decides).
-    const int64_t iu0 = std::lower_bound(Lu, Lu + nu, umin) - Lu;
-    const int64_t iu1 = std::upper_bound(Lu, Lu + nu, umax) - Lu;
-    const int64_t iv0 = std::lower_bound(Lv, Lv + nv, vmin) - Lv;
-    const int64_t iv1 = std::upper_bound(Lv, Lv + nv, vmax) - Lv;
     for (int64_t iu = iu0; iu < iu1; ++iu) {
       for (int64_t iv = iv0; iv < iv1; ++iv) {
         const double q[2] = {Lu[iu], Lv[iv]};

@@ -47,6 +47,31 @@
 namespace voxax {
 namespace spatial {
 
+// Two doubles processed together (SSE2 on x86-64; plain code elsewhere): the traversals
+// evaluate both children of a record at once.
+typedef double V2d __attribute__((vector_size(16)));
+typedef long long V2l __attribute__((vector_size(16)));
+inline V2d v2_load(const float* f) {
+  return V2d{static_cast<double>(f[0]), static_cast<double>(f[1])};
+}
+inline V2d v2_splat(double x) { return V2d{x, x}; }
+inline V2d v2_select(V2l m, V2d a, V2d b) {  // m ? a : b, lane by lane
+#if defined(__GNUC__) && !defined(__clang__)
+  return m ? a : b;
+#else
+  return (V2d)(((V2l)a & m) | ((V2l)b & ~m));
+#endif
+}
+inline V2d v2_max(V2d a, V2d b) { return v2_select(a > b, a, b); }  // a > b ? a : b
+inline V2d v2_min(V2d a, V2d b) { return v2_select(a < b, a, b); }  // a < b ? a : b
+inline V2d v2_sqrt(V2d x) {
+#if defined(__SSE2__) && defined(__GNUC__) && !defined(__clang__)
+  return __builtin_ia32_sqrtpd(x);
+#else
+  return V2d{std::sqrt(x[0]), std::sqrt(x[1])};
+#endif
+}
+
 struct Box3 {
   double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
                   std::numeric_limits<double>::infinity()};
@@ -436,14 +461,16 @@ class Bvh {
     };
     Entry stack[128];
     int sp = 0;
-    stack[sp++] = {root_ref_, root_count_, root_lower(p)};
+    const double mq = slab_margin(p);
+    const V2d p0 = v2_splat(p[0]), p1 = v2_splat(p[1]), p2 = v2_splat(p[2]), vmq = v2_splat(mq);
+    stack[sp++] = {root_ref_, root_count_, root_lower(p, mq)};
     while (sp > 0) {
       const Entry e = stack[--sp];
       if (e.lower > best.dist2) continue;
       if (e.count > 0) {
         for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
           const FSlab& ts = tri_slabs_[i];
-          if (slab_dist2(ts.c, ts.n, ts.r, ts.h, p, 1) > best.dist2) continue;
+          if (slab_dist2(ts.c, ts.n, ts.r, ts.h, p, 1, mq) > best.dist2) continue;
           const double* t = &tris_[9 * static_cast<size_t>(i)];
           const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[i] != 0);
           if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
@@ -459,7 +486,8 @@ class Bvh {
         continue;
       }
       const Pair& pr = pairs_[e.ref];
-      const double dl = pair_lower(pr, 0, p, best.dist2), dr = pair_lower(pr, 1, p, best.dist2);
+      const V2d lower = pair_lower(pr, p0, p1, p2, vmq);
+      const double dl = lower[0], dr = lower[1];
       // Push the farther child first so that the nearer one is visited first.
       if (sp + 2 > 128) {  // cannot happen for trees of depth < 128; stay safe
         return brute_closest(p);
@@ -491,6 +519,8 @@ class Bvh {
     int sp = 0;
     const double t_root = ray_box(ray, root_box_, ray.tmax);
     if (t_root == inf) return false;
+    const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
+    const RayPair rp = ray_pair(ray);
     stack[sp++] = {root_ref_, root_count_, t_root};
     RayHit h;
     while (sp > 0) {
@@ -518,7 +548,15 @@ class Bvh {
       }
       if (sp + 2 > 128) return brute_first(ray, any, out);
       const Pair& pr = pairs_[e.ref];
-      const double tl = pair_ray_box(ray, pr, 0, cull), tr = pair_ray_box(ray, pr, 1, cull);
+      double tl, tr;
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, cull);
+        tl = tt[0];
+        tr = tt[1];
+      } else {
+        tl = pair_ray_box(ray, pr, 0, cull);
+        tr = pair_ray_box(ray, pr, 1, cull);
+      }
       const Entry el{pr.ref[0], pr.count[0], tl}, er{pr.ref[1], pr.count[1], tr};
       if (tl <= tr) {
         if (tr != inf) stack[sp++] = er;
@@ -597,6 +635,7 @@ class Bvh {
   std::vector<Pair> pairs_;
   std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
   Box3 root_box_;
+  double cmax_ = 0.0;  // the largest |coordinate| of a finite slab's centre
   FSlab root_slab_;
   int32_t root_ref_ = 0, root_count_ = 0;
 
@@ -735,6 +774,18 @@ class Bvh {
         ref(ch, &pr.ref[j], &pr.count[j]);
       }
     }
+    cmax_ = 0.0;
+    auto grow_cmax = [&](const float* c, int stride, float r, float h) {
+      if (!(r < std::numeric_limits<float>::infinity()) ||
+          !(h < std::numeric_limits<float>::infinity()))
+        return;
+      for (int a = 0; a < 3; ++a)
+        cmax_ = std::max(cmax_, static_cast<double>(std::fabs(c[a * stride])));
+    };
+    grow_cmax(root_slab_.c, 1, root_slab_.r, root_slab_.h);
+    for (const Pair& pr : pairs_)
+      for (int j = 0; j < 2; ++j) grow_cmax(&pr.c[0][j], 2, pr.r[j], pr.h[j]);
+    for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
     ranges_.clear();
     ranges_.shrink_to_fit();
   }
@@ -751,22 +802,28 @@ class Bvh {
     return s;
   }
 
+  // The part of the slab margin that depends only on the point: 1e-11 (max |p| + the
+  // largest |centre| of any finite slab). The margin of a slab is this plus 1e-11 (r + h),
+  // at least the 1e-11 (|p| + |c| + r + h) that bounds the rounding of slab_dist2 and of
+  // the point-triangle distance, so hoisting it out of the traversal only lowers bounds.
+  double slab_margin(const double* p) const {
+    return 1e-11 * (std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2]))) + cmax_);
+  }
+
   // A lower bound of the squared distance from p to a slab: the squared
-  // distance to the cylinder, with both of its components shrunk by an absolute
-  // margin far above the rounding of this computation and of the point-triangle
-  // distance, and the sum shrunk by 4e-6 relatively (the float axis is unit only
-  // to 1e-7). One square root, and none when p is within the disk's radius.
+  // distance to the cylinder, with both of its components shrunk by the absolute
+  // margin mq + 1e-11 (r + h) (see slab_margin), and the sum shrunk by 4e-6 relatively
+  // (the float axis is unit only to 1e-7). One square root, and none when p is within
+  // the disk's radius. An infinite slab gives 0.
   static double slab_dist2(const float* c, const float* n, double r, double h, const double* p,
-                           int stride) {
+                           int stride, double mq) {
     const double c0 = c[0], c1 = c[stride], c2 = c[2 * stride];
     const double n0 = n[0], n1 = n[stride], n2 = n[2 * stride];
     const double w0 = p[0] - c0, w1 = p[1] - c1, w2 = p[2] - c2;
     const double a = n0 * w0 + n1 * w1 + n2 * w2;
     const double u0 = w0 - a * n0, u1 = w1 - a * n1, u2 = w2 - a * n2;
     const double rho2 = u0 * u0 + u1 * u1 + u2 * u2;
-    const double m =
-        1e-11 * (std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2]))) +
-                 std::max(std::fabs(c0), std::max(std::fabs(c1), std::fabs(c2))) + r + h);
+    const double m = mq + 1e-11 * (r + h);
     const double dn = std::max(std::fabs(a) - h - m, 0.0);
     double dr = 0.0;
     if (rho2 > r * r) dr = std::max(std::sqrt(rho2) - r - m, 0.0);
@@ -783,16 +840,64 @@ class Bvh {
     return ray_box(r, b, tfar);
   }
 
-  double pair_lower(const Pair& pr, int j, const double* p, double best) const {
-    const double d = pair_box_dist2(pr, j, p);
-    // Inside the box (or beyond the best distance) the slab seldom pays for its square roots.
-    if (d > best || d == 0.0) return d;
-    return std::max(d, slab_dist2(&pr.c[0][j], &pr.n[0][j], pr.r[j], pr.h[j], p, 2));
+  // A ray without a zero direction component, for the slab test of both children of a
+  // record at once: per axis the near plane is lo for a positive direction and hi for a
+  // negative one, which is the order ray_box's swap gives, so the entry distances equal
+  // ray_box's bit for bit (the same operations in the same order).
+  struct RayPair {
+    V2d org[3], inv[3];
+    double tmin;
+    bool neg[3];
+  };
+  static RayPair ray_pair(const Ray& r) {
+    RayPair s;
+    for (int a = 0; a < 3; ++a) {
+      s.org[a] = v2_splat(r.org[a]);
+      s.inv[a] = v2_splat(r.inv[a]);
+      s.neg[a] = r.inv[a] < 0.0;
+    }
+    s.tmin = r.tmin;
+    return s;
+  }
+  static V2d pair_ray_boxes(const RayPair& s, const Pair& pr, double tfar) {
+    constexpr double kGrow =
+        1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
+    V2d t0 = v2_splat(s.tmin), t1 = v2_splat(tfar);
+    for (int a = 0; a < 3; ++a) {
+      const V2d lo = v2_load(pr.lo[a]), hi = v2_load(pr.hi[a]);
+      const V2d tn = ((s.neg[a] ? hi : lo) - s.org[a]) * s.inv[a];
+      const V2d tf = ((s.neg[a] ? lo : hi) - s.org[a]) * s.inv[a] * kGrow;
+      t0 = v2_max(tn, t0);
+      t1 = v2_min(tf, t1);
+    }
+    return v2_select(t0 > t1, v2_splat(std::numeric_limits<double>::infinity()), t0);
   }
 
-  double root_lower(const double* p) const {
+  // Both children's lower bounds of the squared distance from p, at once: the larger of
+  // the distance to the float box and slab_dist2 (the same formulas, evaluated lane by
+  // lane; an infinite slab gives 0). mq: slab_margin(p).
+  static V2d pair_lower(const Pair& pr, V2d p0, V2d p1, V2d p2, V2d mq) {
+    const V2d z = v2_splat(0.0);
+    const V2d b0 = v2_max(v2_max(v2_load(pr.lo[0]) - p0, p0 - v2_load(pr.hi[0])), z);
+    const V2d b1 = v2_max(v2_max(v2_load(pr.lo[1]) - p1, p1 - v2_load(pr.hi[1])), z);
+    const V2d b2 = v2_max(v2_max(v2_load(pr.lo[2]) - p2, p2 - v2_load(pr.hi[2])), z);
+    const V2d box = b0 * b0 + b1 * b1 + b2 * b2;
+    const V2d n0 = v2_load(pr.n[0]), n1 = v2_load(pr.n[1]), n2 = v2_load(pr.n[2]);
+    const V2d w0 = p0 - v2_load(pr.c[0]), w1 = p1 - v2_load(pr.c[1]), w2 = p2 - v2_load(pr.c[2]);
+    const V2d a = n0 * w0 + n1 * w1 + n2 * w2;
+    const V2d u0 = w0 - a * n0, u1 = w1 - a * n1, u2 = w2 - a * n2;
+    const V2d rho2 = u0 * u0 + u1 * u1 + u2 * u2;
+    const V2d r = v2_load(pr.r), h = v2_load(pr.h);
+    const V2d m = mq + 1e-11 * (r + h);
+    const V2d dn = v2_max(v2_select(a < 0.0, -a, a) - h - m, z);
+    const V2d dr = v2_max(v2_sqrt(rho2) - r - m, z);
+    return v2_max(box, (dn * dn + dr * dr) * (1.0 - 4e-6));
+  }
+
+  double root_lower(const double* p, double mq) const {
     const double d = root_box_.dist2(p);
-    return std::max(d, slab_dist2(root_slab_.c, root_slab_.n, root_slab_.r, root_slab_.h, p, 1));
+    return std::max(d,
+                    slab_dist2(root_slab_.c, root_slab_.n, root_slab_.r, root_slab_.h, p, 1, mq));
   }
 
   ClosestResult brute_closest(const double* p) const {

@@ -72,9 +72,17 @@ class CSG:
     fields, grids, other `CSG` nodes). Along every grid line the inside intervals of `a` and
     `b` are merged exactly, so the result is sampled on the same lines as its operands.
 
+    Fields given as `jax.tree_util.Partial(fields.sphere, radius=0.5, center=(0.6, 0.0, 0.0))`
+    (or equinox modules) compile once per function: their float parameters are passed to the
+    compiled sampler as arrays, so many scenes of the same primitives compile nothing new
+    (a closure such as `lambda p: fields.sphere(p, 0.5, c)` compiles once per closure).
+    Operands may reach beyond the grid: which lines start inside each operand is tracked
+    (from the field values, or from the first crossing of a mesh's line).
+
     >>> import voxax
+    >>> from jax.tree_util import Partial
     >>> from voxax import fields
-    >>> scene = voxax.cvt.CSG("difference", fields.sphere, lambda p: fields.sphere(p, 0.5, (0.6, 0, 0)))
+    >>> scene = voxax.cvt.CSG("difference", fields.sphere, Partial(fields.sphere, radius=0.5, center=(0.6, 0.0, 0.0)))
     """
 
     op: str
@@ -101,9 +109,14 @@ def _line_coords(grid: Grid, axis: int):
 
 
 def _assemble(parts, grid: Grid) -> Fragments:
-    """Concatenates per-axis pieces `(axis, line, depth, normals)` into sorted fragments."""
-    pts, nrm, ax, ln = [], [], [], []
-    for axis, line, depth, normals in parts:
+    """Concatenates per-axis pieces `(axis, line, depth, normals[, exits])` into sorted
+    fragments. `exits` (bool) says where the solid is left along `+axis` (from the samples'
+    order, which stays right where the normal is perpendicular to the line); without it the
+    normal's sign along the axis decides."""
+    pts, nrm, ax, ln, sg = [], [], [], [], []
+    for part in parts:
+        axis, line, depth, normals = part[:4]
+        exits = part[4] if len(part) > 4 else normals[:, axis] > 0
         u, v, cu, cv = _line_coords(grid, axis)
         nv = len(cv)
         p = np.empty((len(line), 3))
@@ -115,11 +128,12 @@ def _assemble(parts, grid: Grid) -> Fragments:
         nrm.append(normals[order])
         ax.append(np.full(len(line), axis, np.int8))
         ln.append(line[order].astype(np.int64))
+        sg.append(np.where(exits[order], 1, -1).astype(np.int8))
     points = np.concatenate(pts) if pts else np.zeros((0, 3))
     normals = np.concatenate(nrm) if nrm else np.zeros((0, 3))
     axis = np.concatenate(ax) if ax else np.zeros(0, np.int8)
     line = np.concatenate(ln) if ln else np.zeros(0, np.int64)
-    sign = np.where(normals[np.arange(len(axis)), axis.astype(np.int64)] > 0, 1, -1).astype(np.int8)
+    sign = np.concatenate(sg) if sg else np.zeros(0, np.int8)
     return Fragments(points, normals, _weights(normals, grid), axis, line, sign, grid)
 
 
@@ -161,11 +175,56 @@ def _crossing_pairs(values: np.ndarray, axis: int):
     return iu, iv, i
 
 
-def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+def _is_pytree_field(fn) -> bool:
+    """Whether `fn` is a field whose parameters are pytree leaves (a `jax.tree_util.Partial`
+    or an equinox `Module`): such fields compile once per function and structure, with
+    their array parameters passed as arguments."""
+    import jax
+
+    if isinstance(fn, jax.tree_util.Partial):
+        return True
+    try:
+        import equinox as eqx
+    except ImportError:  # pragma: no cover - equinox is a dependency
+        return False
+    return isinstance(fn, eqx.Module)
+
+
+def _dynamic(fn):
+    """A pytree field with its Python float parameters turned into float64 arrays (so they
+    are traced, not baked into the compilation); integers and other leaves stay static."""
     import jax
     import jax.numpy as jnp
 
-    f = _compiled("values", fn, lambda: jax.jit(lambda p: jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])))
+    def leaf(a):
+        if isinstance(a, float) or (isinstance(a, np.ndarray) and a.dtype.kind == "f"):
+            return jnp.asarray(a, jnp.float64)
+        return a
+
+    return jax.tree_util.tree_map(leaf, fn)
+
+
+def _values_impl(fn, p):
+    import jax.numpy as jnp
+
+    return jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])
+
+
+def _values_runner(fn):
+    """`run(points)` evaluating the field on a chunk, compiled once per field function."""
+    import jax
+
+    if _is_pytree_field(fn):
+        dyn = _dynamic(fn)
+        jitted = _pytree_jit("values", _values_impl)
+        return lambda p: jitted(dyn, p)
+    return _compiled("values", fn, lambda: jax.jit(lambda p: _values_impl(fn, p)))
+
+
+def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+    import jax.numpy as jnp
+
+    f = _values_runner(fn)
     out = np.empty(len(points), np.float64)
     size = chunk  # one shape: one compilation per field
     buf = np.zeros((size, 3))
@@ -178,11 +237,23 @@ def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.
 
 
 _COMPILED: dict = {}
+_PYTREE_JIT: dict = {}
+
+
+def _pytree_jit(kind: str, impl: Callable):
+    """One `equinox.filter_jit` wrapper per kind: arrays in the field are traced, the rest
+    (the function, integers) is static and keys the compilation cache."""
+    hit = _PYTREE_JIT.get(kind)
+    if hit is None:
+        import equinox as eqx
+
+        hit = _PYTREE_JIT[kind] = eqx.filter_jit(impl)
+    return hit
 
 
 def _compiled(kind: str, fn: Callable, build: Callable):
     """A jitted function per (kind, field), kept for the last few fields (shapes are padded
-    to powers of two, so repeated calls on the same field reuse the compilations)."""
+    to fixed chunks, so repeated calls on the same field reuse the compilations)."""
     key = (kind, id(fn))
     hit = _COMPILED.get(key)
     if hit is not None and hit[0] is fn:
@@ -196,49 +267,49 @@ def _compiled(kind: str, fn: Callable, build: Callable):
 
 def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
     """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64)."""
+    import jax
     import jax.numpy as jnp
 
-    run = _compiled(f"refine{iterations}", fn, lambda: _build_refine(fn, iterations))
-    return run(jnp.asarray(x0), jnp.asarray(x1), jnp.asarray(f0), jnp.asarray(f1))
+    args = (jnp.asarray(x0), jnp.asarray(x1), jnp.asarray(f0), jnp.asarray(f1))
+    if _is_pytree_field(fn):
+        return _pytree_jit("refine", _refine_impl)(_dynamic(fn), iterations, *args)
+    run = _compiled(f"refine{iterations}", fn, lambda: jax.jit(lambda *a: _refine_impl(fn, iterations, *a)))
+    return run(*args)
 
 
-def _build_refine(fn: Callable, iterations: int):
+def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
     import jax
     import jax.numpy as jnp
 
     def evaluate(p):
-        return jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])
+        return _values_impl(fn, p)
 
-    @jax.jit
-    def run(x0, x1, f0, f1):
-        a = jnp.zeros_like(f0)
-        b = jnp.ones_like(f0)
-        fa, fb = f0, f1
+    a = jnp.zeros_like(f0)
+    b = jnp.ones_like(f0)
+    fa, fb = f0, f1
 
-        def body(_, st):
-            a, b, fa, fb, side = st
-            t = (a * fb - b * fa) / (fb - fa)
-            t = jnp.where(jnp.isfinite(t) & (t > a) & (t < b), t, 0.5 * (a + b))
-            ft = evaluate(x0 + t[:, None] * (x1 - x0))
-            left = (ft < 0) == (fa < 0)  # root lies in [t, b]
-            # Illinois: halve the stale end's value when the same side is kept twice
-            fb_new = jnp.where(left & (side == 1), 0.5 * fb, fb)
-            fa_new = jnp.where(~left & (side == -1), 0.5 * fa, fa)
-            a2 = jnp.where(left, t, a)
-            fa2 = jnp.where(left, ft, fa_new)
-            b2 = jnp.where(left, b, t)
-            fb2 = jnp.where(left, fb_new, ft)
-            side2 = jnp.where(left, 1, -1).astype(jnp.int32)
-            return a2, b2, fa2, fb2, side2
-
-        a, b, fa, fb, _ = jax.lax.fori_loop(0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32)))
+    def body(_, st):
+        a, b, fa, fb, side = st
         t = (a * fb - b * fa) / (fb - fa)
-        t = jnp.where(jnp.isfinite(t), jnp.clip(t, a, b), 0.5 * (a + b))
-        p = x0 + t[:, None] * (x1 - x0)
-        g = jax.vmap(jax.grad(lambda q: evaluate(q[None])[0]))(p)
-        return p, g
+        t = jnp.where(jnp.isfinite(t) & (t > a) & (t < b), t, 0.5 * (a + b))
+        ft = evaluate(x0 + t[:, None] * (x1 - x0))
+        left = (ft < 0) == (fa < 0)  # root lies in [t, b]
+        # Illinois: halve the stale end's value when the same side is kept twice
+        fb_new = jnp.where(left & (side == 1), 0.5 * fb, fb)
+        fa_new = jnp.where(~left & (side == -1), 0.5 * fa, fa)
+        a2 = jnp.where(left, t, a)
+        fa2 = jnp.where(left, ft, fa_new)
+        b2 = jnp.where(left, b, t)
+        fb2 = jnp.where(left, fb_new, ft)
+        side2 = jnp.where(left, 1, -1).astype(jnp.int32)
+        return a2, b2, fa2, fb2, side2
 
-    return run
+    a, b, fa, fb, _ = jax.lax.fori_loop(0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32)))
+    t = (a * fb - b * fa) / (fb - fa)
+    t = jnp.where(jnp.isfinite(t), jnp.clip(t, a, b), 0.5 * (a + b))
+    p = x0 + t[:, None] * (x1 - x0)
+    g = jax.vmap(jax.grad(lambda q: evaluate(q[None])[0]))(p)
+    return p, g
 
 
 def _unit(g: np.ndarray, what: str) -> np.ndarray:
@@ -249,7 +320,27 @@ def _unit(g: np.ndarray, what: str) -> np.ndarray:
     return g / n
 
 
-def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
+def _starts_from_values(negative_inside: np.ndarray) -> tuple:
+    """Per axis, whether each line (index `iu * n_v + iv`) starts inside the solid."""
+    return tuple(np.moveaxis(negative_inside, axis, -1)[..., 0].ravel() for axis in range(3))
+
+
+def _starts_from_signs(frag: Fragments) -> tuple:
+    """Per axis, the lines whose first crossing is an exit (so they start inside)."""
+    out = []
+    for axis in range(3):
+        u, v = [a for a in range(3) if a != axis]
+        start = np.zeros(frag.grid.shape[u] * frag.grid.shape[v], bool)
+        sel = np.nonzero(frag.axis == axis)[0]
+        if len(sel):
+            line = frag.line[sel]
+            first = np.concatenate([[True], line[1:] != line[:-1]])
+            start[line[first]] = frag.sign[sel][first] > 0
+        out.append(start)
+    return tuple(out)
+
+
+def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | None = None) -> Fragments:
     import jax
 
     if not jax.config.jax_enable_x64:
@@ -258,6 +349,8 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
     values = _field_values(fn, centers).reshape(grid.shape)
     if not np.all(np.isfinite(values)):
         raise ValueError("cvt.fragments: the field is not finite at some cell centres")
+    if starts is not None:
+        starts.append(_starts_from_values(values < 0))
     shape = grid.shape
     flat = values.ravel()
     segs = []
@@ -292,21 +385,24 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int) -> Fragments:
         p[s : s + n] = np.asarray(pc)[:n]
         g[s : s + n] = np.asarray(gc)[:n]
     parts, at = [], 0
+    exits = flat[f0] < 0  # inside at the lower sample: the line leaves the solid
     for axis, line, _, _ in segs:
         n = len(line)
         if n:
-            parts.append((axis, line, p[at : at + n, axis], _unit(g[at : at + n], "field")))
+            parts.append((axis, line, p[at : at + n, axis], _unit(g[at : at + n], "field"), exits[at : at + n]))
         at += n
     return _assemble(parts, grid)
 
 
-def _grid_fragments(values, level: float, inside: str, grid: Grid) -> Fragments:
+def _grid_fragments(values, level: float, inside: str, grid: Grid, starts: list | None = None) -> Fragments:
     w = np.asarray(values, np.float64)
     if w.shape != tuple(grid.shape):
         raise ValueError(f"cvt.fragments: grid values have shape {w.shape}, the grid {grid.shape}")
     if not np.all(np.isfinite(w)):
         raise ValueError("cvt.fragments: grid values contain NaN or Inf")
     s = (w - level) if inside == "below" else (level - w)  # negative inside
+    if starts is not None:
+        starts.append(_starts_from_values(s < 0))
     grads = np.stack(np.gradient(s, *grid.spacing, edge_order=1), axis=-1)
     centers = grid.centers()
     parts = []
@@ -329,7 +425,7 @@ def _grid_fragments(values, level: float, inside: str, grid: Grid) -> Fragments:
         fallback = np.zeros_like(g)
         fallback[:, axis] = np.sign(s1 - s0)
         g = np.where((gn > 0)[:, None], g, fallback)
-        parts.append((axis, iu.astype(np.int64) * grid.shape[v] + iv, depth, _unit(g, "grid")))
+        parts.append((axis, iu.astype(np.int64) * grid.shape[v] + iv, depth, _unit(g, "grid"), s0 < 0))
     if not parts:
         raise ValueError("cvt.fragments: the grid has no crossing of the level (empty surface)")
     return _assemble(parts, grid)
@@ -339,7 +435,18 @@ def _grid_fragments(values, level: float, inside: str, grid: Grid) -> Fragments:
 # Dexel booleans
 
 
-def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
+_COMBINE = {
+    "union": lambda a, b: a | b,
+    "intersection": lambda a, b: a & b,
+    "difference": lambda a, b: a & ~b,
+}
+
+
+def _csg(op: str, a: Fragments, b: Fragments, start_a: tuple, start_b: tuple) -> tuple:
+    """The boolean `op` of two solids' fragments, merged per line; `start_a`, `start_b`
+    say per axis which lines start inside each solid (a solid larger than the grid).
+    **Returns:** `(Fragments, starts of the result)`."""
+    combine = _COMBINE[op]
     n_a = a.size
     pts = np.concatenate([a.points, b.points])
     nrm = np.concatenate([a.normals, b.normals])
@@ -353,16 +460,21 @@ def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
     n = len(order)
     group = np.concatenate([[True], (axis[1:] != axis[:-1]) | (line[1:] != line[:-1])]) if n else np.zeros(0, bool)
     gid = np.cumsum(group) - 1
-    inside = []
-    for s in (0, 1):
+    g_axis, g_line = axis[group], line[group]
+    inside, init = [], []
+    for s, st in ((0, start_a), (1, start_b)):
+        first = np.zeros(len(g_axis), bool)
+        for ax in range(3):
+            sel = g_axis == ax
+            first[sel] = st[ax][g_line[sel]]
         step = np.where(src == s, -sign, 0)
         cum = np.cumsum(step)
-        start = np.concatenate([[0], cum[:-1]])[group]  # cum before each line's first event
-        inside.append((cum - start[gid]) > 0)
-    ia, ib = inside
-    res = {"union": ia | ib, "intersection": ia & ib, "difference": ia & ~ib}[op]
+        before = np.concatenate([[0], cum[:-1]])[group]  # cum before each line's first event
+        inside.append((cum - before[gid] + first[gid]) > 0)
+        init.append(first)
+    res = combine(*inside)
     prev = np.concatenate([[False], res[:-1]])
-    prev[group] = False
+    prev[group] = combine(*init)  # the result's state where the line starts
     keep = res != prev
     new_sign = np.where(res, -1, 1)  # the result enters where it becomes inside
     flip = (new_sign != sign)[:, None]
@@ -371,7 +483,8 @@ def _csg(op: str, a: Fragments, b: Fragments) -> Fragments:
     if len(k) == 0:
         raise ValueError(f"cvt.fragments: the {op} is empty on this grid")
     out_sign = new_sign[k].astype(np.int8)
-    return Fragments(pts[k], nrm[k], _weights(nrm[k], a.grid), axis[k].astype(np.int8), line[k], out_sign, a.grid)
+    out = Fragments(pts[k], nrm[k], _weights(nrm[k], a.grid), axis[k].astype(np.int8), line[k], out_sign, a.grid)
+    return out, tuple(combine(x, y) for x, y in zip(start_a, start_b))
 
 
 def union_all(parts: list) -> Fragments:
@@ -454,7 +567,9 @@ def fragments(
           normals (outward for an outward-oriented mesh);
         - a callable `f(points (N, 3)) -> (N,)` (a `voxax.fields` function or any JAX
           function), negative inside: sign changes between consecutive cell centres,
-          refined by bracketed regula falsi (`iterations` steps); normals `grad f / |grad f|`;
+          refined by bracketed regula falsi (`iterations` steps); normals `grad f / |grad f|`.
+          A `jax.tree_util.Partial` or an equinox module compiles once per function (its
+          float parameters are traced); any other callable once per object;
         - a tuple `(values, level)` of samples `(*grid.shape)` at the cell centres: linear
           interpolation of the level crossings (inside below the level, or above with
           `inside="above"`), normals from the interpolated central-difference gradient;
@@ -480,28 +595,34 @@ def fragments(
     iterations = int(iterations)
     if iterations < 1:
         raise ValueError(f"cvt.fragments: iterations must be >= 1, got {iterations}")
+    frag, _ = _sample(source, grid, inside, iterations, threads)
+    return frag
+
+
+def _sample(source, grid, inside: str, iterations: int, threads) -> tuple:
+    """`(Fragments, starts)`: the samples, and per axis which lines start inside."""
     if isinstance(source, CSG):
         grid = _check_grid(grid)
-        return _csg(
-            source.op,
-            fragments(source.a, grid, inside=inside, iterations=iterations, threads=threads),
-            fragments(source.b, grid, inside=inside, iterations=iterations, threads=threads),
-        )
+        fa, sa = _sample(source.a, grid, inside, iterations, threads)
+        fb, sb = _sample(source.b, grid, inside, iterations, threads)
+        return _csg(source.op, fa, fb, sa, sb)
     if isinstance(source, Fragments):
-        return source
+        return source, _starts_from_signs(source)
+    starts: list = []
     if isinstance(source, tuple) and len(source) == 2 and np.ndim(source[1]) == 0:
         grid = _check_grid(grid)
-        return _grid_fragments(source[0], float(source[1]), inside, grid)
+        return _grid_fragments(source[0], float(source[1]), inside, grid, starts), starts[0]
     if callable(source) and not isinstance(source, Mesh):
         grid = _check_grid(grid)
-        return _field_fragments(source, grid, iterations)
+        return _field_fragments(source, grid, iterations, starts), starts[0]
     if isinstance(source, Mesh) or isinstance(source, tuple):
         mesh = source if isinstance(source, Mesh) else Mesh(*source)
         if mesh.vertices.shape[1:] != (3,):
             raise ValueError("cvt.fragments: the mesh must be a 3D triangle mesh")
         if grid is None:
             grid = Grid.around(mesh.vertices, 128)
-        return _mesh_fragments(mesh, _check_grid(grid), threads)
+        frag = _mesh_fragments(mesh, _check_grid(grid), threads)
+        return frag, _starts_from_signs(frag)
     raise TypeError(
         "cvt.fragments: source must be a Mesh, a callable field, a (values, level) tuple or a CSG, "
         f"got {type(source).__name__}"

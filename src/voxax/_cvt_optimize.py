@@ -126,7 +126,7 @@ def _lloyd_arrays(s, x, w):
     d = x - s[idx]
     e = jnp.sum(w * jnp.sum(d * d, axis=-1))
     new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
-    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=n)
+    count = jax.ops.segment_sum((w > 0).astype(jnp.int32), idx, num_segments=n)  # padding has w = 0
     return new, count, e
 
 
@@ -152,6 +152,75 @@ def _jitted(name: str, fn):
     if name not in _JITTED:
         _JITTED[name] = jax.jit(fn)
     return _JITTED[name]
+
+
+def _bucket(size: int) -> int:
+    """`size` rounded up to one of 8 sizes per octave (at most 1/8 more): the fragment
+    arrays are padded to it, so problems of similar size share one compilation."""
+    if size <= 1024:
+        return 1024
+    step = 1 << (int(size).bit_length() - 4)
+    return -(-size // step) * step
+
+
+def _padded(frag: Fragments, weighted: bool):
+    """The fragment points and weights as device arrays padded to `_bucket(P)` with copies
+    of the first point at weight 0 (which change no sum, energy or region count)."""
+    import jax.numpy as jnp
+
+    p = frag.size
+    size = _bucket(p)
+    x = np.empty((size, 3))
+    x[:p] = frag.points
+    x[p:] = frag.points[0]
+    w = np.zeros(size)
+    w[:p] = _w(frag, weighted)
+    return jnp.asarray(x), jnp.asarray(w)
+
+
+def _energy_aux(y, args):
+    return _energy_arrays(y, args), None
+
+
+def _lbfgs_init(solver, y, args):
+    import jax
+    import jax.numpy as jnp
+
+    f_struct = jax.ShapeDtypeStruct((), jnp.float64)
+    return solver.init(_energy_aux, y, args, {}, f_struct, None, frozenset())
+
+
+def _lbfgs_step(solver, y, state, args):
+    y_new, state, _ = solver.step(_energy_aux, y, args, {}, state, frozenset())
+    done, result = solver.terminate(_energy_aux, y_new, args, {}, state, frozenset())
+    return y_new, state, _energy_arrays(y_new, args), done, result
+
+
+def _lbfgs(y, args, steps: int, rtol: float):
+    """optimistix L-BFGS driven step by step from Python (one energy per step), with its
+    init and step compiled once per problem shape (the solver and the energy are static,
+    the seeds and fragments arguments)."""
+    import equinox as eqx
+    import optimistix as optx
+
+    init = _JITTED.setdefault("lbfgs_init", eqx.filter_jit(_lbfgs_init))
+    step = _JITTED.setdefault("lbfgs_step", eqx.filter_jit(_lbfgs_step))
+    solver = optx.LBFGS(rtol=rtol, atol=0.0)
+    state = init(solver, y, args)
+    hist = []
+    reason = "max_steps"
+    for _ in range(steps):
+        y_new, state, e, done, result = step(solver, y, state, args)
+        e = float(e)
+        if not np.isfinite(e):
+            reason = "nonfinite"
+            break
+        hist.append(e)
+        y = y_new
+        if bool(done):
+            reason = "converged" if result == optx.RESULTS.successful else f"failed: {optx.RESULTS[result]}"
+            break
+    return y, hist, reason
 
 
 def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
@@ -223,7 +292,7 @@ def optimize(
     - `frag`: [`Fragments`][voxax.cvt.Fragments].
     - `seeds`: `(n, 3)` float initial seeds (e.g. [`init_seeds`][voxax.cvt.init_seeds]).
     - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step) or
-      `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy] through
+      `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy], stepped from Python like
       [`voxax.minimize`][voxax.minimize]; empty regions are respawned at the end, followed by
       a Lloyd step).
     - `steps`: maximum number of steps.
@@ -247,8 +316,7 @@ def optimize(
     if method == "lloyd":
         step = _jitted("lloyd", _lloyd_arrays)
         en = _jitted("energy", _energy_arrays)
-        x = jnp.asarray(frag.points)
-        w = jnp.asarray(_w(frag, weighted))
+        x, w = _padded(frag, weighted)
         one = jnp.asarray(1.0)
         hist = []
         moved = 0
@@ -266,25 +334,14 @@ def optimize(
         hist.append(float(en(jnp.asarray(s), (x, w, one))))
         return CVTResult(s, np.array(hist), taken, moved, "lloyd")
     if method == "lbfgs":
-        from ._minimize import StopRules, minimize
-
-        w = _w(frag, weighted)
-        args = (jnp.asarray(frag.points), jnp.asarray(w), jnp.asarray(1.0 / float(np.sum(w))))
+        x, w = _padded(frag, weighted)
+        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))))
         scale = float(args[2])
         e0 = float(_jitted("energy", _energy_arrays)(jnp.asarray(s), args)) / scale
-        res = minimize(
-            _energy_arrays,
-            jnp.asarray(s),
-            args,
-            solver="lbfgs",
-            stop=StopRules(max_steps=steps),
-            progress=False,
-            rtol=max(tol, 1e-12),
-            atol=0.0,
-        )
-        y = np.asarray(res.y, np.float64)
-        _, count = lloyd_step(y, frag, weighted=weighted)
+        y, hist, reason = _lbfgs(jnp.asarray(s), args, steps, max(tol, 1e-12))
+        y = np.asarray(y, np.float64)
+        _, count, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w)
         y, moved = respawn(y, frag, count)
-        hist = np.concatenate([[e0], np.asarray(res.history["energy"]) / scale])
-        return CVTResult(y, hist, int(res.steps), moved, "lbfgs", info=res.stop_reason)
+        hist = np.concatenate([[e0], np.asarray(hist) / scale])
+        return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason)
     raise ValueError(f'cvt.optimize: method must be "lloyd" or "lbfgs", got {method!r}')

@@ -235,6 +235,41 @@ class Mesh:
         )
 
 
+def mesh_from_trusted(vertices: np.ndarray, faces: np.ndarray) -> Mesh:
+    """A `Mesh` of arrays that a voxax routine built itself, without `Mesh`'s checks.
+
+    For producers whose output is valid by construction (shapes, dtypes and face indices
+    in range): the arrays are taken over, not copied, and made read-only, so the caller
+    must not keep writing to them. Everything else builds a `Mesh` with its checks.
+
+    **Arguments:**
+
+    - `vertices`: `(V, d)` float64 C-contiguous; `faces`: `(F, d)` int32 C-contiguous,
+      indices in `[0, V)`.
+
+    **Returns:** a [`Mesh`][voxax.Mesh] with empty `info`.
+    """
+    if not (
+        isinstance(vertices, np.ndarray)
+        and isinstance(faces, np.ndarray)
+        and vertices.dtype == np.float64
+        and faces.dtype == np.int32
+        and vertices.ndim == 2
+        and faces.ndim == 2
+        and vertices.shape[1] in (2, 3)
+        and faces.shape[1] == vertices.shape[1]
+        and vertices.flags.c_contiguous
+        and faces.flags.c_contiguous
+    ):
+        raise ValueError("mesh_from_trusted: expected (V, d) float64 and (F, d) int32 C-contiguous arrays")
+    mesh = object.__new__(Mesh)
+    for name, value in (("vertices", vertices), ("faces", faces)):
+        value.setflags(write=False)
+        object.__setattr__(mesh, name, value)
+    object.__setattr__(mesh, "info", _FrozenDict())
+    return mesh
+
+
 def _info_equal(a: Mapping, b: Mapping) -> bool:
     if a.keys() != b.keys():
         return False

@@ -175,7 +175,7 @@ def remesh(
     orient: bool = True,
     project: bool = True,
     weighted: bool = True,
-    max_rounds: int = 10,
+    max_rounds: int = 30,
     round_steps: int = 20,
     inside: str = "below",
     key=0,
@@ -188,12 +188,19 @@ def remesh(
     - `source`: a closed [`Mesh`][voxax.Mesh], a field `f(points) -> values` (negative
       inside; needs `grid`), a `(values, level)` grid (needs `grid`), a
       [`CSG`][voxax.cvt.CSG] expression (needs `grid`) or ready [`Fragments`][voxax.cvt.Fragments].
+      Fields given as `jax.tree_util.Partial(fields.sphere, radius=r, center=c)` compile
+      once per function, so meshing many scenes of the same primitives compiles nothing new.
     - `n_seeds`: the number of seeds (vertices; seeds whose regions end up without a
       triangle are dropped).
     - `grid`: the box to sample in. Its shape is refined (cubic cells) until there are about
-      `alpha` fragments per seed; for a mesh the default box is the mesh's bounding box.
+      `alpha` fragments per seed, the finer grids spanning only the part of the box around
+      the surface found on the coarser one; for a mesh the default box is the mesh's
+      bounding box.
       A `(values, level)` source is sampled on its own grid as given.
-    - `alpha`: fragments per seed (the paper uses > 50).
+    - `alpha`: fragments per seed (the paper uses > 50). The fragments quantise the
+      regions' centroids, and that limits the triangle quality: on the Chebyshev octic at
+      20,000 seeds, `alpha=50` gives a mean quality of 0.864 and `alpha=100` 0.885 (minimum
+      0.41 against 0.55), for about twice the time.
     - `method`, `steps`: the optimiser (`"lbfgs"`, or `"lloyd"`: cheaper steps, one
       nearest-seed pass each against about three, but slower convergence) and its step
       budget.
@@ -258,13 +265,20 @@ def remesh(
             grid = Grid(tuple(lo), tuple(lo + np.asarray(shape) * h), shape)
         frag = fragments(source, grid, inside=inside, threads=threads)
         if not fixed:
+            box_lo, box_hi = np.asarray(grid.lower), np.asarray(grid.upper)
             for _ in range(3):
                 ratio = frag.size / (alpha * n_seeds)
                 if 0.8 <= ratio:
                     break
                 scale = 1.0 / np.sqrt(ratio)
                 h = max(grid.spacing) / scale
-                lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+                # the finer grid spans the fragments' box (the surface lies within a cell of
+                # it) with a margin of two coarse cells and two edge lengths (room for the
+                # regularisation balls), inside the box given
+                edge = np.sqrt(4.0 * frag.weights.sum() / (np.sqrt(3.0) * n_seeds))
+                margin = 2.0 * max(grid.spacing) + 2.0 * edge
+                lo = np.maximum(box_lo, frag.points.min(axis=0) - margin)
+                hi = np.minimum(box_hi, frag.points.max(axis=0) + margin)
                 shape = np.maximum(1, np.ceil((hi - lo) / h)).astype(int)
                 mid = 0.5 * (lo + hi)
                 half = 0.5 * shape * h

@@ -24,6 +24,7 @@ All geometry is float64 and computed eagerly on NumPy arrays through `voxax.BVH`
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
 from typing import NamedTuple
 
@@ -470,13 +471,15 @@ class _Problem:
             fr = frame_for(ld / np.linalg.norm(ld), c, rad, resolution)
             self.maps[li] = _depth_map(self.bvh, fr, normals, threads)
         rng = np.random.default_rng(seed + 7)
-        for k, (li, s) in enumerate(self.dirs):
-            dm = self.maps[li]
-            solid, n_tw = height_field_solid(dm, s)
+        seeds = [int(rng.integers(2**31)) for _ in self.dirs]
+
+        def terms(k):
+            li, s = self.dirs[k]
+            solid, n_tw = height_field_solid(self.maps[li], s)
             hit = self.bvh.any_hits(self.P, self.vec[k], t_min=self.eps, threads=threads)
-            dist = BVH(solid).closest_points(self.P, threads=threads).distance
-            self.D[:, k] = np.where(hit, dist, 0.0)
-            self.visP[:, k] = ~hit
+            # distances to the height field's boundary, needed only where S is hidden
+            dist = np.zeros(n_samples)
+            dist[hit] = BVH(solid).closest_points(self.P[hit], threads=threads).distance
             tw = Mesh(solid.vertices, solid.faces[:n_tw])
             a_tw = (
                 0.5
@@ -489,14 +492,23 @@ class _Problem:
                 ).sum()
             )
             nb = int(round(n_samples * a_tw / area_s))
-            bs = sample_surface(tw, nb, int(rng.integers(2**31)))
+            bs = sample_surface(tw, nb, seeds[k])
             inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
             pts, nrm = bs.points[inside], bs.normals[inside]
             bd = self.bvh.closest_points(pts, threads=threads).distance
             off = bd > self.on_surface
-            self.B.append(pts[off])
-            self.Bn.append(nrm[off])
-            self.Bd.append(bd[off])
+            return dist, hit, pts[off], nrm[off], bd[off]
+
+        # two directions at a time: the BVH builds of the height-field solids are
+        # single-threaded (the results do not depend on the order)
+        workers = 1 if threads == 1 else 2
+        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+            for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
+                self.D[:, k] = dist
+                self.visP[:, k] = ~hit
+                self.B.append(b)
+                self.Bn.append(bn)
+                self.Bd.append(bd)
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
@@ -507,13 +519,85 @@ class _Problem:
         lk, s = _canonical(np.asarray(d, np.float64))
         return self.key[(self._lines[lk], s)]
 
-    def hit(self, k: int, k2: int) -> np.ndarray:
-        """Whether the rays from the boundary samples of HF k along direction k2 hit S."""
-        h = self._hit.get((k, k2))
-        if h is None:
-            h = self.bvh.any_hits(self.B[k], self.vec[k2], t_min=self.eps, threads=self.threads)
-            self._hit[(k, k2)] = h
-        return h
+    def hit(self, k: int, k2: int, idx=None) -> np.ndarray:
+        """Whether the rays from the boundary samples `idx` (default: all) of HF k along
+        direction k2 hit S (cast once per sample and direction, then cached)."""
+        idx = np.arange(len(self.B[k])) if idx is None else idx
+        self._ensure([(k, k2, idx)])
+        return self._hit[(k, k2)][idx] == 1
+
+    def _ensure(self, requests) -> None:
+        """Cast, in one call, the rays of `(k, k2, idx)` requests not cast yet."""
+        todo: dict = {}
+        for k, k2, idx in requests:
+            h = self._hit.get((k, k2))
+            if h is None:
+                h = self._hit[(k, k2)] = np.full(len(self.B[k]), -1, np.int8)
+            miss = idx[h[idx] < 0]
+            if not len(miss):
+                continue
+            if (k, k2) in todo:  # several requests: the union, ascending
+                mark = np.zeros(len(h), bool)
+                mark[todo[(k, k2)]] = True
+                mark[miss] = True
+                miss = np.flatnonzero(mark)
+            todo[(k, k2)] = miss
+        if not todo:
+            return
+        keys = list(todo)
+        sel = [todo[key] for key in keys]
+        origins = np.concatenate([self.B[k][i] for (k, _), i in zip(keys, sel)])
+        dirs = np.repeat(np.array([self.vec[k2] for _, k2 in keys]), [len(i) for i in sel], axis=0)
+        res = self.bvh.any_hits(origins, dirs, t_min=self.eps, threads=self.threads)
+        at = 0
+        for key, i in zip(keys, sel):
+            self._hit[key][i] = res[at : at + len(i)]
+            at += len(i)
+
+    def floaters(self, k: int, others) -> np.ndarray:
+        """The indices (ascending) of HF k's boundary samples inside every HF of `others`:
+        the rays along each of them hit S. Filtered one direction at a time (in the order
+        given), so later directions cast only the rays of the samples still inside."""
+        idx = np.arange(len(self.B[k]))
+        for k2 in others:
+            if not len(idx):
+                break
+            idx = idx[self.hit(k, k2, idx)]
+        return idx
+
+    def _known_floaters(self, k: int, others):
+        """`floaters(k, others)` if every ray it needs has been cast, else None."""
+        idx = np.arange(len(self.B[k]))
+        for k2 in others:
+            h = self._hit.get((k, k2))
+            if h is None:
+                return None
+            v = h[idx]
+            if (v < 0).any():
+                return None
+            idx = idx[v == 1]
+        return idx
+
+    def prefetch(self, combos, only=None) -> None:
+        """Cast the rays that `energy` needs for every combination in `combos` (for the
+        floaters of the directions in `only`, default all), in one call per filtering step
+        instead of one per pair of directions."""
+        items = {}
+        for ks in combos:
+            ks = sorted(set(ks))
+            for k in ks if only is None else only:
+                items[(k, tuple(k2 for k2 in ks if k2 != k))] = None
+        alive = {it: np.arange(len(self.B[it[0]])) for it in items}
+        step = 0
+        while True:
+            live = [it for it in alive if step < len(it[1]) and len(alive[it])]
+            if not live:
+                return
+            self._ensure([(it[0], it[1][step], alive[it]) for it in live])
+            for it in live:
+                k, k2 = it[0], it[1][step]
+                alive[it] = alive[it][self._hit[(k, k2)][alive[it]] == 1]
+            step += 1
 
     def cd_st(self, ks) -> float:
         return float(self.D[:, list(ks)].min(1).mean())
@@ -534,6 +618,36 @@ class _Problem:
             self._TP[(k, angle)] = t
         return t
 
+    def floater_bound(self, dhf, ks, cd_st: float, eps1: float, eps2: float, angle: float) -> float:
+        """A lower bound of E for the directions `ks` (the DHF pair `dhf` among them) from
+        the DHF's floaters alone. E grows with Dist and mu, and the HFs' floaters only add
+        distances and On values >= 0 to the sums of `energy`, so with n_max = the visible
+        surface samples + the DHF's floaters + every boundary sample of the HFs (at least
+        n): Dist >= cd_st + (the DHF floaters' summed distances) / n_max and
+        mu >= (the On values of the visible surface samples and the DHF's floaters) / n_max.
+        `cd_st`: a lower bound of CD(S, S~). Needs only the rays of the DHF's boundary
+        samples."""
+        ks = sorted(set(ks))
+        vis = self.visP[:, ks].any(1)
+        on_p = np.ones(self.n_samples)
+        for k in ks:
+            on_p = np.minimum(on_p, self.TP(k, angle))
+        tot_d, tot_on, n = 0.0, float(on_p[vis].sum()), int(vis.sum())
+        for k in ks:
+            if k in dhf:
+                f = self.floaters(k, [k2 for k2 in ks if k2 != k])
+                tot_d += float(self.Bd[k][f].sum())
+                tot_on += float(self.T(k, k, angle)[f].sum())
+                n += len(f)
+            else:
+                # an HF's floaters lie inside the DHF: count those when their rays are known
+                f = self._known_floaters(k, sorted(dhf))
+                n += len(self.B[k]) if f is None else len(f)
+        if n == 0:
+            return cd_st
+        dist = cd_st + tot_d / n
+        return dist + min(tot_on / n * (dist + eps1), eps2)
+
     def energy(self, ks, eps1: float, eps2: float, angle: float = 85.0) -> dict:
         """E (Eq. 1-5) of the ESI bounded by the signed directions `ks`.
 
@@ -549,18 +663,15 @@ class _Problem:
             on_p = np.minimum(on_p, self.TP(k, angle))
         tot_d, tot_on, n = 0.0, float(on_p[vis].sum()), int(vis.sum())
         for k in ks:
-            keep = np.ones(len(self.B[k]), bool)
-            for k2 in ks:
-                if k2 != k:
-                    keep &= self.hit(k, k2)
-            if not keep.any():
+            keep = self.floaters(k, [k2 for k2 in ks if k2 != k])
+            if not len(keep):
                 continue
             # a floater is inside every other height field, so its rays along their axes
             # hit S (v = 0, On = 1 there): only its own axis can cover it
             on = self.T(k, k, angle)[keep]
             tot_on += float(on.sum())
             tot_d += float(self.Bd[k][keep].sum())
-            n += int(keep.sum())
+            n += len(keep)
         cd_st = self.cd_st(ks)
         if n == 0:
             return dict(E=math.inf, dist=math.inf, cd_st=cd_st, cd_ts=math.inf, mu=1.0)
@@ -618,10 +729,13 @@ class ESI(NamedTuple):
         return [self.dhf_axis, -self.dhf_axis] + list(self.hf_axes)
 
 
+_CHUNK = 8  # leaves whose rays are cast together
+
+
 def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
-    HFs from `hk`, by branch and bound on `CD(S, S~) <= E`, counting leaves and full
-    evaluations."""
+    HFs from `hk`, by branch and bound on `CD(S, S~) <= E` (partial choices and leaves)
+    and on `_Problem.floater_bound` (leaves), counting leaves and full evaluations."""
     n_h = len(hk)
     best = [math.inf, math.inf, ()]
     leaves = math.comb(n_h, m) * len(dk)
@@ -632,6 +746,8 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
             best[0], best[1], best[2] = E, i, hs
 
     Dh = prob.D[:, hk]
+    if m == 0:
+        prob.prefetch([[kp, km] for kp, km in dk])
     for i, (kp, km) in enumerate(dk):
         if m == 0:
             E = prob.energy([kp, km], eps1, eps2, angle)["E"]
@@ -654,13 +770,33 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
                     continue
                 lbs = np.minimum(cur[:, None], Dr[:, start:]).sum(0) / n
                 order = np.argsort(lbs, kind="stable")
-                for o in order:
-                    h = start + int(o)
-                    if not exhaustive and lbs[o] > best[0]:
-                        break
-                    combo = hs + (h,)
-                    E = prob.energy([kp, km] + [hk[j] for j in combo], eps1, eps2, angle)["E"]
-                    consider(E, i, combo)
+                pre = [kp, km] + [hk[j] for j in hs]
+                ks_of = lambda o, pre=pre, start=start: pre + [hk[start + o]]  # noqa: E731
+                for c0 in range(0, len(order), _CHUNK):
+                    # the rays of the next leaves still within the bound, cast together
+                    chunk = [int(o) for o in order[c0 : c0 + _CHUNK] if exhaustive or lbs[o] <= best[0]]
+                    if not exhaustive:
+                        # first the cheap bound from the DHF's floaters (a margin for the
+                        # rounding of the two ways CD(S, S~) is summed)
+                        prob.prefetch([ks_of(o) for o in chunk], only=(kp, km))
+                        fb = {
+                            o: prob.floater_bound((kp, km), ks_of(o), lbs[o], eps1, eps2, angle) * (1 - 1e-9)
+                            for o in chunk
+                        }
+                        live = [o for o in chunk if fb[o] <= best[0]]
+                    else:
+                        live = chunk
+                    prob.prefetch([ks_of(o) for o in live])
+                    for o in chunk:
+                        if not exhaustive and lbs[o] > best[0]:
+                            break
+                        if not exhaustive and fb[o] > best[0]:
+                            continue
+                        combo = hs + (start + o,)
+                        E = prob.energy(ks_of(o), eps1, eps2, angle)["E"]
+                        consider(E, i, combo)
+                    if not exhaustive and (len(chunk) < min(_CHUNK, len(order) - c0) or lbs[chunk[-1]] > best[0]):
+                        break  # the rest of the (sorted) leaves is beyond the bound
                 continue
             last = n_h - (m - depth)
             for h in range(last, start - 1, -1):  # pushed in reverse: popped in order
@@ -737,7 +873,9 @@ def select(
     pixel centres, linear in between). `m = 0, 1, ...` HFs are tried in turn; for each,
     every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree
     whose partial choices are bounded below by `CD(S, S~)` with the best remaining
-    candidates, so most leaves are never evaluated (`ESI.prune_rate`). The search stops
+    candidates, and whose leaves are bounded again from the DHF's own floaters (which
+    need only the DHF's boundary rays) before the HFs' rays are cast, so most leaves are
+    never evaluated (`ESI.prune_rate`). The search stops
     at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
     (default `eps1`: an extra height field must be worth more than the noise of the
     sampled energy).

@@ -52,7 +52,7 @@ import numpy as np
 from . import _host
 from . import _validate as check
 from ._grid import Grid
-from ._mesh import Mesh, face_normals
+from ._mesh import Mesh, face_normals, mesh_from_trusted
 
 __all__ = [
     "EDGE_OFFSETS",
@@ -164,6 +164,20 @@ def _lib():
     return _host.declare(_SIGNATURES)
 
 
+_CTYPES = {np.dtype(np.float64): _D, np.dtype(np.int32): _I32, np.dtype(np.int64): _I64}
+
+
+def _copy_out(copy, handle, free, *specs):
+    """Fresh arrays of `specs` (`(shape, dtype)` pairs) filled by `copy(handle, *pointers)`;
+    the handle is released by `free(handle)` in any case."""
+    try:
+        out = [np.empty(shape, dtype) for shape, dtype in specs]
+        copy(handle, *(a.ctypes.data_as(_CTYPES[a.dtype]) for a in out))
+    finally:
+        free(handle)
+    return out
+
+
 def _call_encode(where, V, F, grid, params, flags, threads, open_boundaries=False, joined=None):
     lib = _lib()
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -244,23 +258,9 @@ def pieces(vertices, faces=None, grid=None, *, threads=None) -> Pieces:
     where = "voxax.fc.pieces"
     V, F, grid = _mesh_args(where, vertices, faces, grid)
     handle, sizes = _call_encode(where, V, F, grid, (1.0, 1e-3, 1.0), 1 | 8, threads)
-    lib = _lib()
-    try:
-        n = int(sizes[2])
-        cell = np.empty(n, np.int64)
-        face = np.empty(n, np.int32)
-        area = np.empty(n, np.float64)
-        cen = np.empty((n, 3), np.float64)
-        lib.voxax_fc_pieces(
-            handle,
-            cell.ctypes.data_as(_I64),
-            face.ctypes.data_as(_I32),
-            area.ctypes.data_as(_D),
-            cen.ctypes.data_as(_D),
-        )
-    finally:
-        lib.voxax_fc_free(handle)
-    return Pieces(cell, face, area, cen)
+    lib, n = _lib(), int(sizes[2])
+    specs = ((n, np.int64), (n, np.int32), (n, np.float64), ((n, 3), np.float64))
+    return Pieces(*_copy_out(lib.voxax_fc_pieces, handle, lib.voxax_fc_free, *specs))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -484,29 +484,14 @@ def _rows(
         where, V, F, grid, (lambda_n, lambda_d, weight_power), flags, threads, open_boundaries=boundaries, joined=joined
     )
     lib = _lib()
-    try:
-        k, nfc = int(sizes[0]), int(sizes[1])
-        index = np.empty(k, np.int64)
-        comp = np.empty(k, np.int32)
-        off = np.empty((k, 3), np.float64)
-        nrm = np.empty((k, 3), np.float64)
-        area = np.empty(k, np.float64)
-        clamped = np.empty(k, np.int32)
+    k, nfc = int(sizes[0]), int(sizes[1])
+    # The face counts are written only when the faces were recorded (`components`).
+    fcount_k = k if components else 0
+    specs = ((k, np.int64), (k, np.int32), ((k, 3), np.float64), ((k, 3), np.float64), (k, np.float64))
+    specs += ((k, np.int32), (fcount_k, np.int64), (nfc, np.int32))
+    index, comp, off, nrm, area, _, fcount, faces = _copy_out(lib.voxax_fc_rows, handle, lib.voxax_fc_free, *specs)
+    if not components:
         fcount = np.zeros(k, np.int64)
-        faces = np.empty(nfc, np.int32)
-        lib.voxax_fc_rows(
-            handle,
-            index.ctypes.data_as(_I64),
-            comp.ctypes.data_as(_I32),
-            off.ctypes.data_as(_D),
-            nrm.ctypes.data_as(_D),
-            area.ctypes.data_as(_D),
-            clamped.ctypes.data_as(_I32),
-            fcount.ctypes.data_as(_I64),
-            faces.ctypes.data_as(_I32),
-        )
-    finally:
-        lib.voxax_fc_free(handle)
     return index, comp, off, nrm, area, fcount, faces
 
 
@@ -635,11 +620,7 @@ def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
         _host.ERRLEN,
     )
     _host.check(status, err)
-    try:
-        pairs = np.empty((int(count[0]), 2), np.int64)
-        lib.voxax_fc_triangles(handle, pairs.ctypes.data_as(_I64))
-    finally:
-        lib.voxax_fc_free_triangles(handle)
+    (pairs,) = _copy_out(lib.voxax_fc_triangles, handle, lib.voxax_fc_free_triangles, ((int(count[0]), 2), np.int64))
     return S, pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
@@ -899,17 +880,14 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
     )
     if status != 0:
         raise ValueError(f"{where}: " + err.value.decode("utf-8", "replace").removeprefix("voxax: "))
-    try:
-        tris = np.empty((int(count[0]), 3), np.int64)
-        lib.voxax_fc_triangles(handle, tris.ctypes.data_as(_I64))
-    finally:
-        lib.voxax_fc_free_triangles(handle)
+    (tris,) = _copy_out(lib.voxax_fc_triangles, handle, lib.voxax_fc_free_triangles, ((int(count[0]), 3), np.int64))
     used = np.zeros(K, bool)
     used[tris.reshape(-1)] = True
     if tips and len(tris):
         tris, used = _insert_tips(tokens, P, tris, used)
     remap = np.cumsum(used) - 1
-    return Mesh(P[used], remap[tris].astype(np.int32))
+    # Every index is a used row by construction: no validation pass over the output.
+    return mesh_from_trusted(np.ascontiguousarray(P[used]), remap[tris].astype(np.int32))
 
 
 def _near_rows(tokens: Tokens, rows) -> np.ndarray:

@@ -1069,6 +1069,41 @@ def run_fc(rng, n_inputs):
         lib.voxax_fc_free_triangles(handle)
         _host.check(status, err)
 
+    def raw_signs(index, shape, edge, sign, k=None, c=None):
+        err, handle = _host.error_buffer(), _host.VP()
+        index = np.ascontiguousarray(index, np.int64)
+        edge, sign = np.ascontiguousarray(edge, np.int64), np.ascontiguousarray(sign, np.int8)
+        k = len(index) if k is None else k
+        c = len(edge) if c is None else c
+        S = np.zeros((max(len(index), 1), 12), np.int8)
+        shape, count = np.ascontiguousarray(shape, np.int64), np.zeros(1, np.int64)
+        i8 = ctypes.POINTER(ctypes.c_int8)
+        status = lib.voxax_fc_signs(_host.pointer(index, _host.I64), k, _host.pointer(shape, _host.I64),
+                                    _host.pointer(edge, _host.I64), sign.ctypes.data_as(i8), c, 2,
+                                    S.ctypes.data_as(i8), ctypes.byref(handle), _host.pointer(count, _host.I64),
+                                    err, _host.ERRLEN)
+        try:
+            _host.check(status, err)
+            pairs = np.zeros((int(count[0]), 2), np.int64)
+            lib.voxax_fc_triangles(handle, _host.pointer(pairs, _host.I64))
+        finally:
+            lib.voxax_fc_free_triangles(handle)
+        return S, pairs
+
+    # A valid raw call: the x edge at node (1, 1, 1) of a 4^3 grid (id 31) with a net flux
+    # of +2 goes to its 4 cells, as edges 0 (cell (1, 1, 1)), 1 ((1, 0, 1)), 2 ((1, 0, 0))
+    # and 3 ((1, 1, 0)); the cells without a row come back with the crossing they need.
+    S, pairs = raw_signs(np.arange(64), [4, 4, 4], [31, 31, 31], [1, 1, -1])
+    CALLS["fc"] += 1
+    want = np.zeros((64, 12), np.int8)
+    for cell, slot in (((1, 1, 1), 0), ((1, 0, 1), 1), ((1, 0, 0), 2), ((1, 1, 0), 3)):
+        want[np.ravel_multi_index(cell, (4, 4, 4)), slot] = 1
+    if not np.array_equal(S, want) or len(pairs):
+        fail("fc raw signs: the signs of one edge are not those of its 4 cells")
+    S, pairs = raw_signs([21], [4, 4, 4], [31, 31], [1, 1])
+    if not np.array_equal(pairs[:, 0], [16, 17, 20]) or S[0, 0] != 2:
+        fail(f"fc raw signs: the cells without a row are wrong: {pairs.tolist()}")
+
     g = voxax.Grid.cube(4)
     box = [-1, -1, -1, 1, 1, 1]
     bad = {
@@ -1087,6 +1122,14 @@ def run_fc(rng, n_inputs):
         "raw decode index": (lambda: raw_decode([5, 64], [4, 4, 4]), "range"),
         "raw decode shape": (lambda: raw_decode([0], [4, -1, 4]), "shape"),
         "raw decode huge grid": (lambda: raw_decode([0], [1 << 31, 1 << 31, 1 << 31]), "too large"),
+        "raw signs shape": (lambda: raw_signs([0], [4, 0, 4], [0], [1]), "shape"),
+        "raw signs huge shape": (lambda: raw_signs([0], [4, 4, 1 << 40], [0], [1]), "shape"),
+        "raw signs edge high": (lambda: raw_signs([0], [4, 4, 4], [3 * 125], [1]), "edge id"),
+        "raw signs edge negative": (lambda: raw_signs([0], [4, 4, 4], [-1], [1]), "edge id"),
+        "raw signs unsorted": (lambda: raw_signs([5, 3], [4, 4, 4], [0], [1]), "sorted"),
+        "raw signs index": (lambda: raw_signs([64], [4, 4, 4], [0], [1]), "sorted cell"),
+        "raw signs negative rows": (lambda: raw_signs([0], [4, 4, 4], [0], [1], k=-1), "null"),
+        "raw signs negative crossings": (lambda: raw_signs([0], [4, 4, 4], [0], [1], c=-5), "null"),
     }
     for name, (call, match) in bad.items():
         try:
