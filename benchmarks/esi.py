@@ -16,6 +16,10 @@ Cases (run from the repository root, `PYTHONPATH=src` when voxax is not installe
 - `nesi`: `voxax.nesi.fit` of the torus (DHF along z) and of the mug (its selected axes)
   at levels of detail 1 and 2, Chamfer of the neural mesh against the ESI mesh's, and
   level-4 occupancy throughput.
+- `siren`: the same fits on the five shapes of `NESI_SHAPES` (torus, mug, a CSG part, the
+  blob, the bent bar; `--nesi-shapes` picks some), each next to a plain 3D SIREN with the
+  same parameter count and number of steps (signed-distance regression, marching cubes
+  at 192^3), both against the input's self-Chamfer and the ESI's.
 
     python benchmarks/esi.py                      # every case, prints the results
     python benchmarks/esi.py select --steps 2000  # some cases
@@ -64,8 +68,10 @@ def bench_bvh():
     d = rng.normal(size=(n, 3))
     t_rays, _ = _best(lambda: bvh.first_hits(o, d))
     t_cp, _ = _best(lambda: bvh.closest_points(o[:500_000]))
-    print(f"bvh: {m.n_faces} faces, build {build:.2f} s, first hits {n / t_rays / 1e6:.2f} M rays/s, "
-          f"closest points {5e5 / t_cp / 1e6:.2f} M points/s")
+    print(
+        f"bvh: {m.n_faces} faces, build {build:.2f} s, first hits {n / t_rays / 1e6:.2f} M rays/s, "
+        f"closest points {5e5 / t_cp / 1e6:.2f} M points/s"
+    )
 
 
 def bench_depth():
@@ -76,8 +82,10 @@ def bench_depth():
     fr = esi.frame_for(np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0]), *esi.bounding_sphere(m), 512)
     normals = np.zeros((m.n_faces, 3))
     t_q, _ = _best(lambda: esi._depth_map(bvh, fr, normals), repeats=2)
-    print(f"depth map 512^2 of {m.n_faces} faces: {t:.2f} s with the closed-mesh check and the BVH build, "
-          f"{t_q:.3f} s for the ray casts alone; mask {dm.mask.mean():.3f}")
+    print(
+        f"depth map 512^2 of {m.n_faces} faces: {t:.2f} s with the closed-mesh check and the BVH build, "
+        f"{t_q:.3f} s for the ray casts alone; mask {dm.mask.mean():.3f}"
+    )
 
 
 def bench_select(shapes, max_hf, n_dhf=50, n_hf=80):
@@ -96,13 +104,17 @@ def bench_select(shapes, max_hf, n_dhf=50, n_hf=80):
         t = time.perf_counter()
         cut = fabricate.cut_solid(m)
         t_cut = time.perf_counter() - t
-        print(f"select {name} ({m.n_faces} faces): {t_sel:.1f} s, {len(r.hf_axes)} HFs, dhf {np.round(r.dhf_axis, 3)}, "
-              f"hfs {np.round(r.hf_axes, 3).tolist()}, E by m {np.array2string(r.by_m, precision=3)}, "
-              f"leaves {r.leaves.tolist()}, full evaluations {r.evaluations.tolist()}, prune rate {r.prune_rate:.3f}")
-        print(f"  meshing {t_mesh:.1f} s, bandsaw cut shape {t_cut:.2f} s; CD-L1x1000: self {_cd(m, m):.3f}, "
-              f"ESI {_cd(full, m):.3f}, DHF alone {_cd(dhf, m):.3f}, bandsaw cut {_cd(cut, m):.3f}; "
-              f"volume ratio to the shape: ESI {full.signed_volume() / m.signed_volume():.3f}, "
-              f"bandsaw {cut.signed_volume() / m.signed_volume():.3f}")
+        print(
+            f"select {name} ({m.n_faces} faces): {t_sel:.1f} s, {len(r.hf_axes)} HFs, dhf {np.round(r.dhf_axis, 3)}, "
+            f"hfs {np.round(r.hf_axes, 3).tolist()}, E by m {np.array2string(r.by_m, precision=3)}, "
+            f"leaves {r.leaves.tolist()}, full evaluations {r.evaluations.tolist()}, prune rate {r.prune_rate:.3f}"
+        )
+        print(
+            f"  meshing {t_mesh:.1f} s, bandsaw cut shape {t_cut:.2f} s; CD-L1x1000: self {_cd(m, m):.3f}, "
+            f"ESI {_cd(full, m):.3f}, DHF alone {_cd(dhf, m):.3f}, bandsaw cut {_cd(cut, m):.3f}; "
+            f"volume ratio to the shape: ESI {full.signed_volume() / m.signed_volume():.3f}, "
+            f"bandsaw {cut.signed_volume() / m.signed_volume():.3f}"
+        )
 
 
 def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
@@ -137,32 +149,169 @@ def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
                 break
 
 
-def bench_nesi(steps, lods):
-    import jax
-    from _esi_shapes import mug
+def _load():
+    import os
 
-    cases = [("torus", data.torus(), ((0.0, 0.0, 1.0), ()))]
-    mm = mug(48)
-    r = esi.select(mm, n_dhf=20, n_hf=30, max_hf=2, n_samples=4000, resolution=96)
-    cases.append(("mug", mm, r))
-    for name, m, ax in cases:
-        ref = esi.to_mesh(ax, m, resolution=256)
-        cd_esi = _cd(ref, m)
-        for lod in lods:
+    return f"load {os.getloadavg()[0]:.1f}"
+
+
+def _csg_part():
+    """A block with a spherical pocket on top and a ball fused to one end (marching cubes
+    of the CSG distance bound on a 96^3 grid)."""
+    import jax.numpy as jnp
+
+    from voxax import fields
+
+    def f(p):
+        block = fields.box(p, (0.6, 0.35, 0.2))
+        pocket = fields.sphere(p, 0.28, (-0.1, 0.0, 0.32))
+        ball = fields.sphere(p, 0.22, (0.55, 0.0, 0.12))
+        return fields.union(fields.difference(block, pocket), ball)
+
+    return _iso_mesh(f, 1.0, jnp)
+
+
+def _blob():
+    """`voxax.fields.blob` (marching cubes on a 96^3 grid of [-2, 2]^3)."""
+    import jax.numpy as jnp
+
+    from voxax import fields
+
+    return _iso_mesh(fields.blob, 2.0, jnp)
+
+
+def _iso_mesh(f, half, jnp, n=96):
+    g = voxax.Grid(lower=(-half,) * 3, upper=(half,) * 3, shape=(n,) * 3)
+    iso = voxax.isosurface(f(jnp.asarray(g.centers())), g, 0.0, close=True)
+    return voxax.Mesh(np.asarray(iso.vertices, np.float64), np.asarray(iso.faces, np.int32))
+
+
+#: The five shapes of the NESI-against-SIREN comparison (fixed before any run).
+NESI_SHAPES = {
+    "torus": lambda: (data.torus(), ((0.0, 0.0, 1.0), ())),
+    "mug": lambda: (data.mug(48), None),
+    "csg_part": lambda: (_csg_part(), None),
+    "blob": lambda: (_blob(), None),
+    "bent_bar": lambda: (data.bent_bar(), None),
+}
+
+
+def _siren3d_fit(m, n_params, steps, learning_rate=1e-3, n_surface=20_000, seed=0):
+    """A plain 3D SIREN (five hidden sine layers, `voxax.fields.Siren(3 -> 1)`, width chosen
+    for `n_params` parameters) regressing the exact signed distance (L1, no Eikonal term)
+    in the same normalised coordinates as NESI (bounding sphere of radius 1/1.1), with the
+    same optimiser (Adam, cosine-decayed learning rate, full batch, `voxax.minimize`).
+    Training points: `n_surface` surface samples (distance 0), as many within about 0.03
+    of the surface and half as many uniform in [-1, 1]^3; distances from the BVH, signs
+    from the winding number along a ray (all hits)."""
+    import equinox as eqx
+    import jax.numpy as jnp
+    import optax
+
+    w = int(round((-9 + np.sqrt(81 + 16 * (n_params - 1))) / 8))
+    c, R = esi.bounding_sphere(m)
+    s = (1.0 / 1.1) / R
+    rng = np.random.default_rng(seed)
+    S = metrics.sample_surface(m, n_surface, seed).points
+    near = S + rng.normal(scale=0.03 / s, size=S.shape)
+    far = c + rng.uniform(-1, 1, (n_surface // 2, 3)) / s
+    pts = np.concatenate([S, near, far])
+    bvh = voxax.BVH(m)
+    dist = bvh.closest_points(pts).distance
+    d = np.array([0.5773, 0.6031, 0.5505])
+    hits = bvh.all_hits(pts, d / np.linalg.norm(d))
+    wind = -np.bincount(hits.ray, weights=hits.sign, minlength=len(pts))
+    sdf = np.where(wind > 0.5, -dist, dist)
+    sdf[:n_surface] = 0.0
+    x = jnp.asarray((pts - c) * s, jnp.float32)
+    y = jnp.asarray(sdf * s, jnp.float32)
+    net = nesi._siren(3, 1, w, 5, np.random.default_rng(seed), jnp.float32)
+    params, static = eqx.partition(net, eqx.is_inexact_array)
+
+    def energy(p, args):
+        xx, yy = args
+        return jnp.mean(jnp.abs(nesi._apply(eqx.combine(p, static), xx) - yy))
+
+    sched = optax.cosine_decay_schedule(learning_rate, steps)
+    res = voxax.minimize(
+        energy,
+        params,
+        (x, y),
+        solver=optax.adam(sched),
+        stop=voxax.StopRules(max_steps=steps),
+        progress=False,
+        rtol=0.0,
+        atol=0.0,
+    )
+    net = eqx.combine(res.y, static)
+    return net, c, s, nesi.param_count(net), float(np.median(np.diff(res.history["time"])))
+
+
+def _siren3d_mesh(net, c, s, n=192):
+    """Marching cubes of the SIREN's zero level on an n^3 grid of [-1, 1]^3 (normalised)."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    g = voxax.Grid(lower=(-1.0,) * 3, upper=(1.0,) * 3, shape=(n,) * 3)
+    pts = np.asarray(g.centers(), np.float32).reshape(-1, 3)
+    f = eqx.filter_jit(nesi._apply)
+    vals = np.concatenate(
+        [np.asarray(f(net, jnp.asarray(pts[i : i + (1 << 18)]))) for i in range(0, len(pts), 1 << 18)]
+    )
+    iso = voxax.isosurface(jnp.asarray(vals.reshape((n,) * 3)), g, 0.0, close=True)
+    return voxax.Mesh(np.asarray(iso.vertices, np.float64) / s + c, np.asarray(iso.faces, np.int32))
+
+
+def bench_nesi(steps, lods, shapes=("torus", "mug"), siren=False, resolution=256):
+    """NESI fits at the given levels of detail (Chamfer against the ESI's), and with
+    `siren` a 3D SIREN of the same parameter count and steps next to the level-1 fit."""
+    import jax
+
+    for name in shapes:
+        m, ax = NESI_SHAPES[name]()
+        cd_self = _cd(m, m)
+        if ax is None:
             t = time.perf_counter()
+            ax = esi.select(m, n_dhf=20, n_hf=30, max_hf=2, n_samples=4000, resolution=96)
+            print(
+                f"[{name}] {m.n_faces} faces; selection {time.perf_counter() - t:.1f} s ({_load()}): "
+                f"dhf {np.round(ax.dhf_axis, 3)}, {len(ax.hf_axes)} HFs {np.round(ax.hf_axes, 3).tolist()}"
+            )
+        ref = esi.to_mesh(ax, m, resolution=resolution)
+        cd_esi = _cd(ref, m)
+        print(f"[{name}] CD-L1x1000: self {cd_self:.3f}, ESI (meshed at {resolution}^2) {cd_esi:.3f}")
+        for lod in lods:
+            t, c0, load = time.perf_counter(), time.process_time(), _load()
             net = nesi.fit(ax, m, lod=lod, steps=steps, n_samples=20_000, learning_rate=1e-3)
-            t_fit = time.perf_counter() - t
-            nm = nesi.to_mesh(net, 256)
+            t_fit, c_fit = time.perf_counter() - t, time.process_time() - c0
+            nm = nesi.to_mesh(net, resolution)
             cd = _cd(nm, m)
-            print(f"nesi {name} lod {lod}: {nesi.param_count(net)} parameters, fit {t_fit:.0f} s ({steps} steps), "
-                  f"CD-L1x1000 {cd:.3f} vs ESI {cd_esi:.3f} ({cd / cd_esi:.2f}x), self {_cd(m, m):.3f}, "
-                  f"watertight {metrics.manifold_report(nm).watertight}")
-    net = nesi.fit(cases[1][2], cases[1][1], lod=4, steps=1, n_samples=2000)
+            print(
+                f"[{name}] NESI lod {lod}: {nesi.param_count(net)} parameters, fit {t_fit:.0f} s wall / {c_fit:.0f} s CPU "
+                f"({steps} steps, {load} -> {_load()}), CD-L1x1000 {cd:.3f} vs ESI {cd_esi:.3f} ({cd / cd_esi:.2f}x), "
+                f"self {cd_self:.3f}, watertight {metrics.manifold_report(nm).watertight}"
+            )
+            if siren and lod == 1:
+                t, c0, load = time.perf_counter(), time.process_time(), _load()
+                snet, c, s, n_par, per_step = _siren3d_fit(m, nesi.param_count(net), steps)
+                t_fit, c_fit = time.perf_counter() - t, time.process_time() - c0
+                sm = _siren3d_mesh(snet, c, s)
+                cd_s = _cd(sm, m)
+                print(
+                    f"[{name}] SIREN-3D: {n_par} parameters, fit {t_fit:.0f} s wall / {c_fit:.0f} s CPU ({steps} steps, "
+                    f"{load} -> {_load()}), mesh 192^3 {sm.n_faces} faces, CD-L1x1000 {cd_s:.3f}; "
+                    f"NESI {cd:.3f} -> {'NESI' if cd < cd_s else 'SIREN'} wins"
+                )
+    if "mug" not in shapes or siren:
+        return
+    net = nesi.fit(ax, m, lod=4, steps=1, n_samples=2000)
     p = np.random.default_rng(0).uniform(-1, 1, (1_000_000, 3))
     nesi.occupancy(net, p[:1000]).block_until_ready()
     t, _ = _best(lambda: nesi.occupancy(net, p).block_until_ready(), repeats=2)
-    print(f"nesi level-4 occupancy ({len(net.heights)} HFs, {nesi.param_count(net)} parameters): "
-          f"{1e6 / t / 1e6:.2f} M points/s ({jax.devices()[0].platform})")
+    print(
+        f"nesi level-4 occupancy ({len(net.heights)} HFs, {nesi.param_count(net)} parameters): "
+        f"{1e6 / t / 1e6:.2f} M points/s ({jax.devices()[0].platform})"
+    )
 
 
 def main(argv=None) -> int:
@@ -174,6 +323,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n-hf", type=int, default=80, help="Fibonacci HF candidates (paper: 80)")
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--lods", type=int, nargs="*", default=[1, 2])
+    ap.add_argument("--resolution", type=int, default=256, help="meshing resolution of the `siren` case")
+    ap.add_argument("--nesi-shapes", nargs="*", default=list(NESI_SHAPES), help="shapes of the `siren` case")
     args = ap.parse_args(argv)
     if "bvh" in args.cases:
         bench_bvh()
@@ -185,6 +336,8 @@ def main(argv=None) -> int:
         bench_levels(args.shapes, args.max_hf, args.n_dhf, args.n_hf)
     if "nesi" in args.cases:
         bench_nesi(args.steps, args.lods)
+    if "siren" in args.cases:
+        bench_nesi(args.steps, args.lods, args.nesi_shapes, siren=True, resolution=args.resolution)
     return 0
 
 

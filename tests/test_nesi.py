@@ -17,8 +17,8 @@ FRAMES = tuple(((1.0, 0, 0), (0, 1.0, 0), (0, 0, 1.0)) for _ in range(4))
 @pytest.mark.parametrize("lod", [1, 2, 3, 4])
 def test_parameter_counts_match_the_architecture_and_the_paper(lod):
     key = jax.random.key(0)
-    dhf_only = eqx.filter_eval_shape(nesi._init, lod, (), key=key, frames=FRAMES[:1])
-    three = eqx.filter_eval_shape(nesi._init, lod, (X, X, X), key=key, frames=FRAMES)
+    dhf_only = nesi._init(lod, (), key=key, frames=FRAMES[:1])
+    three = nesi._init(lod, (X, X, X), key=key, frames=FRAMES)
     w, wh = nesi.DHF_WIDTHS[lod - 1], nesi.HF_WIDTHS[lod - 1]
     # SIREN 2 -> w (5 hidden layers) -> 2, and 2 -> wh -> 1 plus a 2 -> 16 (3 layers) -> 1 mask
     dhf = (2 * w + w) + 4 * (w * w + w) + (2 * w + 2)
@@ -74,12 +74,24 @@ def tiny_fit():
 
 
 def test_float32_sine_of_the_queries_matches_numpy():
-    # occupancy and ray casting evaluate float32 networks with a fused polynomial sine
-    from voxax.nesi import _sin32
+    # occupancy, ray casting and training evaluate float32 networks with fused polynomial
+    # sines and cosines; their derivatives (used by the normal loss and its gradient) are
+    # each other's, not the polynomials'
+    from voxax.nesi import _cos32, _sin32
 
     x = np.linspace(-120.0, 120.0, 200_001).astype(np.float32)
-    y = np.asarray(jax.jit(_sin32)(x), np.float64)
-    assert np.max(np.abs(y - np.sin(x.astype(np.float64)))) < 3e-7
+    x64 = x.astype(np.float64)
+
+    def derivatives(x):
+        d1 = jax.vmap(jax.grad(_sin32))(x)
+        d2 = jax.vmap(jax.grad(jax.grad(_sin32)))(x)
+        return _sin32(x), _cos32(x), d1, d2
+
+    s, c, d1, d2 = (np.asarray(a, np.float64) for a in jax.jit(derivatives)(x))
+    assert np.max(np.abs(s - np.sin(x64))) < 3e-7
+    assert np.max(np.abs(c - np.cos(x64))) < 3e-7
+    np.testing.assert_array_equal(d1, c)
+    assert np.max(np.abs(d2 + np.sin(x64))) < 3e-7
 
 
 def test_tiny_fit_agrees_with_the_exact_esi(tiny_fit):
@@ -118,3 +130,90 @@ def test_nesi_rejects_bad_input():
         nesi.occupancy(net, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="resolution"):
         nesi.to_mesh(net, resolution=1)
+
+
+def _reference_losses(net, d, alpha, eps):
+    """Eq. 6-14 written point by point: each network called on one point, its input
+    gradient by reverse-mode autodiff (`jax.grad`), XLA's sine."""
+    import jax.numpy as jnp
+
+    def cos_term(g, sign, ngt):
+        n = jnp.concatenate([sign * g, -sign * jnp.ones(1)])
+        return 1.0 - n @ ngt / jnp.maximum(jnp.linalg.norm(n) * jnp.linalg.norm(ngt), 1e-8)
+
+    dhf = net.dhf._single
+    fa = jax.vmap(lambda p: dhf(p)[0])(d["p0"])
+    fb = jax.vmap(lambda p: dhf(p)[1])(d["p0"])
+    ga = jax.vmap(jax.grad(lambda p: dhf(p)[0]))(d["p0"])
+    gb = jax.vmap(jax.grad(lambda p: dhf(p)[1]))(d["p0"])
+    ob = jax.vmap(dhf)(d["pbar0"])
+    total = jnp.mean(jnp.abs(fa - d["fa"]) + jnp.abs(fb - d["fb"]))
+    total += jnp.mean(jnp.maximum(ob[:, 0] - ob[:, 1] + eps, 0.0))
+    na = jax.vmap(lambda g, n: cos_term(g, -1.0, n))(ga, d["na"])
+    nb = jax.vmap(lambda g, n: cos_term(g, 1.0, n))(gb, d["nb"])
+    total += alpha * (jnp.mean(na) + jnp.mean(nb))
+    for k in range(net.n_hf):
+        h, mask = net.heights[k]._single, net.masks[k]._single
+        p, r = d["pk"][k], d["restricted"][k]
+        f = jax.vmap(h)(p)
+        g = jax.vmap(jax.grad(h))(p)
+        nk = jax.vmap(lambda g, n: cos_term(g, -1.0, n))(g, d["nk"][k])
+        total += jnp.sum(jnp.where(r, jnp.abs(f - d["fk"][k]), 0.0)) / jnp.maximum(jnp.sum(r), 1)
+        total += jnp.sum(jnp.where(r, 0.0, jnp.maximum(d["fk"][k] - f + eps, 0.0))) / jnp.maximum(jnp.sum(~r), 1)
+        total += alpha * jnp.sum(jnp.where(r, nk, 0.0)) / jnp.maximum(jnp.sum(r), 1)
+        inside, outside = jax.vmap(mask)(p), jax.vmap(mask)(d["pbark"][k])
+        bce = jnp.concatenate([jax.nn.softplus(-inside), jax.nn.softplus(outside)])
+        total += jnp.mean(bce)
+    return total
+
+
+def test_fused_losses_match_pointwise_autodiff():
+    # the training step evaluates each network once with its input gradient carried
+    # forward through batched products; the loss and its parameter gradient must equal
+    # those of the per-point reverse-mode formulation (float64, XLA's sine in both)
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(3)
+    n = 40
+
+    def unit(k):
+        v = rng.normal(size=(k, 3))
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    d = {
+        "p0": rng.uniform(-1, 1, (n, 2)),
+        "fa": rng.uniform(0, 0.5, n),
+        "fb": rng.uniform(-0.5, 0, n),
+        "na": unit(n),
+        "nb": unit(n),
+        "pbar0": rng.uniform(-1, 1, (n // 2, 2)),
+        "pk": (rng.uniform(-1, 1, (n, 2)),),
+        "fk": (rng.uniform(-0.5, 0.5, n),),
+        "nk": (unit(n),),
+        "restricted": (rng.uniform(size=n) < 0.6,),
+        "pbark": (rng.uniform(-1, 1, (n // 2, 2)),),
+    }
+    dt = jnp.dtype("float64")
+    d = jax.tree_util.tree_map(lambda a: jnp.asarray(a, None if a.dtype == bool else dt), d)
+
+    def siren(out, width, depth):  # random weights from NumPy (no compilation)
+        shape = eqx.filter_eval_shape(voxax.fields.Siren, 2, out, width, depth, key=jax.random.key(0))
+        sizes = [2] + [width] * depth + [out]
+        w = [jnp.asarray(rng.uniform(-1, 1, (o, i)) / i, dt) for i, o in zip(sizes, sizes[1:])]
+        b = [jnp.asarray(rng.uniform(-1, 1, o), dt) for o in sizes[1:]]
+        return eqx.tree_at(lambda s: (s.weights, s.biases), shape, (w, b))
+
+    dhf, height, mask = siren(2, 8, 2), siren(1, 6, 2), siren(1, 4, 1)
+    net = nesi.NESI(dhf, (height,), (mask,), FRAMES[:2], (0.0,) * 3, 1.0)
+    params, static = eqx.partition(net, eqx.is_inexact_array)
+    fused = jax.jit(jax.value_and_grad(lambda p: nesi.losses(eqx.combine(p, static), d, 0.1, 0.01)["total"]))
+    ref = jax.jit(jax.value_and_grad(lambda p: _reference_losses(eqx.combine(p, static), d, 0.1, 0.01)))
+    (v, g), (v_ref, g_ref) = jax.device_get((fused(params), ref(params)))
+    g = [np.asarray(x, np.float64) for x in jax.tree_util.tree_leaves(g)]
+    g_ref = [np.asarray(x, np.float64) for x in jax.tree_util.tree_leaves(g_ref)]
+    assert len(g) == len(g_ref) == 16
+    tol = 1e-11
+    assert abs(float(v) - float(v_ref)) <= tol * abs(float(v_ref))
+    scale = max(np.abs(x).max() for x in g_ref)
+    for a, b in zip(g, g_ref):
+        np.testing.assert_allclose(a, b, atol=tol * scale, rtol=0)
