@@ -618,6 +618,15 @@ class _Problem:
             self._TP[(k, angle)] = t
         return t
 
+    def _visible_terms(self, ks, angle: float) -> tuple[float, int]:
+        """The surface samples visible along one of the directions `ks` (sorted): the sum of
+        their On values (the least over the directions) and their count."""
+        vis = self.visP[:, ks].any(1)
+        on_p = np.ones(self.n_samples)
+        for k in ks:
+            on_p = np.minimum(on_p, self.TP(k, angle))
+        return float(on_p[vis].sum()), int(vis.sum())
+
     def floater_bound(self, dhf, ks, cd_st: float, eps1: float, eps2: float, angle: float) -> float:
         """A lower bound of E for the directions `ks` (the DHF pair `dhf` among them) from
         the DHF's floaters alone. E grows with Dist and mu, and the HFs' floaters only add
@@ -628,11 +637,8 @@ class _Problem:
         `cd_st`: a lower bound of CD(S, S~). Needs only the rays of the DHF's boundary
         samples."""
         ks = sorted(set(ks))
-        vis = self.visP[:, ks].any(1)
-        on_p = np.ones(self.n_samples)
-        for k in ks:
-            on_p = np.minimum(on_p, self.TP(k, angle))
-        tot_d, tot_on, n = 0.0, float(on_p[vis].sum()), int(vis.sum())
+        tot_on, n = self._visible_terms(ks, angle)
+        tot_d = 0.0
         for k in ks:
             if k in dhf:
                 f = self.floaters(k, [k2 for k2 in ks if k2 != k])
@@ -657,11 +663,8 @@ class _Problem:
         """
         ks = sorted(set(ks))
         self.n_full += 1
-        vis = self.visP[:, ks].any(1)
-        on_p = np.ones(self.n_samples)
-        for k in ks:
-            on_p = np.minimum(on_p, self.TP(k, angle))
-        tot_d, tot_on, n = 0.0, float(on_p[vis].sum()), int(vis.sum())
+        tot_on, n = self._visible_terms(ks, angle)
+        tot_d = 0.0
         for k in ks:
             keep = self.floaters(k, [k2 for k2 in ks if k2 != k])
             if not len(keep):
