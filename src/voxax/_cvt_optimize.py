@@ -193,11 +193,13 @@ def _lbfgs_init(solver, y, args):
 def _lbfgs_step(solver, y, state, args):
     y_new, state, _ = solver.step(_energy_aux, y, args, {}, state, frozenset())
     done, result = solver.terminate(_energy_aux, y_new, args, {}, state, frozenset())
-    return y_new, state, _energy_arrays(y_new, args), done, result
+    # `y_new` is the last accepted iterate, and the solver keeps its energy: no second
+    # nearest-seed search per step
+    return y_new, state, state.f_info.f, done, result
 
 
 def _lbfgs(y, args, steps: int, rtol: float):
-    """optimistix L-BFGS driven step by step from Python (one energy per step), with its
+    """optimistix L-BFGS driven step by step from Python (one energy evaluation per step), with its
     init and step compiled once per problem shape (the solver and the energy are static,
     the seeds and fragments arguments)."""
     import equinox as eqx
