@@ -36,6 +36,12 @@ def test_depth_map_equals_exact_ray_triangle_depths(mesh, direction):
     # the frame is orthonormal and right-handed, d is the unit direction
     np.testing.assert_allclose(np.cross(fr.u, fr.v), fr.d, atol=1e-15)
     np.testing.assert_allclose(fr.d, np.asarray(direction) / np.linalg.norm(direction), atol=1e-15)
+    # a prebuilt tree gives the same map (and is checked once, then reused)
+    tree = voxax.BVH(mesh)
+    for _ in range(2):
+        again = esi.depth_map(tree, direction, resolution=24)
+        for a, b in zip(dm[:-1], again[:-1], strict=True):
+            assert np.array_equal(a, b, equal_nan=True)
 
 
 def test_depth_map_of_a_rotated_cube_equals_the_slab_formula():
@@ -100,6 +106,12 @@ def test_depth_map_rejects_bad_input():
         esi.depth_map(cube)
     with pytest.raises(ValueError, match="resolution"):
         esi.depth_map(cube, (0, 0, 1), resolution=0)
+    with pytest.raises(ValueError, match="closed"):
+        esi.depth_map(voxax.BVH(cube.vertices, cube.faces[:-1]), (0.0, 0.0, 1.0))
+    with pytest.raises(TypeError, match="only the direction"):
+        esi.depth_map(voxax.BVH(cube), cube.faces, (0.0, 0.0, 1.0))
+    with pytest.raises(TypeError, match="missing"):
+        esi.depth_map(voxax.BVH(cube))
 
 
 def test_candidates_are_unit_and_spread():

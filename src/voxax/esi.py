@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -253,7 +254,9 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
     **Arguments:**
 
     - `vertices`: `(V, 3)` float, or a `Mesh` (then `direction` moves into the `faces`
-      slot: `depth_map(mesh, direction)`).
+      slot: `depth_map(mesh, direction)`), or a [`BVH`][voxax.BVH] of the mesh: depth maps
+      along many directions then share one tree (`depth_map(bvh, direction)`; the mesh is
+      checked once per tree).
     - `faces`: `(F, 3)` int; the mesh must be closed and consistently oriented.
     - `direction`: `(3,)` float, non-zero (normalised here).
     - `resolution`: pixels per side (>= 1).
@@ -267,21 +270,43 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
     (-1.0, 1.0)
     """
     where = "esi.depth_map"
-    vertices, faces, (direction,) = _validate.unpack_mesh(where, vertices, faces, direction)
+    if isinstance(vertices, BVH):
+        bvh = vertices
+        if direction is None:
+            faces, direction = None, faces
+        elif faces is not None:
+            raise TypeError(f"{where}: given a BVH, pass only the direction after it")
+        mesh, normals = _checked_tree(where, bvh)
+    else:
+        vertices, faces, (direction,) = _validate.unpack_mesh(where, vertices, faces, direction)
+        mesh = closed_mesh(where, vertices, faces)
+        bvh, normals = BVH(mesh), face_normals(mesh.vertices, mesh.faces)
     if direction is None:
         raise TypeError(f"{where}: missing `direction`")
-    mesh = closed_mesh(where, vertices, faces)
     d = unit_direction(where, direction)
     res = _validate.positive_int(where, "resolution", resolution)
     c, rad = bounding_sphere(mesh)
     frame = frame_for(d, c, rad, res)
-    dm = _depth_map(BVH(mesh), frame, face_normals(mesh.vertices, mesh.faces), threads)
+    dm = _depth_map(bvh, frame, normals, threads)
     if not dm.mask.any():
         raise ValueError(
             f"{where}: the depth map is empty (no pixel centre of the {res}x{res} frame "
             "meets the mesh); raise the resolution"
         )
     return dm
+
+
+_CHECKED_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _checked_tree(where: str, bvh: BVH) -> tuple[Mesh, np.ndarray]:
+    """The mesh of `bvh`, checked by `closed_mesh` on first use, and its face normals; both
+    kept on the tree so that later depth maps skip the check."""
+    cached = _CHECKED_TREES.get(bvh)
+    if cached is None:
+        mesh = closed_mesh(where, bvh.mesh)
+        cached = _CHECKED_TREES[bvh] = (mesh, face_normals(mesh.vertices, mesh.faces))
+    return cached
 
 
 # ----------------------------------------------------------------------------- height-field solids
