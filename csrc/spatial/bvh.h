@@ -39,6 +39,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <string>
@@ -618,16 +619,19 @@ class Bvh {
 
   // The traversal layout: one 128-byte record per inner node with the bounds of
   // both children in float, rounded outwards (a float box contains the double
-  // one, so it never prunes what the double box keeps), so that visiting a node
-  // touches two cache lines.
+  // one, so it never prunes what the double box keeps). The boxes and the child
+  // references fill the first cache line, which is all a ray reads; closest-point
+  // searches read the slabs in the second line too.
   struct alignas(64) Pair {
     float lo[3][2], hi[3][2];  // [axis][child]
-    float c[3][2], n[3][2];    // slab centre and axis per child
-    float r[2], h[2];          // slab radius and half-thickness per child
     int32_t ref[2];            // inner child: its Pair index; leaf: its first triangle
     int32_t count[2];          // leaf: number of triangles; inner: 0
+    float c[3][2], n[3][2];    // slab centre and axis per child
+    float r[2], h[2];          // slab radius and half-thickness per child
   };
   static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
+  static_assert(offsetof(Pair, count) + sizeof(Pair::count) <= 64,
+                "a ray reads one cache line per record");
   struct FSlab {
     float c[3] = {0, 0, 0}, n[3] = {0, 0, 1};
     float r = std::numeric_limits<float>::infinity(), h = std::numeric_limits<float>::infinity();
