@@ -110,10 +110,13 @@ def _coords(x, name: str) -> np.ndarray:
     a = np.ascontiguousarray(a, dtype=np.float64)
     if a.ndim < 1 or a.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (..., 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} contain NaN or Inf")
-    if a.size and np.abs(a).max() > MAX_ABS_COORDINATE:
-        raise ValueError(f"{name} coordinate magnitude exceeds 1e75")
+    if a.size:
+        # two reductions without temporaries: NaN propagates through both, Inf shows
+        hi, lo = a.max(), a.min()
+        if not (np.isfinite(hi) and np.isfinite(lo)):
+            raise ValueError(f"{name} contain NaN or Inf")
+        if max(hi, -lo) > MAX_ABS_COORDINATE:
+            raise ValueError(f"{name} coordinate magnitude exceeds 1e75")
     return a
 
 
@@ -290,10 +293,9 @@ class BVH:
             ) from None
         o = np.ascontiguousarray(np.broadcast_to(o, lead + (3,)).reshape(-1, 3))
         d = np.ascontiguousarray(np.broadcast_to(d, lead + (3,)).reshape(-1, 3))
-        if len(d) and np.any(np.all(d == 0, axis=1)):
-            raise ValueError(
-                f"ray direction {int(np.flatnonzero(np.all(d == 0, axis=1))[0])} is zero"
-            )
+        zero = (d[:, 0] == 0) & (d[:, 1] == 0) & (d[:, 2] == 0)
+        if zero.any():
+            raise ValueError(f"ray direction {int(np.flatnonzero(zero)[0])} is zero")
         t_min, t_max = float(t_min), float(t_max)
         if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
             raise ValueError(
