@@ -178,6 +178,28 @@ def test_step_compiles_once():
         assert counts[3, solver] == counts[40, solver] <= 3
 
 
+def test_later_calls_reuse_the_compiled_step():
+    """A second `minimize` of the same function, solver and shapes (other values) reuses
+    the compiled step and final evaluation: only the shape inference traces `fn` again."""
+    traces = {"n": 0}
+
+    def fn(y, args):
+        traces["n"] += 1
+        return quadratic(y, args)
+
+    bounds = (-jnp.ones(3), jnp.ones(3))
+    for solver, kw in (("adam", {}), ("adam", {"bounds": bounds}), ("bfgs", {}), ("lbfgs", {})):
+        first = minimize(fn, np.zeros((4, 3)), solver=solver, stop=StopRules(max_steps=3), progress=False, **kw)
+        before = traces["n"]
+        again = minimize(fn, np.full((4, 3), 0.5), solver=solver, stop=StopRules(max_steps=3), progress=False, **kw)
+        assert traces["n"] - before == 1, (solver, kw)
+        assert again.steps == first.steps == 3 and not np.array_equal(again.y, first.y)
+        # the reused step gives what a fresh compilation gives
+        fresh = minimize(lambda y, a: quadratic(y, a), np.full((4, 3), 0.5), solver=solver,
+                         stop=StopRules(max_steps=3), progress=False, **kw)
+        assert np.array_equal(again.y, fresh.y) and again.energy == fresh.energy
+
+
 def test_pytree_parameters_and_args():
     def fn(y, args):
         return jnp.sum((y["a"] - args["t"]) ** 2) + (y["b"] - 2.0) ** 2

@@ -5,7 +5,8 @@ callbacks and the stopping rules of the paper's applications.
 gives no progress report, no per-step history and no way to stop on problem-specific
 rules ("no voxel above 1 + 1e-3", "no vertex moved more than 5e-4"). `minimize` instead
 drives the solver's own `init` / `step` / `terminate` API from Python. The step (one
-solver step plus the bookkeeping) is compiled once with `equinox.filter_jit`; each
+solver step plus the bookkeeping) is compiled once with `equinox.filter_jit`, as a module
+of everything it uses, so later calls on the same problem reuse the compilation; each
 iteration then costs one compiled call and one small device-to-host copy of scalars.
 
 Solvers: `"adam"` and `"sgd"` (optax), `"bfgs"` (`optimistix.BFGS`), `"lbfgs"`
@@ -178,15 +179,32 @@ class _WithAux(eqx.Module):
 _NAMES = "'adam', 'sgd', 'bfgs', 'lbfgs', 'lbfgsb', an optax GradientTransformation or an optimistix minimizer"
 
 
+_NAMED_OPTAX: dict = {}
+
+
+def _named_optax(name: str, learning_rate):
+    """`optax.adam` / `optax.sgd` of a learning rate, the same object for the same
+    (hashable) learning rate, so that the compiled steps of later calls are reused."""
+    make = optax.adam if name == "adam" else optax.sgd
+    try:
+        key = (name, learning_rate)
+        hash(key)
+    except TypeError:  # an array learning rate: a fresh transformation
+        return make(learning_rate)
+    if key not in _NAMED_OPTAX:
+        if len(_NAMED_OPTAX) >= 64:
+            _NAMED_OPTAX.clear()
+        _NAMED_OPTAX[key] = make(learning_rate)
+    return _NAMED_OPTAX[key]
+
+
 def _make_solver(solver, learning_rate):
     """`(kind, solver)`: kind is "optax" (a GradientTransformation), "lbfgsb" (None),
     "quasi_newton" or "optimistix" (an optimistix minimizer)."""
     if isinstance(solver, str):
         name = solver.lower()
-        if name == "adam":
-            return "optax", optax.adam(learning_rate)
-        if name == "sgd":
-            return "optax", optax.sgd(learning_rate)
+        if name in ("adam", "sgd"):
+            return "optax", _named_optax(name, learning_rate)
         if name == "lbfgsb":
             return "lbfgsb", None
         if name in ("bfgs", "lbfgs"):
@@ -272,6 +290,88 @@ def _as_inexact(x):
     return x if jnp.issubdtype(x.dtype, jnp.inexact) else x.astype(jnp.result_type(float))
 
 
+def _info(energy, aux, step_size, accepted, done, failed):
+    return {"energy": energy, "step_size": step_size, "aux": _scalar_aux(aux),
+            "accepted": accepted, "done": done, "failed": failed}
+
+
+# The steps are modules of everything they use, compiled through the module-level
+# `_compiled`: equal problems (the same `fn`, solver, options and shapes) hit the same
+# compilation in later `minimize` calls instead of compiling their closures anew.
+
+
+class _OptaxStep(eqx.Module):
+    fn_aux: _WithAux
+    opt: Any  # a GradientTransformation (its functions are static)
+    lower: Any  # pytrees like y0, or None without bounds
+    upper: Any
+    rtol: float
+    atol: float
+    step_size_fn: Callable
+
+    f_max: Any  # the largest value of the energy's dtype: the "previous energy" of step 0
+
+    def init(self, y, args):
+        return self.opt.init(y), self.f_max
+
+    def __call__(self, y, state, args):
+        opt_state, f_prev = state
+        fn_aux = self.fn_aux
+        (f, aux), grads = eqx.filter_value_and_grad(fn_aux, has_aux=True)(y, args)
+        if isinstance(self.opt, optax.GradientTransformationExtraArgs):
+            updates, opt_state = self.opt.update(grads, opt_state, y, value=f, grad=grads,
+                                                 value_fn=lambda z: fn_aux(z, args)[0])
+        else:
+            updates, opt_state = self.opt.update(grads, opt_state, y)
+        y_new = optax.apply_updates(y, updates)
+        if self.lower is not None:
+            y_new = optax.projections.projection_box(y_new, self.lower, self.upper)
+        y_diff = jtu.tree_map(lambda a, b: a - b, y_new, y)
+        done = _cauchy(self.rtol, self.atol, y, y_diff, f, f - f_prev)
+        info = _info(f, aux, self.step_size_fn(y_new, y), jnp.array(True), done, jnp.array(False))
+        return y_new, (opt_state, f), info, jnp.array(0)
+
+
+class _OptxStep(eqx.Module):
+    fn_aux: _WithAux
+    optimizer: Any  # an optimistix minimizer
+    options: dict
+    f_struct: Any
+    aux_struct: Any
+    quasi_newton: bool = eqx.field(static=True)
+    step_size_fn: Callable
+
+    def init(self, y, args):
+        return self.optimizer.init(self.fn_aux, y, args, self.options, self.f_struct, self.aux_struct, frozenset())
+
+    def __call__(self, y, state, args):
+        fn_aux, tags = self.fn_aux, frozenset()
+        y_new, new_state, _ = self.optimizer.step(fn_aux, y, args, self.options, state, tags)
+        done, result = self.optimizer.terminate(fn_aux, y_new, args, self.options, new_state, tags)
+        energy, aux = fn_aux(y_new, args)  # at the (accepted) iterate the step returns
+        step_size = self.step_size_fn(y_new, y)
+        # A line search that rejects its trial point returns the previous iterate.
+        moved = jnp.any(jnp.stack([jnp.any(a != b) for a, b in zip(jtu.tree_leaves(y_new), jtu.tree_leaves(y))]))
+        accepted = moved if self.quasi_newton else jnp.array(True)
+        failed = done & (result != optx.RESULTS.successful)
+        return y_new, new_state, _info(energy, aux, step_size, accepted, done, failed), result
+
+
+@eqx.filter_jit
+def _compiled_init(step, y, args):
+    return step.init(y, args)
+
+
+@eqx.filter_jit
+def _compiled_step(step, y, state, args):
+    return step(y, state, args)
+
+
+@eqx.filter_jit
+def _compiled_eval(fn_aux, y, args):
+    return fn_aux(y, args)
+
+
 def minimize(
     fn: Callable,
     y0,
@@ -292,9 +392,12 @@ def minimize(
 ) -> MinimizeResult:
     """Minimizes `fn(y, args)` step by step, with progress bar, history and stopping rules.
 
-    One compiled step (compiled once, on the first call) runs one solver step, its
-    convergence check, and the bookkeeping; Python then records the history, updates the
-    progress bar, calls `callback` and checks the `StopRules`.
+    One compiled step runs one solver step, its convergence check, and the bookkeeping;
+    Python then records the history, updates the progress bar, calls `callback` and
+    checks the `StopRules`. The step is compiled on the first call and reused by later
+    calls with the same `fn` (the same function object), solver, options and shapes
+    (solvers given by name count as the same for the same learning rate; `"lbfgsb"`
+    compiles per call).
 
     Which point a history entry describes: for optax solvers (`"adam"`, `"sgd"`), step
     `k` evaluates the energy at the iterate it starts from (the usual training-loss
@@ -365,7 +468,6 @@ def minimize(
         raise TypeError(f"minimize: `stop` must be a StopRules, got {type(stop).__name__}")
     kind, solver = _make_solver(solver, learning_rate)
     options = {} if options is None else dict(options)
-    tags = frozenset()
     y0 = jtu.tree_map(_as_inexact, y0)
     fn_aux = _WithAux(fn, has_aux)
     step_size_fn = _default_step_size if step_size_fn is None else step_size_fn
@@ -389,35 +491,12 @@ def minimize(
         lower = jtu.tree_map(lambda x: jnp.full(x.shape, -jnp.inf, x.dtype), y0)
         upper = jtu.tree_map(lambda x: jnp.full(x.shape, jnp.inf, x.dtype), y0)
 
-    def _info(energy, aux, step_size, accepted, done, failed):
-        return {"energy": energy, "step_size": step_size, "aux": _scalar_aux(aux),
-                "accepted": accepted, "done": done, "failed": failed}
-
     failure = None  # maps the step's `result` to a failure message
 
     if kind == "optax":
-        opt = solver
-        extra = isinstance(opt, optax.GradientTransformationExtraArgs)
+        lo, hi = (lower, upper) if bounds is not None else (None, None)
         f_max = jnp.array(jnp.finfo(f_struct.dtype).max, f_struct.dtype)
-
-        def _init(y, args):
-            return opt.init(y), f_max
-
-        def _step(y, state, args):
-            opt_state, f_prev = state
-            (f, aux), grads = eqx.filter_value_and_grad(fn_aux, has_aux=True)(y, args)
-            if extra:
-                updates, opt_state = opt.update(grads, opt_state, y, value=f, grad=grads,
-                                                value_fn=lambda z: fn_aux(z, args)[0])
-            else:
-                updates, opt_state = opt.update(grads, opt_state, y)
-            y_new = optax.apply_updates(y, updates)
-            if bounds is not None:
-                y_new = optax.projections.projection_box(y_new, lower, upper)
-            y_diff = jtu.tree_map(lambda a, b: a - b, y_new, y)
-            done = _cauchy(rtol, atol, y, y_diff, f, f - f_prev)
-            info = _info(f, aux, step_size_fn(y_new, y), jnp.array(True), done, jnp.array(False))
-            return y_new, (opt_state, f), info, jnp.array(0)
+        stepper = _OptaxStep(fn_aux, solver, lo, hi, rtol, atol, step_size_fn, f_max)
 
     elif kind == "lbfgsb":
         jaxopt = require("jaxopt", 'minimize(solver="lbfgsb")')
@@ -439,28 +518,23 @@ def minimize(
     else:
         if isinstance(solver, str):
             solver = optx.BFGS(rtol=rtol, atol=atol) if solver == "bfgs" else optx.LBFGS(rtol=rtol, atol=atol)
-        optimizer = solver
-
-        def _init(y, args):
-            return optimizer.init(fn_aux, y, args, options, f_struct, aux_struct, tags)
-
-        def _step(y, state, args):
-            y_new, new_state, _ = optimizer.step(fn_aux, y, args, options, state, tags)
-            done, result = optimizer.terminate(fn_aux, y_new, args, options, new_state, tags)
-            energy, aux = fn_aux(y_new, args)  # at the (accepted) iterate the step returns
-            step_size = step_size_fn(y_new, y)
-            # A line search that rejects its trial point returns the previous iterate.
-            moved = jnp.any(jnp.stack([jnp.any(a != b) for a, b in zip(jtu.tree_leaves(y_new), jtu.tree_leaves(y))]))
-            accepted = moved if kind == "quasi_newton" else jnp.array(True)
-            failed = done & (result != optx.RESULTS.successful)
-            return y_new, new_state, _info(energy, aux, step_size, accepted, done, failed), result
+        stepper = _OptxStep(fn_aux, solver, options, f_struct, aux_struct, kind == "quasi_newton", step_size_fn)
 
         def failure(result):
             return str(optx.RESULTS[result])
 
-    if jit:
-        _init = eqx.filter_jit(_init)
-        _step = eqx.filter_jit(_step)
+    if kind == "lbfgsb":
+        if jit:
+            _init = eqx.filter_jit(_init)
+            _step = eqx.filter_jit(_step)
+    elif jit:
+        def _init(y, args):
+            return _compiled_init(stepper, y, args)
+
+        def _step(y, state, args):
+            return _compiled_step(stepper, y, state, args)
+    else:
+        _init, _step = stepper.init, stepper
 
     state = _init(y0, args)
     y = y0
@@ -557,9 +631,8 @@ def minimize(
             bar.close(stop_reason)
 
     # The energy and aux at the returned iterate (one extra evaluation when unknown).
-    final_eval = eqx.filter_jit(fn_aux) if jit else fn_aux
     if out_energy is None or has_aux:
-        f, out_aux = final_eval(y_out, args)
+        f, out_aux = _compiled_eval(fn_aux, y_out, args) if jit else fn_aux(y_out, args)
         out_energy = float(f)
     history = {k: np.asarray(v, dtype=np.float64) for k, v in records.items()}
     return MinimizeResult(y=y_out, steps=steps, stop_reason=stop_reason, history=history,
