@@ -217,3 +217,21 @@ def test_fused_losses_match_pointwise_autodiff():
     scale = max(np.abs(x).max() for x in g_ref)
     for a, b in zip(g, g_ref):
         np.testing.assert_allclose(a, b, atol=tol * scale, rtol=0)
+
+
+def test_a_second_fit_of_the_same_sizes_reuses_the_compiled_steps(tiny_fit, monkeypatch):
+    """A fit with the settings and sizes of an earlier one hits its compiled step:
+    `losses` is traced only by the shape inference, and the result is the same."""
+    m, ax, net = tiny_fit
+    traces = {"n": 0}
+    losses = nesi.losses
+
+    def counted(*a, **k):
+        traces["n"] += 1
+        return losses(*a, **k)
+
+    monkeypatch.setattr(nesi, "losses", counted)
+    again = nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, seed=0)
+    assert traces["n"] == 1
+    for a, b in zip(jax.tree_util.tree_leaves(net), jax.tree_util.tree_leaves(again), strict=True):
+        assert np.array_equal(np.asarray(a), np.asarray(b))

@@ -399,8 +399,6 @@ def fit(
 
     **Returns:** the trained [`NESI`][voxax.nesi.NESI].
     """
-    import optax
-
     from ._minimize import StopRules, minimize
 
     where = "nesi.fit"
@@ -432,15 +430,13 @@ def fit(
     arrays = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=None if a.dtype == bool else jnp.float32), arrays)
     params, static = eqx.partition(net, eqx.is_inexact_array)
     i0 = steps // 5 if normal_start is None else max(0, min(int(normal_start), steps))
-    sched = optax.cosine_decay_schedule(learning_rate, steps)
     for lo_i, hi_i, alpha in ((0, i0, 0.0), (i0, steps, 0.1)):
         if hi_i <= lo_i:
             continue
-        opt = optax.adam(lambda i, lo_i=lo_i: sched(i + lo_i))
-
-        def energy(p, args, alpha=alpha):
-            return losses(eqx.combine(p, static), args, alpha, eps)["total"]
-
+        # equal settings give the same energy module and optimizer, so that a later fit of
+        # the same sizes reuses the compiled step
+        opt = _phase_adam(float(learning_rate), steps, lo_i)
+        energy = _PhaseEnergy(static, alpha, float(eps))
         res = minimize(
             energy,
             params,
@@ -453,6 +449,35 @@ def fit(
         )
         params = res.y
     return eqx.combine(params, static)
+
+
+class _PhaseEnergy(eqx.Module):
+    """The training energy of one phase: the total loss of the parameters `p` combined
+    with the network's static part."""
+
+    static: NESI
+    alpha: float = eqx.field(static=True)
+    eps: float = eqx.field(static=True)
+
+    def __call__(self, p, args):
+        return losses(eqx.combine(p, self.static), args, self.alpha, self.eps)["total"]
+
+
+_PHASE_ADAM: dict = {}
+
+
+def _phase_adam(learning_rate: float, steps: int, offset: int):
+    """Adam on the cosine decay of `learning_rate` over `steps`, from step `offset` on:
+    one object per setting (at most 32 kept)."""
+    import optax
+
+    key = (learning_rate, steps, offset)
+    if key not in _PHASE_ADAM:
+        if len(_PHASE_ADAM) >= 32:
+            _PHASE_ADAM.clear()
+        sched = optax.cosine_decay_schedule(learning_rate, steps)
+        _PHASE_ADAM[key] = optax.adam(lambda i: sched(i + offset))
+    return _PHASE_ADAM[key]
 
 
 # ----------------------------------------------------------------------------- queries
