@@ -3,8 +3,8 @@
 Meshes: `voxax.data.large(100_000)` and `voxax.data.large(1_000_000)` (a tube around a
 trefoil knot, max |v| = 0.75). Queries:
 
-- rays: origins uniform in [-1, 1]^3, directions uniform on the sphere (incoherent rays,
-  most of them hit the tube), `first_hits` and `any_hits`;
+- rays: origins uniform in [-1, 1]^3, directions uniform on the sphere (incoherent rays;
+  about one in seven hits the thin tube), `first_hits` and `any_hits`;
 - closest points: points uniform in [-1, 1]^3 ("volume") and points within 0.01 of the
   surface ("near"), `closest_points`;
 - nearest neighbours: the "near" points against 20,000 seeds sampled on the surface
