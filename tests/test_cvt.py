@@ -189,6 +189,74 @@ def test_lloyd_monotone_and_lbfgs_faster(small):
     assert lb.energy.min() <= lloyd.energy[-1]
 
 
+def _brute_nearest(s, x):
+    """The nearest seed by (squared distance, index), all pairs in numpy."""
+    d2 = np.sum((s[None, :, :] - x[:, None, :]) ** 2, axis=2)
+    return np.lexsort((np.broadcast_to(np.arange(len(s)), d2.shape), d2), axis=1)[:, 0]
+
+
+def test_assignment_kernel_with_hints_is_exact():
+    from voxax._cvt_optimize import _assign_moments, assign_moments_host
+
+    rng = np.random.default_rng(5)
+    # seeds on a sphere on a coarse lattice of directions (many ties), points on and near it
+    s = np.round(rng.normal(size=(300, 3)), 1)
+    s /= np.linalg.norm(s, axis=1, keepdims=True)
+    s = np.concatenate([s, s[:7]])  # duplicate seeds: ties broken by the smaller index
+    x = rng.normal(size=(3000, 3))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    x = np.concatenate([x * rng.uniform(0.97, 1.03, (3000, 1)), s[:20]])  # points on seeds
+    w = rng.uniform(0.0, 2.0, len(x))
+    w[::17] = 0.0
+    ref = _brute_nearest(s, x)
+    mass = np.bincount(ref, w, minlength=len(s))
+    first = np.stack([np.bincount(ref, w * x[:, a], minlength=len(s)) for a in range(3)], axis=1)
+    energy = np.sum(w * np.sum((x - s[ref]) ** 2, axis=1))
+    moved = s + rng.normal(scale=0.02, size=s.shape)
+    hints = {
+        "none": None,
+        "exact": ref,
+        "from moved seeds": _brute_nearest(moved, x),
+        "one seed": np.zeros(len(x)),
+        "garbage": rng.integers(-3, len(s) + 3, len(x)),
+    }
+    runs = []
+    for name, hint in hints.items():
+        for threads in (1, 2):
+            idx, mom, count, e = assign_moments_host(s, x, w, hint, threads=threads)
+            assert np.array_equal(idx, ref), name
+            assert np.abs(mom[:, 0] - mass).max() <= 1e-12 and np.abs(mom[:, 1:] - first).max() <= 1e-12
+            assert np.array_equal(count, np.bincount(ref, w > 0, minlength=len(s)))
+            assert abs(e - energy) <= 1e-12 * energy
+            runs.append((mom.tobytes(), e))
+    assert len(set(runs)) == 1  # same bits for any hint and thread count
+    # the FFI kernel under jit: the same bits
+    out = jax.jit(_assign_moments)(s, x, w, jax.numpy.asarray(ref, jax.numpy.int32))
+    assert np.array_equal(np.asarray(out[0]), ref) and np.asarray(out[1]).tobytes() == runs[0][0]
+    with pytest.raises(ValueError, match="NaN"):
+        assign_moments_host(np.full((3, 3), np.nan), x, w)
+    with pytest.raises(ValueError, match="weights"):
+        assign_moments_host(s, x, -w)
+
+
+def test_optimizer_energy_gradient_is_eq2(small):
+    from scipy.spatial import cKDTree
+
+    from voxax._cvt_optimize import _energy_arrays
+
+    fr, s = small
+    x, w = jax.numpy.asarray(fr.points), jax.numpy.asarray(fr.weights)
+    hint = jax.numpy.zeros(fr.size, jax.numpy.int32)
+    (e, idx), g = jax.jit(jax.value_and_grad(_energy_arrays, has_aux=True))(jax.numpy.asarray(s), (x, w, 0.5, hint))
+    _, ref_idx = cKDTree(s).query(fr.points)
+    assert np.array_equal(np.asarray(idx), ref_idx)
+    d = fr.points - s[ref_idx]
+    assert abs(float(e) - 0.5 * np.sum(fr.weights * np.sum(d * d, axis=1))) <= 1e-12 * float(e)
+    ref = np.zeros_like(s)
+    np.add.at(ref, ref_idx, fr.weights[:, None] * (s[ref_idx] - fr.points))  # 0.5 * 2 (W s - sum w x)
+    assert np.abs(np.asarray(g) - ref).max() <= 1e-12
+
+
 def test_init_seeds_and_respawn(small):
     fr, _ = small
     s = cvt.init_seeds(fr, 50, key=3)
