@@ -221,19 +221,38 @@ def _values_runner(fn):
     return _compiled("values", fn, lambda: jax.jit(lambda p: _values_impl(fn, p)))
 
 
-def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+class _Centers:
+    """The cell centres of a grid by flat index (the values `Grid.centers()` holds, without
+    building that `(*shape, 3)` array)."""
+
+    def __init__(self, grid: Grid):
+        self.axes = [
+            grid.lower[a] + (np.arange(grid.shape[a], dtype=np.float64) + 0.5) * grid.spacing[a] for a in range(3)
+        ]
+        self.shape = tuple(grid.shape)
+
+    def __getitem__(self, flat: np.ndarray) -> np.ndarray:
+        ny, nz = self.shape[1], self.shape[2]
+        out = np.empty((len(flat), 3))
+        out[:, 0] = self.axes[0][flat // (ny * nz)]
+        out[:, 1] = self.axes[1][(flat // nz) % ny]
+        out[:, 2] = self.axes[2][flat % nz]
+        return out
+
+
+def _field_values(fn: Callable, centers: _Centers, chunk: int = 1 << 16) -> np.ndarray:
+    """The field at every cell centre, `(*shape,)`, evaluated in chunks of one shape."""
     import jax.numpy as jnp
 
     f = _values_runner(fn)
-    out = np.empty(len(points), np.float64)
-    size = chunk  # one shape: one compilation per field
-    buf = np.zeros((size, 3))
-    for s in range(0, len(points), size):
-        part = points[s : s + size]
-        buf[: len(part)] = part
-        buf[len(part) :] = part[0]
-        out[s : s + len(part)] = np.asarray(f(jnp.asarray(buf)))[: len(part)]
-    return out
+    total = int(np.prod(centers.shape))
+    out = np.empty(total, np.float64)
+    for s in range(0, total, chunk):
+        n = min(chunk, total - s)
+        flat = np.arange(s, s + chunk)
+        flat[n:] = s  # one shape: one compilation per field
+        out[s : s + n] = np.asarray(f(jnp.asarray(centers[flat])))[:n]
+    return out.reshape(centers.shape)
 
 
 _COMPILED: dict = {}
@@ -345,8 +364,8 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | N
 
     if not jax.config.jax_enable_x64:
         raise ValueError("cvt.fragments: fields are sampled in float64; enable jax_enable_x64")
-    centers = grid.centers().reshape(-1, 3)
-    values = _field_values(fn, centers).reshape(grid.shape)
+    centers = _Centers(grid)
+    values = _field_values(fn, centers)
     if not np.all(np.isfinite(values)):
         raise ValueError("cvt.fragments: the field is not finite at some cell centres")
     if starts is not None:
