@@ -285,7 +285,9 @@ def _compiled(kind: str, fn: Callable, build: Callable):
 
 
 def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
-    """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64)."""
+    """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64): at
+    most `iterations` steps, fewer once every segment's root estimate has stopped moving
+    (steps of a few ulps)."""
     import jax
     import jax.numpy as jnp
 
@@ -294,6 +296,9 @@ def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
         return _pytree_jit("refine", _refine_impl)(_dynamic(fn), iterations, *args)
     run = _compiled(f"refine{iterations}", fn, lambda: jax.jit(lambda *a: _refine_impl(fn, iterations, *a)))
     return run(*args)
+
+
+_STEP = 2.0**-50  # a segment is converged once its root estimate moves less than this (a few ulps of t)
 
 
 def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
@@ -307,8 +312,8 @@ def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
     b = jnp.ones_like(f0)
     fa, fb = f0, f1
 
-    def body(_, st):
-        a, b, fa, fb, side = st
+    def body(st):
+        k, a, b, fa, fb, side, done, t_prev = st
         t = (a * fb - b * fa) / (fb - fa)
         t = jnp.where(jnp.isfinite(t) & (t > a) & (t < b), t, 0.5 * (a + b))
         ft = evaluate(x0 + t[:, None] * (x1 - x0))
@@ -321,9 +326,18 @@ def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
         b2 = jnp.where(left, b, t)
         fb2 = jnp.where(left, fb_new, ft)
         side2 = jnp.where(left, 1, -1).astype(jnp.int32)
-        return a2, b2, fa2, fb2, side2
+        # converged segments keep their bracket
+        keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
+        a2, b2, fa2, fb2, side2 = keep(a, a2), keep(b, b2), keep(fa, fa2), keep(fb, fb2), keep(side, side2)
+        # a segment is done once its root estimate stops moving (or hits a zero)
+        return k + 1, a2, b2, fa2, fb2, side2, done | (jnp.abs(t - t_prev) <= _STEP) | (ft == 0), t
 
-    a, b, fa, fb, _ = jax.lax.fori_loop(0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32)))
+    def more(st):
+        return (st[0] < iterations) & ~jnp.all(st[6])
+
+    zeros = jnp.zeros(f0.shape, bool)
+    init = (0, a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32), zeros, jnp.full(f0.shape, -1.0))
+    _, a, b, fa, fb, _, _, _ = jax.lax.while_loop(more, body, init)
     t = (a * fb - b * fa) / (fb - fa)
     t = jnp.where(jnp.isfinite(t), jnp.clip(t, a, b), 0.5 * (a + b))
     p = x0 + t[:, None] * (x1 - x0)
