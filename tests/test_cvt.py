@@ -183,6 +183,15 @@ def test_lloyd_monotone_and_lbfgs_faster(small):
     fr, s = small
     lloyd = cvt.optimize(fr, s, method="lloyd", steps=40)
     assert np.all(np.diff(lloyd.energy) <= 1e-13 * lloyd.energy[0])
+    # run to the end: an exact fixed point, every seed its region's weighted centroid
+    from scipy.spatial import cKDTree
+
+    done = cvt.optimize(fr, lloyd.seeds, method="lloyd", steps=2000)
+    assert done.steps < 2000
+    _, idx = cKDTree(done.seeds).query(fr.points)
+    mass = np.bincount(idx, fr.weights, minlength=len(s))
+    cen = np.stack([np.bincount(idx, fr.weights * fr.points[:, a], minlength=len(s)) for a in range(3)], axis=1)
+    assert np.abs(cen / mass[:, None] - done.seeds).max() <= 1e-13
     lb = cvt.optimize(fr, s, method="lbfgs", steps=20)
     # the energy L-BFGS reaches within half the iterations is at most Lloyd's
     assert lb.steps <= 20
@@ -334,6 +343,33 @@ def test_remesh_torus_field():
     assert np.abs(np.asarray(fields.torus(m.vertices, 0.55, 0.25))).max() < 0.01
 
 
+def test_relax_evens_out_a_mesh_on_the_surface(small):
+    from voxax.cvt import _relax
+
+    fr, _ = small
+    ico = voxax.data.icosphere(3)  # radius 1, like the fixture's sphere
+    rng = np.random.default_rng(2)
+    v = ico.vertices + rng.normal(scale=0.015, size=ico.vertices.shape)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    f = np.asarray(ico.faces)
+    n0 = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert np.all(np.sum(n0 * v[f[:, 0]], axis=1) > 0)  # still oriented outward
+    q0 = metrics.triangle_quality(voxax.Mesh(v, f))
+    out = _relax(v, f, fr, 3)
+    q1 = metrics.triangle_quality(voxax.Mesh(out, f))
+    assert q1.mean() > q0.mean() + 0.02 and q1.min() > q0.min()
+    assert np.abs(np.linalg.norm(out, axis=1) - 1).max() < 2e-3  # on the sphere (tangent planes)
+    n1 = np.cross(out[f[:, 1]] - out[f[:, 0]], out[f[:, 2]] - out[f[:, 0]])
+    assert np.all(np.sum(n0 * n1, axis=1) > 0)  # no triangle turned over
+    # an open mesh: the vertices of its boundary edges stay
+    part = f[:-40]
+    kept = _relax(v, part, fr, 2)
+    edges = np.sort(np.concatenate([part[:, [0, 1]], part[:, [1, 2]], part[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    rim = np.unique(uniq[count == 1])
+    assert len(rim) > 0 and np.array_equal(kept[rim], v[rim])
+
+
 def test_remesh_mesh_and_open_mesh_error():
     mesh = voxax.data.icosphere(3)
     m, rep = cvt.remesh(mesh, 300, method="lloyd", steps=40)
@@ -346,6 +382,8 @@ def test_remesh_mesh_and_open_mesh_error():
         cvt.remesh(mesh, 10**6, alpha=0.001)
     with pytest.raises(ValueError, match="polish"):
         cvt.remesh(mesh, 100, polish=-1)
+    with pytest.raises(ValueError, match="relax"):
+        cvt.remesh(mesh, 100, relax=-1)
 
 
 def test_cli_remesh(tmp_path, capsys):

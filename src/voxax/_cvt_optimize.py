@@ -347,7 +347,8 @@ def optimize(
 
     - `frag`: [`Fragments`][voxax.cvt.Fragments].
     - `seeds`: `(n, 3)` float initial seeds (e.g. [`init_seeds`][voxax.cvt.init_seeds]).
-    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step) or
+    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step;
+      stops early at an exact fixed point, where a step returns the seeds it was given) or
       `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy], stepped from Python like
       [`voxax.minimize`][voxax.minimize]; empty regions are respawned at the end, followed by
       a Lloyd step).
@@ -386,8 +387,11 @@ def optimize(
                 break
             new, m = respawn(np.asarray(new), frag, count)
             moved += m
+            fixed = m == 0 and np.array_equal(new, s)
             s = new
             taken += 1
+            if fixed:  # an exact fixed point: every further step would return these seeds
+                break
         hist.append(float(en(jnp.asarray(s), (x, w, one, hint))[0]))
         return CVTResult(s, np.array(hist), taken, moved, "lloyd")
     if method == "lbfgs":

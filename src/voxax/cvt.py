@@ -83,7 +83,8 @@ def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
         return np.zeros((0, 2), np.int64)
     f = faces.astype(np.int64)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    uniq, count = np.unique(e, axis=0, return_counts=True)
+    ukey, count = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)  # 1D keys: sorted like the rows
+    uniq = np.stack([ukey // n, ukey % n], axis=1)
     bad = [uniq[count != 2]]
     # fans: nodes (face, corner); corners of one vertex joined across shared edges
     nf = len(f)
@@ -103,12 +104,15 @@ def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
     a, b = nd[:-1][same], nd[1:][same]
     g = coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * nf, 3 * nf))
     _, label = connected_components(g, directed=False)
-    fans = np.unique(np.stack([corner_v, label], axis=1), axis=0)
-    per_vertex = np.bincount(fans[:, 0], minlength=n)
+    fans = np.unique(corner_v * (3 * nf) + label)  # distinct (vertex, fan) pairs
+    per_vertex = np.bincount(fans // (3 * nf), minlength=n)
     nonmanifold = np.nonzero(per_vertex > 1)[0]
     if len(nonmanifold):
         bad.append(uniq[np.isin(uniq[:, 0], nonmanifold) | np.isin(uniq[:, 1], nonmanifold)])
-    return np.unique(np.concatenate(bad), axis=0) if sum(len(b) for b in bad) else np.zeros((0, 2), np.int64)
+    if not sum(len(b) for b in bad):
+        return np.zeros((0, 2), np.int64)
+    key = np.unique(np.concatenate([b[:, 0] * n + b[:, 1] for b in bad]))
+    return np.stack([key // n, key % n], axis=1)
 
 
 class _Balls:
@@ -163,6 +167,47 @@ def _project(points: np.ndarray, frag: Fragments) -> np.ndarray:
     return points - np.sum((points - x) * n, axis=1, keepdims=True) * n
 
 
+def _relax(verts: np.ndarray, faces: np.ndarray, frag: Fragments, steps: int) -> np.ndarray:
+    """Tangential smoothing of a mesh on the sampled surface: each step moves every vertex
+    to the mean of its neighbours within its tangent plane (the area-weighted normal), then
+    onto the tangent plane of its nearest fragment; a vertex whose move would turn one of
+    its triangles over stays. Vertices of edges with other than two triangles stay."""
+    v = np.array(verts, np.float64)
+    n = len(v)
+    f = faces.astype(np.int64)
+    if steps <= 0 or len(f) == 0:
+        return v
+    fixed = np.zeros(n, bool)
+    fixed[_problem_edges(faces, n).ravel()] = True
+    src = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    dst = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    degree = np.bincount(src, minlength=n).astype(np.float64)
+    degree[degree == 0] = 1.0
+
+    def face_normals(x):
+        return np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
+
+    for _ in range(steps):
+        fn = face_normals(v)
+        oriented = np.any(fn != 0, axis=1)
+        vn = np.stack([np.bincount(f.ravel(), np.repeat(fn[:, a], 3), minlength=n) for a in range(3)], axis=1)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        mean = np.stack([np.bincount(src, v[dst, a], minlength=n) for a in range(3)], axis=1) / degree[:, None]
+        d = mean - v
+        d -= np.sum(d * vn, axis=1, keepdims=True) * vn
+        d[fixed] = 0.0
+        new = _project(v + d, frag)
+        new[fixed] = v[fixed]
+        for _ in range(20):  # undo moves that turn a triangle over (neighbours may need it too)
+            flipped = (np.sum(face_normals(new) * fn, axis=1) <= 0) & oriented
+            if not flipped.any():
+                break
+            back = np.unique(f[flipped])
+            new[back] = v[back]
+        v = new
+    return v
+
+
 def remesh(
     source,
     n_seeds: int,
@@ -174,6 +219,7 @@ def remesh(
     polish: int = 40,
     orient: bool = True,
     project: bool = True,
+    relax: int = 2,
     weighted: bool = True,
     max_rounds: int = 30,
     round_steps: int = 20,
@@ -206,11 +252,19 @@ def remesh(
       budget.
     - `polish`: Lloyd steps after L-BFGS (L-BFGS lowers the energy fastest but stalls
       at the switches of the assignment; the centroid steps then even out the worst
-      regions, which lifts the minimum triangle quality).
+      regions, which lifts the minimum triangle quality). They stop early at an exact fixed
+      point (the report's `"polish_steps"` says how many ran).
     - `orient`: require a closed surface (every grid line enters and exits the solid
       alternately) and orient the result outward; `False` meshes open surfaces too
       (triangles still oriented consistently per component, direction unspecified).
     - `project`: move each vertex onto the tangent plane of its nearest fragment.
+    - `relax`: tangential smoothing steps of the final mesh (connectivity kept): each moves
+      every vertex to the mean of its neighbours within its tangent plane, then onto the
+      tangent plane of its nearest fragment (a move that would turn a triangle over is
+      undone; vertices of non-manifold or boundary edges stay). The seeds quantise their
+      regions' centroids to the fragments, and this evens out the result: on the Chebyshev
+      octic at 20,000 seeds two steps lift the quality from 0.50 / 0.864 (minimum / mean)
+      to 0.57 / 0.908. `0` returns the seeds themselves (projected with `project`).
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
       has other than two triangles or some vertex more than one fan, the seeds first take
@@ -234,6 +288,8 @@ def remesh(
     n_seeds = int(n_seeds)
     if n_seeds < 4:
         raise ValueError(f"cvt.remesh: n_seeds must be >= 4, got {n_seeds}")
+    if int(relax) < 0:
+        raise ValueError(f"cvt.remesh: relax must be >= 0, got {relax}")
     polish = int(polish)
     if polish < 0:
         raise ValueError(f"cvt.remesh: polish must be >= 0, got {polish}")
@@ -300,9 +356,10 @@ def remesh(
     seeds = res.seeds
     polish = polish if method == "lbfgs" else 0
     energy = float(res.energy[-1])
+    polish_steps = 0
     if polish:
         pol = optimize(frag, seeds, method="lloyd", steps=polish, weighted=weighted)
-        seeds, energy = pol.seeds, float(pol.energy[-1])
+        seeds, energy, polish_steps = pol.seeds, float(pol.energy[-1]), pol.steps
     times["optimize"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     faces, rep = rdt(frag, seeds, threads=threads)
@@ -327,8 +384,12 @@ def remesh(
     remap = np.full(len(seeds), -1, np.int64)
     remap[used] = np.arange(len(used))
     verts = seeds[used]
-    if project:
+    relax = int(relax)
+    t3 = time.perf_counter()
+    if project or relax > 0:
         verts = _project(verts, frag)
+    verts = _relax(verts, remap[faces], frag, relax)
+    times["relax"] = time.perf_counter() - t3
     out = Mesh(verts, remap[faces].astype(np.int32))
     mr = metrics.manifold_report(out)
     q = metrics.triangle_quality(out)
@@ -342,6 +403,8 @@ def remesh(
         "method": res.method,
         "steps": res.steps,
         "polish": polish,
+        "polish_steps": polish_steps,
+        "relax": relax,
         "respawned": res.respawned,
         "energy": energy,
         "rdt": rep,
