@@ -63,7 +63,7 @@ def summary(m, ref, diag):
     }
 
 
-def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10):
+def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10, relax: int = 2):
     """`count` random 3-primitive scenes (spheres and boxes; union, intersection, difference)
     meshed at `seeds` seeds: closed 2-manifold?, volume against manifold3d's exact boolean,
     and Hausdorff distance against manifold3d's mesh in units of the CVT mesh's mean edge.
@@ -106,7 +106,13 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10):
             continue  # (nearly) empty scene: draw another
         try:
             mesh, rep = cvt.remesh(
-                expr, seeds, grid=voxax.Grid.cube(24, half_width=1.0), steps=40, polish=20, max_rounds=max_rounds
+                expr,
+                seeds,
+                grid=voxax.Grid.cube(24, half_width=1.0),
+                steps=40,
+                polish=20,
+                max_rounds=max_rounds,
+                relax=relax,
             )
         except ValueError as err:
             rows.append({"scene": i, "ops": ops, "error": str(err)})
@@ -206,7 +212,9 @@ def main():
         return
     if args.csg:
         print(json.dumps({"load_average_start": os.getloadavg()}), flush=True)
-        print(json.dumps(csg_scenes(args.csg, 2000, max_rounds=args.csg_rounds), indent=1, default=str))
+        print(
+            json.dumps(csg_scenes(args.csg, 2000, max_rounds=args.csg_rounds, relax=args.relax), indent=1, default=str)
+        )
         return
     n = args.seeds
     diag = 2 * HALF * np.sqrt(3)
