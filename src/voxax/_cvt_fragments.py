@@ -210,17 +210,6 @@ def _values_impl(fn, p):
     return jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])
 
 
-def _values_runner(fn):
-    """`run(points)` evaluating the field on a chunk, compiled once per field function."""
-    import jax
-
-    if _is_pytree_field(fn):
-        dyn = _dynamic(fn)
-        jitted = _pytree_jit("values", _values_impl)
-        return lambda p: jitted(dyn, p)
-    return _compiled("values", fn, lambda: jax.jit(lambda p: _values_impl(fn, p)))
-
-
 class _Centers:
     """The cell centres of a grid by flat index (the values `Grid.centers()` holds, without
     building that `(*shape, 3)` array)."""
@@ -240,19 +229,42 @@ class _Centers:
         return out
 
 
-def _field_values(fn: Callable, centers: _Centers, chunk: int = 1 << 16) -> np.ndarray:
-    """The field at every cell centre, `(*shape,)`, evaluated in chunks of one shape."""
+_CHUNK = 1 << 16  # field samples per compiled call
+
+
+def _grid_values_impl(fn, axes, dims, start):
+    """The field at the cell centres `start .. start + _CHUNK` (flat order; past the end the
+    last centre again), the centres gathered from the axes' `(3, L)` centres."""
     import jax.numpy as jnp
 
-    f = _values_runner(fn)
+    lin = start + jnp.arange(_CHUNK, dtype=jnp.int64)
+    ny, nz = dims[1], dims[2]
+    i = jnp.minimum(lin // (ny * nz), dims[0] - 1)
+    p = jnp.stack([axes[0][i], axes[1][(lin // nz) % ny], axes[2][lin % nz]], axis=1)
+    return _values_impl(fn, p)
+
+
+def _field_values(fn: Callable, centers: _Centers) -> np.ndarray:
+    """The field at every cell centre, `(*shape,)`, evaluated in chunks of one shape (the
+    centres made in the compiled call; all chunks are queued before any is read)."""
+    import jax
+    import jax.numpy as jnp
+
+    size = max(1024, 1 << (max(centers.shape) - 1).bit_length())  # padded axes: few shapes
+    axes = np.zeros((3, size))
+    for a in range(3):
+        axes[a, : centers.shape[a]] = centers.axes[a]
+    axes, dims = jnp.asarray(axes), jnp.asarray(np.array(centers.shape, np.int64))
+    if _is_pytree_field(fn):
+        dyn = _dynamic(fn)
+        jitted = _pytree_jit("grid_values", _grid_values_impl)
+        run = lambda start: jitted(dyn, axes, dims, start)  # noqa: E731
+    else:
+        compiled = _compiled("grid_values", fn, lambda: jax.jit(lambda *a: _grid_values_impl(fn, *a)))
+        run = lambda start: compiled(axes, dims, start)  # noqa: E731
     total = int(np.prod(centers.shape))
-    out = np.empty(total, np.float64)
-    for s in range(0, total, chunk):
-        n = min(chunk, total - s)
-        flat = np.arange(s, s + chunk)
-        flat[n:] = s  # one shape: one compilation per field
-        out[s : s + n] = np.asarray(f(jnp.asarray(centers[flat])))[:n]
-    return out.reshape(centers.shape)
+    parts = [run(jnp.asarray(s, jnp.int64)) for s in range(0, total, _CHUNK)]
+    return np.concatenate([np.asarray(p) for p in parts])[:total].reshape(centers.shape)
 
 
 _COMPILED: dict = {}
