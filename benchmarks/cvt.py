@@ -63,7 +63,9 @@ def summary(m, ref, diag):
     }
 
 
-def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10, relax: int = 2):
+def csg_scenes(
+    count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10, relax: int = 2, relax_on_source: bool = False
+):
     """`count` random 3-primitive scenes (spheres and boxes; union, intersection, difference)
     meshed at `seeds` seeds: closed 2-manifold?, volume against manifold3d's exact boolean,
     and Hausdorff distance against manifold3d's mesh in units of the CVT mesh's mean edge.
@@ -113,6 +115,7 @@ def csg_scenes(count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10, 
                 polish=20,
                 max_rounds=max_rounds,
                 relax=relax,
+                relax_on_source=relax_on_source,
             )
         except ValueError as err:
             rows.append({"scene": i, "ops": ops, "error": str(err)})
@@ -202,6 +205,9 @@ def main():
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
     ap.add_argument("--csg-rounds", type=int, default=30, help="manifold rounds per CSG scene")
     ap.add_argument(
+        "--relax-on-source", action="store_true", help="relax CSG meshes onto the source, not the union with the balls"
+    )
+    ap.add_argument(
         "--kernels",
         action="store_true",
         help="only the nearest-seed pass and the Lloyd step at --seeds seeds and about alpha x seeds fragments",
@@ -213,7 +219,13 @@ def main():
     if args.csg:
         print(json.dumps({"load_average_start": os.getloadavg()}), flush=True)
         print(
-            json.dumps(csg_scenes(args.csg, 2000, max_rounds=args.csg_rounds, relax=args.relax), indent=1, default=str)
+            json.dumps(
+                csg_scenes(
+                    args.csg, 2000, max_rounds=args.csg_rounds, relax=args.relax, relax_on_source=args.relax_on_source
+                ),
+                indent=1,
+                default=str,
+            )
         )
         return
     n = args.seeds

@@ -220,6 +220,7 @@ def remesh(
     orient: bool = True,
     project: bool = True,
     relax: int = 2,
+    relax_on_source: bool = False,
     weighted: bool = True,
     max_rounds: int = 30,
     round_steps: int = 20,
@@ -266,6 +267,11 @@ def remesh(
       regions' centroids to the fragments, and this evens out the result: on the Chebyshev
       octic at 20,000 seeds two steps lift the quality from 0.50 / 0.864 (minimum / mean)
       to 0.57 / 0.908. `0` returns the seeds themselves (projected with `project`).
+    - `relax_on_source`: after manifold rounds with balls, relax onto the source's fragments
+      instead of their union with the balls: the vertices the balls pushed out come back
+      to the surface, which removes most of the balls' volume, but triangles where balls
+      bridged nearby sheets can be crushed (a CSG scene with 1,160 balls: volume +13.3% to
+      -1.0% of the exact boolean, minimum quality 0.55 to 0.035).
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
       has other than two triangles or some vertex more than one fan, the seeds first take
@@ -393,7 +399,7 @@ def remesh(
     t3, c3 = time.perf_counter(), time.process_time()
     if project or relax > 0:
         verts = _project(verts, frag)
-    verts = _relax(verts, remap[faces], frag, relax)
+    verts = _relax(verts, remap[faces], base if relax_on_source else frag, relax)
     times["relax"] = time.perf_counter() - t3
     cpu["relax"] = time.process_time() - c3
     out = Mesh(verts, remap[faces].astype(np.int32))
