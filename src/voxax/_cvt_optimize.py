@@ -18,7 +18,16 @@ import numpy as np
 from . import _host
 from ._cvt_fragments import Fragments
 
-__all__ = ["CVTResult", "assign", "energy", "energy_gradient", "init_seeds", "lloyd_step", "optimize"]
+__all__ = [
+    "CVTResult",
+    "assign",
+    "assign_moments_host",
+    "energy",
+    "energy_gradient",
+    "init_seeds",
+    "lloyd_step",
+    "optimize",
+]
 
 
 def _frag(frag) -> Fragments:
