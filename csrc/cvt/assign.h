@@ -54,14 +54,19 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
   std::vector<double> far(static_cast<size_t>(n), -1.0);
   for (int64_t q = 0; q < m; ++q)
     if (d2[q] >= 0.0) far[hint[q]] = std::max(far[hint[q]], d2[q]);
-  // 3. per hinted seed, the other seeds within 2 d_max, nearest first (len -1: grid search)
-  std::vector<int32_t> list(static_cast<size_t>(n) * kAssignMaxList);
-  std::vector<double> ldist(static_cast<size_t>(n) * kAssignMaxList);
+  // 3. per hinted seed, the other seeds within 2 d_max, nearest first (len -1: grid search);
+  // each chunk of seeds keeps its lists in its own arrays (memory as long as the lists)
+  constexpr int64_t kSeedChunk = 256;
+  const int64_t seed_chunks = (n + kSeedChunk - 1) / kSeedChunk;
+  std::vector<std::vector<int32_t>> list(static_cast<size_t>(seed_chunks));
+  std::vector<std::vector<double>> ldist(static_cast<size_t>(seed_chunks));
   std::vector<int32_t> len(static_cast<size_t>(n), -1);
-  const int64_t seed_chunks = (n + 255) / 256;
+  std::vector<int32_t> at(static_cast<size_t>(n), 0);  // a list's start in its chunk's arrays
   parallel(seed_chunks, [&](int64_t c) {
     std::vector<std::pair<double, int32_t>> found;
-    for (int64_t a = c * 256; a < std::min(n, (c + 1) * 256); ++a) {
+    std::vector<int32_t>& li = list[c];
+    std::vector<double>& ld = ldist[c];
+    for (int64_t a = c * kSeedChunk; a < std::min(n, (c + 1) * kSeedChunk); ++a) {
       if (far[a] < 0.0) continue;
       // 4 d_max^2, grown for the rounding of the distances compared
       const double r2 = 4.0 * far[a] * (1.0 + 1e-9) + 1e-300;
@@ -78,11 +83,10 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
       });
       if (overflow) continue;
       std::sort(found.begin(), found.end());
-      int32_t* li = &list[a * kAssignMaxList];
-      double* ld = &ldist[a * kAssignMaxList];
-      for (size_t k = 0; k < found.size(); ++k) {
-        ld[k] = found[k].first;
-        li[k] = found[k].second;
+      at[a] = static_cast<int32_t>(li.size());
+      for (const auto& e : found) {
+        ld.push_back(e.first);
+        li.push_back(e.second);
       }
       len[a] = static_cast<int32_t>(found.size());
     }
@@ -104,8 +108,8 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
       int32_t bi = static_cast<int32_t>(h);
       // seeds farther than 2 |x - s_h| from s_h are farther from x than s_h (grown for rounding)
       const double reach = 2.0 * std::sqrt(best) * (1.0 + 1e-9) + 1e-300;
-      const int32_t* li = &list[h * kAssignMaxList];
-      const double* ld = &ldist[h * kAssignMaxList];
+      const int32_t* li = list[h / kSeedChunk].data() + at[h];
+      const double* ld = ldist[h / kSeedChunk].data() + at[h];
       for (int k = 0; k < len[h] && ld[k] <= reach; ++k) {
         const int32_t b = li[k];
         const double e = d2_of(S + 3 * static_cast<int64_t>(b), x);
