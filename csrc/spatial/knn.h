@@ -227,6 +227,34 @@ class PointGrid {
     }
   }
 
+  // Calls f(index, squared distance) for every data point within distance sqrt(r2) of q
+  // (squared distance computed as in `query`, so the two agree bit for bit), in cell
+  // order, until f returns false.
+  template <typename F>
+  void within(const double* q, double r2, F&& f) const {
+    if (n_ == 0 || !(r2 >= 0.0)) return;
+    // a slightly grown box: q +- r is rounded, the cells' binning is monotone
+    const double r = std::sqrt(r2) * (1.0 + 1e-9) + 1e-300;
+    int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      double p[3] = {q[0], q[1], q[2]};
+      p[a] = q[a] - r;
+      lo[a] = coord(p, a);
+      p[a] = q[a] + r;
+      hi[a] = coord(p, a);
+    }
+    for (int64_t i = lo[0]; i <= hi[0]; ++i)
+      for (int64_t j = lo[1]; j <= hi[1]; ++j) {
+        const int64_t row = (i * dim_[1] + j) * dim_[2];
+        for (int64_t s = start_[row + lo[2]]; s < start_[row + hi[2] + 1]; ++s) {
+          const double* x = &pts_[3 * static_cast<size_t>(s)];
+          const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
+          const double d2 = dx * dx + dy * dy + dz * dz;
+          if (d2 <= r2 && !f(order_[s], d2)) return;
+        }
+      }
+  }
+
  private:
   std::vector<double> pts_;
   std::vector<int64_t> start_;

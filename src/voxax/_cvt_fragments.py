@@ -210,30 +210,61 @@ def _values_impl(fn, p):
     return jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])
 
 
-def _values_runner(fn):
-    """`run(points)` evaluating the field on a chunk, compiled once per field function."""
-    import jax
+class _Centers:
+    """The cell centres of a grid by flat index (the values `Grid.centers()` holds, without
+    building that `(*shape, 3)` array)."""
 
-    if _is_pytree_field(fn):
-        dyn = _dynamic(fn)
-        jitted = _pytree_jit("values", _values_impl)
-        return lambda p: jitted(dyn, p)
-    return _compiled("values", fn, lambda: jax.jit(lambda p: _values_impl(fn, p)))
+    def __init__(self, grid: Grid):
+        self.axes = [
+            grid.lower[a] + (np.arange(grid.shape[a], dtype=np.float64) + 0.5) * grid.spacing[a] for a in range(3)
+        ]
+        self.shape = tuple(grid.shape)
+
+    def __getitem__(self, flat: np.ndarray) -> np.ndarray:
+        ny, nz = self.shape[1], self.shape[2]
+        out = np.empty((len(flat), 3))
+        out[:, 0] = self.axes[0][flat // (ny * nz)]
+        out[:, 1] = self.axes[1][(flat // nz) % ny]
+        out[:, 2] = self.axes[2][flat % nz]
+        return out
 
 
-def _field_values(fn: Callable, points: np.ndarray, chunk: int = 1 << 16) -> np.ndarray:
+_CHUNK = 1 << 16  # field samples per compiled call
+
+
+def _grid_values_impl(fn, axes, dims, start):
+    """The field at the cell centres `start .. start + _CHUNK` (flat order; past the end the
+    last centre again), the centres gathered from the axes' `(3, L)` centres."""
     import jax.numpy as jnp
 
-    f = _values_runner(fn)
-    out = np.empty(len(points), np.float64)
-    size = chunk  # one shape: one compilation per field
-    buf = np.zeros((size, 3))
-    for s in range(0, len(points), size):
-        part = points[s : s + size]
-        buf[: len(part)] = part
-        buf[len(part) :] = part[0]
-        out[s : s + len(part)] = np.asarray(f(jnp.asarray(buf)))[: len(part)]
-    return out
+    lin = start + jnp.arange(_CHUNK, dtype=jnp.int64)
+    ny, nz = dims[1], dims[2]
+    i = jnp.minimum(lin // (ny * nz), dims[0] - 1)
+    p = jnp.stack([axes[0][i], axes[1][(lin // nz) % ny], axes[2][lin % nz]], axis=1)
+    return _values_impl(fn, p)
+
+
+def _field_values(fn: Callable, centers: _Centers) -> np.ndarray:
+    """The field at every cell centre, `(*shape,)`, evaluated in chunks of one shape (the
+    centres made in the compiled call; all chunks are queued before any is read)."""
+    import jax
+    import jax.numpy as jnp
+
+    size = max(1024, 1 << (max(centers.shape) - 1).bit_length())  # padded axes: few shapes
+    axes = np.zeros((3, size))
+    for a in range(3):
+        axes[a, : centers.shape[a]] = centers.axes[a]
+    axes, dims = jnp.asarray(axes), jnp.asarray(np.array(centers.shape, np.int64))
+    if _is_pytree_field(fn):
+        dyn = _dynamic(fn)
+        jitted = _pytree_jit("grid_values", _grid_values_impl)
+        run = lambda start: jitted(dyn, axes, dims, start)  # noqa: E731
+    else:
+        compiled = _compiled("grid_values", fn, lambda: jax.jit(lambda *a: _grid_values_impl(fn, *a)))
+        run = lambda start: compiled(axes, dims, start)  # noqa: E731
+    total = int(np.prod(centers.shape))
+    parts = [run(jnp.asarray(s, jnp.int64)) for s in range(0, total, _CHUNK)]
+    return np.concatenate([np.asarray(p) for p in parts])[:total].reshape(centers.shape)
 
 
 _COMPILED: dict = {}
@@ -266,7 +297,9 @@ def _compiled(kind: str, fn: Callable, build: Callable):
 
 
 def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
-    """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64)."""
+    """Bracketed Illinois regula falsi on the segments `x0 -> x1` (vectorised, float64): at
+    most `iterations` steps, fewer once every segment's root estimate has stopped moving
+    (steps of a few ulps)."""
     import jax
     import jax.numpy as jnp
 
@@ -275,6 +308,9 @@ def _refine_roots(fn: Callable, x0, x1, f0, f1, iterations: int):
         return _pytree_jit("refine", _refine_impl)(_dynamic(fn), iterations, *args)
     run = _compiled(f"refine{iterations}", fn, lambda: jax.jit(lambda *a: _refine_impl(fn, iterations, *a)))
     return run(*args)
+
+
+_STEP = 2.0**-50  # a segment is converged once its root estimate moves less than this (a few ulps of t)
 
 
 def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
@@ -288,8 +324,8 @@ def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
     b = jnp.ones_like(f0)
     fa, fb = f0, f1
 
-    def body(_, st):
-        a, b, fa, fb, side = st
+    def body(st):
+        k, a, b, fa, fb, side, done, t_prev = st
         t = (a * fb - b * fa) / (fb - fa)
         t = jnp.where(jnp.isfinite(t) & (t > a) & (t < b), t, 0.5 * (a + b))
         ft = evaluate(x0 + t[:, None] * (x1 - x0))
@@ -302,9 +338,18 @@ def _refine_impl(fn, iterations: int, x0, x1, f0, f1):
         b2 = jnp.where(left, b, t)
         fb2 = jnp.where(left, fb_new, ft)
         side2 = jnp.where(left, 1, -1).astype(jnp.int32)
-        return a2, b2, fa2, fb2, side2
+        # converged segments keep their bracket
+        keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
+        a2, b2, fa2, fb2, side2 = keep(a, a2), keep(b, b2), keep(fa, fa2), keep(fb, fb2), keep(side, side2)
+        # a segment is done once its root estimate stops moving (or hits a zero)
+        return k + 1, a2, b2, fa2, fb2, side2, done | (jnp.abs(t - t_prev) <= _STEP) | (ft == 0), t
 
-    a, b, fa, fb, _ = jax.lax.fori_loop(0, iterations, body, (a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32)))
+    def more(st):
+        return (st[0] < iterations) & ~jnp.all(st[6])
+
+    zeros = jnp.zeros(f0.shape, bool)
+    init = (0, a, b, fa, fb, jnp.zeros(f0.shape, jnp.int32), zeros, jnp.full(f0.shape, -1.0))
+    _, a, b, fa, fb, _, _, _ = jax.lax.while_loop(more, body, init)
     t = (a * fb - b * fa) / (fb - fa)
     t = jnp.where(jnp.isfinite(t), jnp.clip(t, a, b), 0.5 * (a + b))
     p = x0 + t[:, None] * (x1 - x0)
@@ -345,8 +390,8 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | N
 
     if not jax.config.jax_enable_x64:
         raise ValueError("cvt.fragments: fields are sampled in float64; enable jax_enable_x64")
-    centers = grid.centers().reshape(-1, 3)
-    values = _field_values(fn, centers).reshape(grid.shape)
+    centers = _Centers(grid)
+    values = _field_values(fn, centers)
     if not np.all(np.isfinite(values)):
         raise ValueError("cvt.fragments: the field is not finite at some cell centres")
     if starts is not None:

@@ -9,14 +9,25 @@ energy is `F(S) = sum_j w_j |x_j - s_a(j)|^2` and, the assignment being piecewis
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 from typing import Any
 
 import numpy as np
 
+from . import _host
 from ._cvt_fragments import Fragments
 
-__all__ = ["CVTResult", "assign", "energy", "energy_gradient", "init_seeds", "lloyd_step", "optimize"]
+__all__ = [
+    "CVTResult",
+    "assign",
+    "assign_moments_host",
+    "energy",
+    "energy_gradient",
+    "init_seeds",
+    "lloyd_step",
+    "optimize",
+]
 
 
 def _frag(frag) -> Fragments:
@@ -110,37 +121,91 @@ def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
     return new, count
 
 
-def _lloyd_arrays(s, x, w):
+def _assign_moments(s, x, w, hint):
+    """The nearest-seed assignment of the fragments with their regions' moments, one FFI
+    call (`csrc/cvt/assign.h`): `hint (P,) int32` is any earlier assignment (it only speeds
+    the search; out-of-range entries mean none). **Returns:** `(idx (P,) int32, moments
+    (n, 4) [weight, weighted first moment], count (n,) int32 of weight > 0, energy ())`."""
+    import jax
+
+    from . import _ffi
+
+    n, m = s.shape[0], x.shape[0]
+    out = (
+        jax.ShapeDtypeStruct((m,), np.int32),
+        jax.ShapeDtypeStruct((n, 4), np.float64),
+        jax.ShapeDtypeStruct((n,), np.int32),
+        jax.ShapeDtypeStruct((1,), np.float64),
+    )
+    idx, mom, count, e = jax.ffi.ffi_call(_ffi.CVT_ASSIGN, out, vmap_method="sequential")(
+        jax.lax.stop_gradient(s), x, w, hint
+    )
+    return idx, mom, count, e[0]
+
+
+def assign_moments_host(seeds, points, weights, hint=None, *, threads=None):
+    """Eager twin of the optimiser's assignment kernel (for checks): the nearest seed of
+    every point (ties: the smaller index), the regions' weights and weighted first
+    moments, their counts of positive-weight points, and the energy, with `threads`
+    threads. **Returns:** `(idx (m,) int32, moments (n, 4), count (n,) int32, energy)`."""
+    s = np.ascontiguousarray(seeds, np.float64).reshape(-1, 3)
+    x = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    w = np.ascontiguousarray(weights, np.float64).reshape(-1)
+    m = len(x)
+    if len(w) != m:
+        raise ValueError(f"cvt: {m} points but {len(w)} weights")
+    h = np.full(m, -1, np.int32) if hint is None else np.ascontiguousarray(hint, np.int32).reshape(-1)
+    if len(h) != m:
+        raise ValueError(f"cvt: {m} points but {len(h)} hints")
+    lib = _host.declare(_HOST_SIGNATURES)
+    idx = np.empty(m, np.int32)
+    mom = np.empty((len(s), 4))
+    count = np.empty(len(s), np.int32)
+    energy = np.zeros(1)
+    err = _host.error_buffer()
+    status = lib.voxax_cvt_assign_host(
+        _host.pointer(s, _host.D), len(s), _host.pointer(x, _host.D), _host.pointer(w, _host.D), m,
+        _host.pointer(h, _host.I32), _host.threads(threads), _host.pointer(idx, _host.I32),
+        _host.pointer(mom, _host.D), _host.pointer(count, _host.I32), _host.pointer(energy, _host.D),
+        err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return idx, mom, count, float(energy[0])
+
+
+_HOST_SIGNATURES = {
+    "voxax_cvt_assign_host": (
+        ctypes.c_int,
+        [_host.D, ctypes.c_int64, _host.D, _host.D, ctypes.c_int64, _host.I32, ctypes.c_int32, _host.I32, _host.D,
+         _host.I32, _host.D, ctypes.c_char_p, ctypes.c_int64],
+    )
+}  # fmt: skip
+
+
+def _lloyd_arrays(s, x, w, hint):
     """A Lloyd step on plain arrays (fragments passed as arguments, not as constants, so
     one compilation serves every call of the same shapes); also returns the energy of the
-    seeds it starts from (one nearest-seed search)."""
-    import jax
+    seeds it starts from and their assignment (the next step's hint)."""
     import jax.numpy as jnp
 
-    from ._spatial import nearest_neighbors
-
-    n = s.shape[0]
-    idx = nearest_neighbors(s, x, k=1)[1][:, 0]
-    mass = jax.ops.segment_sum(w, idx, num_segments=n)
-    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
-    d = x - s[idx]
-    e = jnp.sum(w * jnp.sum(d * d, axis=-1))
+    idx, mom, count, e = _assign_moments(s, x, w, hint)
+    mass, first = mom[:, 0], mom[:, 1:]
     new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
-    count = jax.ops.segment_sum((w > 0).astype(jnp.int32), idx, num_segments=n)  # padding has w = 0
-    return new, count, e
+    return new, count, e, idx  # padding has w = 0: not counted
 
 
 def _energy_arrays(s, args):
-    """`scale * sum_j w_j |x_j - s_a(j)|^2` with `args = (x, w, scale)` (traced arrays)."""
+    """`scale * sum_j w_j |x_j - s_a(j)|^2` with `args = (x, w, scale, hint)` (traced
+    arrays), and the assignment. Its gradient is Eq. 2, `2 scale (W_i s_i - sum_j w_j x_j)`,
+    from the kernel's moments (a constant plus a term that is zero but carries it)."""
     import jax
     import jax.numpy as jnp
 
-    from ._spatial import nearest_neighbors
-
-    x, w, scale = args
-    idx = nearest_neighbors(jax.lax.stop_gradient(s), x, k=1)[1][:, 0]
-    d = x - s[idx]
-    return scale * jnp.sum(w * jnp.sum(d * d, axis=-1))
+    x, w, scale, hint = args
+    idx, mom, _, e = _assign_moments(s, x, w, hint)
+    s0 = jax.lax.stop_gradient(s)
+    g = jax.lax.stop_gradient(2.0 * scale * (mom[:, :1] * s0 - mom[:, 1:]))
+    return scale * e + jnp.sum(g * (s - s0)), idx
 
 
 _JITTED: dict = {}
@@ -178,24 +243,21 @@ def _padded(frag: Fragments, weighted: bool):
     return jnp.asarray(x), jnp.asarray(w)
 
 
-def _energy_aux(y, args):
-    return _energy_arrays(y, args), None
-
-
 def _lbfgs_init(solver, y, args):
     import jax
     import jax.numpy as jnp
 
     f_struct = jax.ShapeDtypeStruct((), jnp.float64)
-    return solver.init(_energy_aux, y, args, {}, f_struct, None, frozenset())
+    aux_struct = jax.ShapeDtypeStruct(args[3].shape, jnp.int32)
+    return solver.init(_energy_arrays, y, args, {}, f_struct, aux_struct, frozenset())
 
 
 def _lbfgs_step(solver, y, state, args):
-    y_new, state, _ = solver.step(_energy_aux, y, args, {}, state, frozenset())
-    done, result = solver.terminate(_energy_aux, y_new, args, {}, state, frozenset())
-    # `y_new` is the last accepted iterate, and the solver keeps its energy: no second
-    # nearest-seed search per step
-    return y_new, state, state.f_info.f, done, result
+    y_new, state, _ = solver.step(_energy_arrays, y, args, {}, state, frozenset())
+    done, result = solver.terminate(_energy_arrays, y_new, args, {}, state, frozenset())
+    # `y_new` is the last accepted iterate, and the solver keeps its energy (no second
+    # nearest-seed search per step) and its assignment (the next search's hint)
+    return y_new, state, state.f_info.f, state.aux, done, result
 
 
 def _lbfgs(y, args, steps: int, rtol: float):
@@ -212,7 +274,8 @@ def _lbfgs(y, args, steps: int, rtol: float):
     hist = []
     reason = "max_steps"
     for _ in range(steps):
-        y_new, state, e, done, result = step(solver, y, state, args)
+        y_new, state, e, hint, done, result = step(solver, y, state, args)
+        args = (*args[:3], hint)
         e = float(e)
         if not np.isfinite(e):
             reason = "nonfinite"
@@ -293,7 +356,8 @@ def optimize(
 
     - `frag`: [`Fragments`][voxax.cvt.Fragments].
     - `seeds`: `(n, 3)` float initial seeds (e.g. [`init_seeds`][voxax.cvt.init_seeds]).
-    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step) or
+    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step;
+      stops early at an exact fixed point, where a step returns the seeds it was given) or
       `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy], stepped from Python like
       [`voxax.minimize`][voxax.minimize]; empty regions are respawned at the end, followed by
       a Lloyd step).
@@ -320,29 +384,34 @@ def optimize(
         en = _jitted("energy", _energy_arrays)
         x, w = _padded(frag, weighted)
         one = jnp.asarray(1.0)
+        hint = jnp.full(x.shape[0], -1, jnp.int32)
         hist = []
         moved = 0
         taken = 0
         for _ in range(steps):
-            new, count, e = step(jnp.asarray(s), x, w)
+            new, count, e, hint = step(jnp.asarray(s), x, w, hint)
             hist.append(float(e))
             if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
                 hist.pop()
                 break
             new, m = respawn(np.asarray(new), frag, count)
             moved += m
+            fixed = m == 0 and np.array_equal(new, s)
             s = new
             taken += 1
-        hist.append(float(en(jnp.asarray(s), (x, w, one))))
+            if fixed:  # an exact fixed point: every further step would return these seeds
+                break
+        hist.append(float(en(jnp.asarray(s), (x, w, one, hint))[0]))
         return CVTResult(s, np.array(hist), taken, moved, "lloyd")
     if method == "lbfgs":
         x, w = _padded(frag, weighted)
-        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))))
+        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))), jnp.full(x.shape[0], -1, jnp.int32))
         scale = float(args[2])
-        e0 = float(_jitted("energy", _energy_arrays)(jnp.asarray(s), args)) / scale
-        y, hist, reason = _lbfgs(jnp.asarray(s), args, steps, max(tol, 1e-12))
+        e0, hint = _jitted("energy", _energy_arrays)(jnp.asarray(s), args)
+        e0 = float(e0) / scale
+        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12))
         y = np.asarray(y, np.float64)
-        _, count, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w)
+        _, count, _, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
         y, moved = respawn(y, frag, count)
         hist = np.concatenate([[e0], np.asarray(hist) / scale])
         return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason)

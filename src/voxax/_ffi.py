@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 __all__ = ["BACKWARD", "FORWARD", "TANGENT", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "TARGETS",
-           "grid_attributes", "kernel_constants", "library", "library_path"]
+           "CVT_ASSIGN", "grid_attributes", "kernel_constants", "library", "library_path"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
@@ -19,10 +19,11 @@ MARCHING_CUBES = "voxax_marching_cubes"
 CLOSEST_POINTS = "voxax_closest_points"
 FIRST_HITS = "voxax_first_hits"
 KNN = "voxax_knn"
+CVT_ASSIGN = "voxax_cvt_assign"
 
 # Every FFI target the library exports, by name (each is also the exported symbol). The one
 # registry of voxax's custom calls: registration and the export safety checks read it.
-TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN)
+TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN, CVT_ASSIGN)
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 

@@ -83,7 +83,8 @@ def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
         return np.zeros((0, 2), np.int64)
     f = faces.astype(np.int64)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    uniq, count = np.unique(e, axis=0, return_counts=True)
+    ukey, count = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)  # 1D keys: sorted like the rows
+    uniq = np.stack([ukey // n, ukey % n], axis=1)
     bad = [uniq[count != 2]]
     # fans: nodes (face, corner); corners of one vertex joined across shared edges
     nf = len(f)
@@ -103,12 +104,15 @@ def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
     a, b = nd[:-1][same], nd[1:][same]
     g = coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * nf, 3 * nf))
     _, label = connected_components(g, directed=False)
-    fans = np.unique(np.stack([corner_v, label], axis=1), axis=0)
-    per_vertex = np.bincount(fans[:, 0], minlength=n)
+    fans = np.unique(corner_v * (3 * nf) + label)  # distinct (vertex, fan) pairs
+    per_vertex = np.bincount(fans // (3 * nf), minlength=n)
     nonmanifold = np.nonzero(per_vertex > 1)[0]
     if len(nonmanifold):
         bad.append(uniq[np.isin(uniq[:, 0], nonmanifold) | np.isin(uniq[:, 1], nonmanifold)])
-    return np.unique(np.concatenate(bad), axis=0) if sum(len(b) for b in bad) else np.zeros((0, 2), np.int64)
+    if not sum(len(b) for b in bad):
+        return np.zeros((0, 2), np.int64)
+    key = np.unique(np.concatenate([b[:, 0] * n + b[:, 1] for b in bad]))
+    return np.stack([key // n, key % n], axis=1)
 
 
 class _Balls:
@@ -163,6 +167,47 @@ def _project(points: np.ndarray, frag: Fragments) -> np.ndarray:
     return points - np.sum((points - x) * n, axis=1, keepdims=True) * n
 
 
+def _relax(verts: np.ndarray, faces: np.ndarray, frag: Fragments, steps: int) -> np.ndarray:
+    """Tangential smoothing of a mesh on the sampled surface: each step moves every vertex
+    to the mean of its neighbours within its tangent plane (the area-weighted normal), then
+    onto the tangent plane of its nearest fragment; a vertex whose move would turn one of
+    its triangles over stays. Vertices of edges with other than two triangles stay."""
+    v = np.array(verts, np.float64)
+    n = len(v)
+    f = faces.astype(np.int64)
+    if steps <= 0 or len(f) == 0:
+        return v
+    fixed = np.zeros(n, bool)
+    fixed[_problem_edges(faces, n).ravel()] = True
+    src = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    dst = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    degree = np.bincount(src, minlength=n).astype(np.float64)
+    degree[degree == 0] = 1.0
+
+    def face_normals(x):
+        return np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
+
+    for _ in range(steps):
+        fn = face_normals(v)
+        oriented = np.any(fn != 0, axis=1)
+        vn = np.stack([np.bincount(f.ravel(), np.repeat(fn[:, a], 3), minlength=n) for a in range(3)], axis=1)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        mean = np.stack([np.bincount(src, v[dst, a], minlength=n) for a in range(3)], axis=1) / degree[:, None]
+        d = mean - v
+        d -= np.sum(d * vn, axis=1, keepdims=True) * vn
+        d[fixed] = 0.0
+        new = _project(v + d, frag)
+        new[fixed] = v[fixed]
+        for _ in range(20):  # undo moves that turn a triangle over (neighbours may need it too)
+            flipped = (np.sum(face_normals(new) * fn, axis=1) <= 0) & oriented
+            if not flipped.any():
+                break
+            back = np.unique(f[flipped])
+            new[back] = v[back]
+        v = new
+    return v
+
+
 def remesh(
     source,
     n_seeds: int,
@@ -174,6 +219,8 @@ def remesh(
     polish: int = 40,
     orient: bool = True,
     project: bool = True,
+    relax: int = 2,
+    relax_on_source: bool = False,
     weighted: bool = True,
     max_rounds: int = 30,
     round_steps: int = 20,
@@ -199,18 +246,32 @@ def remesh(
       A `(values, level)` source is sampled on its own grid as given.
     - `alpha`: fragments per seed (the paper uses > 50). The fragments quantise the
       regions' centroids, and that limits the triangle quality: on the Chebyshev octic at
-      20,000 seeds, `alpha=50` gives a mean quality of 0.864 and `alpha=100` 0.885 (minimum
-      0.41 against 0.55), for about twice the time.
-    - `method`, `steps`: the optimiser (`"lbfgs"`, or `"lloyd"`: cheaper steps, one
-      nearest-seed pass each against about three, but slower convergence) and its step
-      budget.
+      20,000 seeds and without relaxation (`relax=0`), `alpha=50` gives a mean quality of
+      0.864 and `alpha=100` 0.885 (minimum 0.41 against 0.55), for about twice the time;
+      the relaxation makes up for the coarser sampling (0.57 / 0.91 at `alpha=50`).
+    - `method`, `steps`: the optimiser (`"lbfgs"`, or `"lloyd"`: cheaper steps but slower
+      convergence) and its step budget. Each step's nearest-seed search starts from the
+      previous step's assignment.
     - `polish`: Lloyd steps after L-BFGS (L-BFGS lowers the energy fastest but stalls
       at the switches of the assignment; the centroid steps then even out the worst
-      regions, which lifts the minimum triangle quality).
+      regions, which lifts the minimum triangle quality). They stop early at an exact fixed
+      point (the report's `"polish_steps"` says how many ran).
     - `orient`: require a closed surface (every grid line enters and exits the solid
       alternately) and orient the result outward; `False` meshes open surfaces too
       (triangles still oriented consistently per component, direction unspecified).
     - `project`: move each vertex onto the tangent plane of its nearest fragment.
+    - `relax`: tangential smoothing steps of the final mesh (connectivity kept): each moves
+      every vertex to the mean of its neighbours within its tangent plane, then onto the
+      tangent plane of its nearest fragment (a move that would turn a triangle over is
+      undone; vertices of non-manifold or boundary edges stay). The seeds quantise their
+      regions' centroids to the fragments, and this evens out the result: on the Chebyshev
+      octic at 20,000 seeds two steps lift the quality from 0.50 / 0.864 (minimum / mean)
+      to 0.57 / 0.908. `0` returns the seeds themselves (projected with `project`).
+    - `relax_on_source`: after manifold rounds with balls, relax onto the source's fragments
+      instead of their union with the balls: the vertices the balls pushed out come back
+      to the surface, which removes most of the balls' volume, but triangles where balls
+      bridged nearby sheets can be crushed (a CSG scene with 1,160 balls: volume +13.3% to
+      -1.0% of the exact boolean, minimum quality 0.55 to 0.035).
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
       has other than two triangles or some vertex more than one fan, the seeds first take
@@ -227,21 +288,24 @@ def remesh(
     **Returns:** `(Mesh, report)`; the report is a dict with the fragment and seed counts,
     `alpha`, the energies, the [`RdtReport`][voxax.cvt.RdtReport] (`"rdt"`), the topology
     (`"closed"`, `"manifold"`, `"euler_characteristic"`), triangle quality (`"quality_min"`,
-    `"quality_mean"`) and timings in seconds.
+    `"quality_mean"`), wall-clock timings in seconds per stage (`"time"`) and the process's
+    CPU time per stage (`"cpu_time"`, all threads).
     """
     from . import metrics
 
     n_seeds = int(n_seeds)
     if n_seeds < 4:
         raise ValueError(f"cvt.remesh: n_seeds must be >= 4, got {n_seeds}")
+    if int(relax) < 0:
+        raise ValueError(f"cvt.remesh: relax must be >= 0, got {relax}")
     polish = int(polish)
     if polish < 0:
         raise ValueError(f"cvt.remesh: polish must be >= 0, got {polish}")
     alpha = float(alpha)
     if not alpha > 0:
         raise ValueError(f"cvt.remesh: alpha must be > 0, got {alpha}")
-    times = {}
-    t0 = time.perf_counter()
+    times, cpu = {}, {}
+    t0, c0 = time.perf_counter(), time.process_time()
     mesh = _mesh_source(source)
     if mesh is not None:
         if mesh.vertices.shape[1:] != (3,) or len(mesh.faces) == 0:
@@ -285,6 +349,7 @@ def remesh(
                 grid = Grid(tuple(mid - half), tuple(mid + half), tuple(int(n) for n in shape))
                 frag = fragments(source, grid, inside=inside, threads=threads)
     times["fragments"] = time.perf_counter() - t0
+    cpu["fragments"] = time.process_time() - c0
     if frag.size < n_seeds:
         raise ValueError(f"cvt.remesh: {n_seeds} seeds but only {frag.size} fragments; use fewer seeds or a finer grid")
     if orient:
@@ -294,17 +359,19 @@ def remesh(
                 f"cvt.remesh: the surface is open ({bad} grid lines do not enter and exit a solid); "
                 "it cannot be oriented: pass orient=False or a grid that contains the whole surface"
             )
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     seeds0 = init_seeds(frag, n_seeds, key)
     res = optimize(frag, seeds0, method=method, steps=steps, weighted=weighted)
     seeds = res.seeds
     polish = polish if method == "lbfgs" else 0
     energy = float(res.energy[-1])
+    polish_steps = 0
     if polish:
         pol = optimize(frag, seeds, method="lloyd", steps=polish, weighted=weighted)
-        seeds, energy = pol.seeds, float(pol.energy[-1])
+        seeds, energy, polish_steps = pol.seeds, float(pol.energy[-1]), pol.steps
     times["optimize"] = time.perf_counter() - t1
-    t2 = time.perf_counter()
+    cpu["optimize"] = time.process_time() - c1
+    t2, c2 = time.perf_counter(), time.process_time()
     faces, rep = rdt(frag, seeds, threads=threads)
     rounds = 0
     balls = _Balls()
@@ -323,16 +390,23 @@ def remesh(
             faces, rep = rdt(frag, seeds, threads=threads)
             rounds += 1
     times["rdt"] = time.perf_counter() - t2
+    cpu["rdt"] = time.process_time() - c2
     used = np.unique(faces)
     remap = np.full(len(seeds), -1, np.int64)
     remap[used] = np.arange(len(used))
     verts = seeds[used]
-    if project:
+    relax = int(relax)
+    t3, c3 = time.perf_counter(), time.process_time()
+    if project or relax > 0:
         verts = _project(verts, frag)
+    verts = _relax(verts, remap[faces], base if relax_on_source else frag, relax)
+    times["relax"] = time.perf_counter() - t3
+    cpu["relax"] = time.process_time() - c3
     out = Mesh(verts, remap[faces].astype(np.int32))
     mr = metrics.manifold_report(out)
     q = metrics.triangle_quality(out)
     times["total"] = time.perf_counter() - t0
+    cpu["total"] = time.process_time() - c0
     report = {
         "n_fragments": frag.size,
         "n_seeds": n_seeds,
@@ -342,6 +416,8 @@ def remesh(
         "method": res.method,
         "steps": res.steps,
         "polish": polish,
+        "polish_steps": polish_steps,
+        "relax": relax,
         "respawned": res.respawned,
         "energy": energy,
         "rdt": rep,
@@ -354,5 +430,6 @@ def remesh(
         "quality_min": float(q.min()) if len(q) else 0.0,
         "quality_mean": float(q.mean()) if len(q) else 0.0,
         "time": times,
+        "cpu_time": cpu,
     }
     return out, report

@@ -791,6 +791,19 @@ def run_spatial(rng, n_inputs):
             if not np.allclose(dk[:, : ref.shape[1]], ref, rtol=1e-12, atol=0):
                 fail(f"{label}: kNN distances differ from brute force")
             CALLS["spatial_knn"] += 2
+            # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
+            from voxax._cvt_optimize import _assign_moments, assign_moments_host
+
+            if len(v):
+                wq = rng.uniform(0.0, 1.0, len(p))
+                hq = rng.integers(-2, len(v) + 2, len(p)).astype(np.int32)
+                ai, am, _, _ = assign_moments_host(v, p, wq, hq, threads=1 + i % 2)
+                if not np.array_equal(ai, ik[:, 0]):
+                    fail(f"{label}: CVT assignment differs from the nearest neighbour")
+                ja = jax.jit(_assign_moments)(v, p, wq, hq)
+                if not (np.array_equal(np.asarray(ja[0]), ai) and np.asarray(ja[1]).tobytes() == am.tobytes()):
+                    fail(f"{label}: CVT assignment FFI differs from the host path")
+                CALLS["cvt_assign"] += 2
         except Exception:  # noqa: BLE001
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
