@@ -512,7 +512,60 @@ class _Problem:
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
+        self._cols: dict = {}
+        self._maybe: dict = {}
         self.n_full = 0
+        self.n_rays = 0
+
+    def columns(self, li: int):
+        """Conservative depth bounds of S per cell of a `G x G` grid in the frame of line
+        `li`: `(lo, hi)`, the least and largest depth of the triangles whose `(x, y)`
+        bounding box (widened by a margin) meets the cell (`+inf` / `-inf` where none
+        does). A ray along `+d` from a point above `hi` of its cell (or along `-d` from
+        below `lo`) cannot meet S: its hit would be a point of a triangle over that cell."""
+        col = self._cols.get(li)
+        if col is not None:
+            return col
+        fr = self.maps[li].frame
+        G = fr.resolution
+        R = fr.radius * (1 + 1e-6)
+        h = 2.0 * R / G
+        delta = 1e-6 * fr.radius
+        loc = fr.to_local(self.mesh.vertices)[self.mesh.faces]  # (F, 3, 3)
+        lo3, hi3 = loc.min(1), loc.max(1)
+        i0 = np.clip(np.floor((lo3[:, 0] - delta + R) / h), 0, G - 1).astype(np.int64)
+        i1 = np.clip(np.floor((hi3[:, 0] + delta + R) / h), 0, G - 1).astype(np.int64)
+        j0 = np.clip(np.floor((lo3[:, 1] - delta + R) / h), 0, G - 1).astype(np.int64)
+        j1 = np.clip(np.floor((hi3[:, 1] + delta + R) / h), 0, G - 1).astype(np.int64)
+        nx, ny = i1 - i0 + 1, j1 - j0 + 1
+        cnt = nx * ny
+        t = np.repeat(np.arange(len(cnt)), cnt)
+        off = np.arange(len(t)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        cell = (i0[t] + off // ny[t]) * G + j0[t] + off % ny[t]
+        lo = np.full(G * G, np.inf)
+        hi = np.full(G * G, -np.inf)
+        np.minimum.at(lo, cell, lo3[t, 2])
+        np.maximum.at(hi, cell, hi3[t, 2])
+        col = (fr, R, h, lo - delta, hi + delta)
+        self._cols[li] = col
+        return col
+
+    def maybe(self, k: int, k2: int) -> np.ndarray:
+        """`(len(B[k]),)` bool: False where the ray of a boundary sample of HF k along
+        direction k2 certainly misses S (by `columns`), True where it may hit."""
+        mb = self._maybe.get((k, k2))
+        if mb is None:
+            li, s = self.dirs[k2]
+            fr, R, h, lo, hi = self.columns(li)
+            G = fr.resolution
+            loc = fr.to_local(self.B[k])
+            i = np.floor((loc[:, 0] + R) / h)
+            j = np.floor((loc[:, 1] + R) / h)
+            mb = (i >= 0) & (i < G) & (j >= 0) & (j < G)
+            cell = (np.where(mb, i, 0) * G + np.where(mb, j, 0)).astype(np.int64)
+            mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
+            self._maybe[(k, k2)] = mb
+        return mb
 
     def index(self, d) -> int:
         """The signed-direction index of a candidate direction."""
@@ -536,6 +589,11 @@ class _Problem:
             miss = idx[h[idx] < 0]
             if not len(miss):
                 continue
+            mb = self.maybe(k, k2)[miss]
+            h[miss[~mb]] = 0
+            miss = miss[mb]
+            if not len(miss):
+                continue
             if (k, k2) in todo:  # several requests: the union, ascending
                 mark = np.zeros(len(h), bool)
                 mark[todo[(k, k2)]] = True
@@ -549,6 +607,7 @@ class _Problem:
         origins = np.concatenate([self.B[k][i] for (k, _), i in zip(keys, sel)])
         dirs = np.repeat(np.array([self.vec[k2] for _, k2 in keys]), [len(i) for i in sel], axis=0)
         res = self.bvh.any_hits(origins, dirs, t_min=self.eps, threads=self.threads)
+        self.n_rays += len(res)
         at = 0
         for key, i in zip(keys, sel):
             self._hit[key][i] = res[at : at + len(i)]
@@ -558,16 +617,24 @@ class _Problem:
         """The indices (ascending) of HF k's boundary samples inside every HF of `others`:
         the rays along each of them hit S. Filtered one direction at a time (in the order
         given), so later directions cast only the rays of the samples still inside."""
-        idx = np.arange(len(self.B[k]))
+        idx = self._may_float(k, others)
         for k2 in others:
             if not len(idx):
                 break
             idx = idx[self.hit(k, k2, idx)]
         return idx
 
+    def _may_float(self, k: int, others) -> np.ndarray:
+        """The indices of HF k's boundary samples whose rays along all of `others` may hit
+        S (`maybe`): a superset of the floaters, found without casting rays."""
+        mb = np.ones(len(self.B[k]), bool)
+        for k2 in others:
+            mb &= self.maybe(k, k2)
+        return np.flatnonzero(mb)
+
     def _known_floaters(self, k: int, others):
         """`floaters(k, others)` if every ray it needs has been cast, else None."""
-        idx = np.arange(len(self.B[k]))
+        idx = self._may_float(k, others)
         for k2 in others:
             h = self._hit.get((k, k2))
             if h is None:
@@ -587,7 +654,7 @@ class _Problem:
             ks = sorted(set(ks))
             for k in ks if only is None else only:
                 items[(k, tuple(k2 for k2 in ks if k2 != k))] = None
-        alive = {it: np.arange(len(self.B[it[0]])) for it in items}
+        alive = {it: self._may_float(*it) for it in items}
         step = 0
         while True:
             live = [it for it in alive if step < len(it[1]) and len(alive[it])]
