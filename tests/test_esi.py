@@ -137,6 +137,8 @@ def test_convex_shapes_select_no_hf_and_occupancy_is_inside(shape):
         m = voxax.Mesh(b.vertices @ rotation(5).T, b.faces)
     r = esi.select(m, n_dhf=4, n_hf=6, max_hf=1, n_samples=1000, resolution=40)
     assert len(r.hf_axes) == 0
+    # the level after the last chosen one only looks below the chosen E minus tol
+    assert len(r.by_m) == 2 and np.isnan(r.by_m[1])
     p = np.random.default_rng(2).uniform(-1.1, 1.1, (100_000, 3))
     # a convex polyhedron is the intersection of its faces' half-spaces
     v = m.vertices[m.faces]

@@ -849,6 +849,10 @@ class _DhfTerms:
             self.IN[:, j] = np.concatenate([prob._hit[(k, self.hk[j])][f] == 1 for k, f in self.sides])
             self.known[j] = True
 
+    def root_cd(self, prob: _Problem) -> float:
+        """The `CD(S, S~)` bound of the DHF with the best of every HF."""
+        return float(np.minimum(self.cur, self.suf[:, 0]).sum() / prob.n_samples) * (1 - 1e-9)
+
     def root(self):
         """The search state of the DHF alone: `(hs, rows, cur, n_vis, floaters, x)`."""
         return ((), np.arange(len(self.rows)), self.cur, self.n_vis, np.arange(len(self.bd)), 0.0)
@@ -919,11 +923,12 @@ class _DhfTerms:
         return (hs + (h,), rr[keep], C[keep, o], n_vis + int(Vn[:, o].sum()), A[INA[:, o]], x + self.c[h])
 
 
-def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=True, cap=math.inf):
+def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=True, cap=math.inf, first=None):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
     HFs from `hk`, by branch and bound on the lower bounds of `_DhfTerms` (best first),
     counting leaves and full evaluations. With `cap`, only combinations with E <= cap are
-    sought (`best` stays `[cap, inf, ()]` when there is none)."""
+    sought (`best` stays `[cap, inf, ()]` when there is none). `first`: the DHF searched
+    first (then the others by their `CD(S, S~)` bound)."""
     n_h = len(hk)
     best = [cap, math.inf, ()]
     leaves = math.comb(n_h, m) * len(dk)
@@ -973,16 +978,14 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=
                 break  # sorted: the rest is beyond the bound too
             expand(i, *t.children(t.child(state, o), m, prob, eps1, eps2, best[0]))
 
-    # the DHFs in the order of their bounds, best first (a good incumbent early)
-    roots = []
-    for i, t in enumerate(terms):
-        H, E, state = t.children(t.root(), m, prob, eps1, eps2, best[0])
-        roots.append((float(E.min()) if len(E) else math.inf, i, H, E, state))
-    roots.sort(key=lambda z: (z[0], z[1]))
-    for lb, i, H, E, state in roots:
+    # the DHF `first` (the best one with m - 1 HFs), then the others in the order of their
+    # CD(S, S~) bounds: the rays of a DHF's floaters are cast only as its bounds need them
+    order = sorted((t.root_cd(prob), i) for i, t in enumerate(terms) if i != first)
+    for lb, i in ([] if first is None else [(-math.inf, first)]) + order:
         if lb > best[0]:
             break
-        expand(i, H, E, state)
+        t = terms[i]
+        expand(i, *t.children(t.root(), m, prob, eps1, eps2, best[0]))
     return best, leaves, prob.n_full - n0
 
 
@@ -1101,7 +1104,9 @@ def _select(prob, dk, hk, cdhf, chf, max_hf, eps1, eps2, angle, tol, stop_early,
         # with the early stop, level m only matters if it beats the chosen level by more
         # than tol: what is not below that is pruned from the start
         cap = results[chosen][0] - tol if stop_early and chosen is not None and not exhaustive else math.inf
-        best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap)
+        # the DHF of the best choice with one HF less first: a good incumbent early
+        first = results[-1][1] if results and results[-1][1] != math.inf else None
+        best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap, first=first)
         if best[1] == math.inf:  # nothing below the cap
             best = [math.nan, math.inf, ()]
         results.append(best)
