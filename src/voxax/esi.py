@@ -797,7 +797,7 @@ class _DhfTerms:
     - `CD(S, S~)` sums `min(D)` over the surface samples hidden from the DHF (`rows`);
     - the visible surface samples count `n_vis(H)` (distance 0) in `n`;
     - the DHF's floaters are those of the DHF alone (`F0`, boundary samples of `+-d`
-      inside the other side) whose rays along every HF of `H` hit S (`IN`, cast here);
+      inside the other side) whose rays along every HF of `H` hit S (`IN`, cast as needed);
     - every floater of an HF is a boundary sample off S, so its distance is more than
       `on_surface` and its On at least 0; there are at most `c[j]` of them for HF `j`
       (its boundary samples that may lie inside the DHF, by `_Problem.maybe`).
