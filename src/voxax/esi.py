@@ -551,10 +551,8 @@ class _Problem:
         self._cols[li] = col
         return col
 
-    def maybe(self, k: int, k2: int, idx) -> np.ndarray:
-        """`(len(idx),)` bool: False where the ray of boundary sample `idx` (None: all) of
-        HF k along direction k2 certainly misses S (by `columns`), True where it may hit
-        (kept per pair of directions as packed bits)."""
+    def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
+        """`maybe` of every boundary sample of HF k along k2, as packed bits (kept)."""
         bits = self._maybe.get((k, k2))
         if bits is None:
             li, s = self.dirs[k2]
@@ -568,8 +566,16 @@ class _Problem:
             cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
             mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
             bits = self._maybe[(k, k2)] = np.packbits(mb)
-        mb = np.unpackbits(bits, count=len(self.B[k])).view(bool)
-        return mb if idx is None else mb[idx]
+        return bits
+
+    def maybe(self, k: int, k2: int, idx) -> np.ndarray:
+        """`(len(idx),)` bool: False where the ray of boundary sample `idx` (None: all) of
+        HF k along direction k2 certainly misses S (by `columns`), True where it may hit."""
+        bits = self._maybe_bits(k, k2)
+        if idx is None:
+            return np.unpackbits(bits, count=len(self.B[k])).view(bool)
+        idx = np.asarray(idx)
+        return ((bits[idx >> 3] >> (7 - (idx & 7)).astype(np.uint8)) & 1).astype(bool)
 
     def index(self, d) -> int:
         """The signed-direction index of a candidate direction."""
@@ -631,11 +637,12 @@ class _Problem:
     def _may_float(self, k: int, others) -> np.ndarray:
         """The indices of HF k's boundary samples whose rays along all of `others` may hit
         S (`maybe`): a superset of the floaters, found without casting rays."""
-        idx = None
-        for k2 in others:
-            mb = self.maybe(k, k2, idx)
-            idx = np.flatnonzero(mb) if idx is None else idx[mb]
-        return np.arange(len(self.B[k])) if idx is None else idx
+        if not len(others):
+            return np.arange(len(self.B[k]))
+        bits = self._maybe_bits(k, others[0])
+        for k2 in others[1:]:
+            bits = bits & self._maybe_bits(k, k2)
+        return np.flatnonzero(np.unpackbits(bits, count=len(self.B[k])))
 
     def prefetch(self, combos) -> None:
         """Cast the rays that `energy` needs for every combination in `combos`, in one call
