@@ -134,16 +134,22 @@ def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
             f"levels {name}: preparation {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU "
             f"({len(prob.vec)} signed directions)"
         )
-        chosen = None
+        chosen, first = None, None
         for level in range(max_hf + 1):
             t1, c1 = time.perf_counter(), time.process_time()
-            best, leaves, evals = esi._search(prob, dk, hk, level, eps1, eps2, angle, False)
+            rays = prob.n_rays
+            # as `select` does: a level only looks for a choice better than the last by tol
+            cap = np.inf if chosen is None else chosen - tol
+            best, leaves, evals = esi._search(prob, dk, hk, level, eps1, eps2, angle, False, cap=cap, first=first)
+            found = best[1] != np.inf
+            first = best[1] if found else first
             print(
-                f"  m = {level}: E {best[0]:.6f}, DHF {best[1]}, HFs {best[2]}; {evals} of {leaves} leaves evaluated; "
+                f"  m = {level}: E {best[0]:.6f}{'' if found else ' (cap: nothing below it)'}, DHF {best[1]}, "
+                f"HFs {best[2]}; {evals} of {leaves} leaves evaluated, {prob.n_rays - rays} rays; "
                 f"{time.perf_counter() - t1:.1f} s wall, {time.process_time() - c1:.1f} s CPU; "
-                f"total {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU"
+                f"total {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU; {_load()}"
             )
-            if chosen is None or best[0] < chosen - tol:
+            if found and (chosen is None or best[0] < chosen - tol):
                 chosen = best[0]
             else:
                 break

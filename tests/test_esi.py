@@ -149,6 +149,8 @@ def test_convex_shapes_select_no_hf_and_occupancy_is_inside(shape):
         m = voxax.Mesh(b.vertices @ rotation(5).T, b.faces)
     r = esi.select(m, n_dhf=4, n_hf=6, max_hf=1, n_samples=1000, resolution=40)
     assert len(r.hf_axes) == 0
+    # the level after the last chosen one only looks below the chosen E minus tol
+    assert len(r.by_m) == 2 and np.isnan(r.by_m[1])
     p = np.random.default_rng(2).uniform(-1.1, 1.1, (100_000, 3))
     # a convex polyhedron is the intersection of its faces' half-spaces
     v = m.vertices[m.faces]
@@ -223,18 +225,18 @@ def test_select_and_occupancy_reject_bad_input():
         esi.occupancy("x", cube, np.zeros((2, 3)))
 
 
-def test_selection_rays_cached_per_sample_and_the_floater_bound_holds():
-    m = mug(24)
+@pytest.fixture(scope="module")
+def small_problem():
     cd, ch = esi.candidates(3, 4)
-    prob, dk, hk = esi._prepare("t", m, None, cd, ch, 32, 400, 0, None)
+    return esi._prepare("t", mug(24), None, cd, ch, 32, 400, 0, None)
+
+
+def test_selection_rays_cached_per_sample(small_problem):
+    prob, dk, hk = small_problem
     rng = np.random.default_rng(0)
     combos = [[kp, km] + [hk[j] for j in rng.choice(len(hk), size=s, replace=False)] for kp, km in dk for s in (1, 2)]
     prob.prefetch(combos[:3])
     for ks in combos:
-        kp, km = ks[:2]
-        E = prob.energy(ks, 1e-4, 1e-3)
-        cd_st = prob.cd_st(ks)
-        assert prob.floater_bound((kp, km), ks, cd_st, 1e-4, 1e-3, 85.0) <= E["E"] * (1 + 1e-12)
         # the floaters: the boundary samples whose rays along every other direction hit S,
         # against rays cast here one direction at a time on every sample
         for k in ks:
@@ -245,3 +247,50 @@ def test_selection_rays_cached_per_sample_and_the_floater_bound_holds():
                         prob.mesh, prob.B[k], np.broadcast_to(prob.vec[k2], prob.B[k].shape), t_min=prob.eps
                     )
             assert np.array_equal(prob.floaters(k, sorted(k2 for k2 in ks if k2 != k)), np.flatnonzero(inside))
+
+
+def test_selection_bounds_hold_for_every_choice_below_them(small_problem):
+    """The lower bounds of the branch and bound: the column test only rejects rays that
+    miss S (against every ray cast here), and the bound of a partial choice of HFs is at
+    most E of every combination that completes it (checked against all of them)."""
+    import itertools
+
+    prob, dk, hk = small_problem
+    K = len(prob.vec)
+    rejected = 0
+    for k in range(K):
+        for k2 in range(K):
+            mb = prob.maybe(k, k2, None)
+            hit = voxax.any_hits(prob.mesh, prob.B[k], np.broadcast_to(prob.vec[k2], prob.B[k].shape), t_min=prob.eps)
+            assert not np.any(hit & ~mb)
+            rejected += int((~mb).sum())
+    assert rejected > 0.2 * K * sum(len(b) for b in prob.B)
+    n_h = len(hk)
+    energies = {}
+
+    def E(i, hs):
+        if (i, hs) not in energies:
+            kp, km = dk[i]
+            energies[(i, hs)] = prob.energy([kp, km] + [hk[j] for j in hs], 1e-4, 1e-3)["E"]
+        return energies[(i, hs)]
+
+    checked = 0
+    for counts in (True, False):
+        for mm in (1, 2, 3):
+            for i, (kp, km) in enumerate(dk):
+                t = esi._DhfTerms(prob, kp, km, hk, 85.0, counts)
+                stack = [t.root()]
+                while stack:
+                    node = stack.pop()
+                    H, lb, state = t.children(node, mm, prob, 1e-4, 1e-3)
+                    hs = node[0]
+                    for o, h in enumerate(H):
+                        below = [
+                            hs + (int(h),) + rest
+                            for rest in itertools.combinations(range(h + 1, n_h), mm - len(hs) - 1)
+                        ]
+                        assert lb[o] <= min(E(i, c) for c in below) * (1 + 1e-12)
+                        checked += 1
+                        if len(hs) + 1 < mm:
+                            stack.append(t.child(state, o))
+    assert checked > 500

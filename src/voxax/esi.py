@@ -537,7 +537,70 @@ class _Problem:
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
+        self._cols: dict = {}
+        self._maybe: dict = {}
+        self._terms: dict = {}
         self.n_full = 0
+        self.n_rays = 0
+
+    def columns(self, li: int):
+        """Conservative depth bounds of S per cell of a `G x G` grid in the frame of line
+        `li`: `(lo, hi)`, the least and largest depth of the triangles whose `(x, y)`
+        bounding box (widened by a margin) meets the cell (`+inf` / `-inf` where none
+        does). A ray along `+d` from a point above `hi` of its cell (or along `-d` from
+        below `lo`) cannot meet S: its hit would be a point of a triangle over that cell."""
+        col = self._cols.get(li)
+        if col is not None:
+            return col
+        fr = self.maps[li].frame
+        G = fr.resolution
+        R = fr.radius * (1 + 1e-6)
+        h = 2.0 * R / G
+        delta = 1e-6 * fr.radius
+        loc = fr.to_local(self.mesh.vertices)[self.mesh.faces]  # (F, 3, 3)
+        lo3, hi3 = loc.min(1), loc.max(1)
+        i0 = np.clip(np.floor((lo3[:, 0] - delta + R) / h), 0, G - 1).astype(np.int64)
+        i1 = np.clip(np.floor((hi3[:, 0] + delta + R) / h), 0, G - 1).astype(np.int64)
+        j0 = np.clip(np.floor((lo3[:, 1] - delta + R) / h), 0, G - 1).astype(np.int64)
+        j1 = np.clip(np.floor((hi3[:, 1] + delta + R) / h), 0, G - 1).astype(np.int64)
+        nx, ny = i1 - i0 + 1, j1 - j0 + 1
+        cnt = nx * ny
+        t = np.repeat(np.arange(len(cnt)), cnt)
+        off = np.arange(len(t)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        cell = (i0[t] + off // ny[t]) * G + j0[t] + off % ny[t]
+        lo = np.full(G * G, np.inf)
+        hi = np.full(G * G, -np.inf)
+        np.minimum.at(lo, cell, lo3[t, 2])
+        np.maximum.at(hi, cell, hi3[t, 2])
+        col = (fr, R, h, lo - delta, hi + delta)
+        self._cols[li] = col
+        return col
+
+    def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
+        """`maybe` of every boundary sample of HF k along k2, as packed bits (kept)."""
+        bits = self._maybe.get((k, k2))
+        if bits is None:
+            li, s = self.dirs[k2]
+            fr, R, h, lo, hi = self.columns(li)
+            G = fr.resolution
+            M = np.stack([fr.u, fr.v, fr.d], 1)
+            loc = self.B[k] @ M - fr.center @ M
+            fi = (loc[:, 0] + R) / h
+            fj = (loc[:, 1] + R) / h
+            mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
+            cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
+            mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
+            bits = self._maybe[(k, k2)] = np.packbits(mb)
+        return bits
+
+    def maybe(self, k: int, k2: int, idx) -> np.ndarray:
+        """`(len(idx),)` bool: False where the ray of boundary sample `idx` (None: all) of
+        HF k along direction k2 certainly misses S (by `columns`), True where it may hit."""
+        bits = self._maybe_bits(k, k2)
+        if idx is None:
+            return np.unpackbits(bits, count=len(self.B[k])).view(bool)
+        idx = np.asarray(idx)
+        return ((bits[idx >> 3] >> (7 - (idx & 7)).astype(np.uint8)) & 1).astype(bool)
 
     def index(self, d) -> int:
         """The signed-direction index of a candidate direction."""
@@ -561,6 +624,11 @@ class _Problem:
             miss = idx[h[idx] < 0]
             if not len(miss):
                 continue
+            mb = self.maybe(k, k2, miss)
+            h[miss[~mb]] = 0
+            miss = miss[mb]
+            if not len(miss):
+                continue
             if (k, k2) in todo:  # several requests: the union, ascending
                 mark = np.zeros(len(h), bool)
                 mark[todo[(k, k2)]] = True
@@ -574,6 +642,7 @@ class _Problem:
         origins = np.concatenate([self.B[k][i] for (k, _), i in zip(keys, sel)])
         dirs = np.repeat(np.array([self.vec[k2] for _, k2 in keys]), [len(i) for i in sel], axis=0)
         res = self.bvh.any_hits(origins, dirs, t_min=self.eps, threads=self.threads)
+        self.n_rays += len(res)
         at = 0
         for key, i in zip(keys, sel):
             self._hit[key][i] = res[at : at + len(i)]
@@ -583,36 +652,32 @@ class _Problem:
         """The indices (ascending) of HF k's boundary samples inside every HF of `others`:
         the rays along each of them hit S. Filtered one direction at a time (in the order
         given), so later directions cast only the rays of the samples still inside."""
-        idx = np.arange(len(self.B[k]))
+        idx = self._may_float(k, others)
         for k2 in others:
             if not len(idx):
                 break
             idx = idx[self.hit(k, k2, idx)]
         return idx
 
-    def _known_floaters(self, k: int, others):
-        """`floaters(k, others)` if every ray it needs has been cast, else None."""
-        idx = np.arange(len(self.B[k]))
-        for k2 in others:
-            h = self._hit.get((k, k2))
-            if h is None:
-                return None
-            v = h[idx]
-            if (v < 0).any():
-                return None
-            idx = idx[v == 1]
-        return idx
+    def _may_float(self, k: int, others) -> np.ndarray:
+        """The indices of HF k's boundary samples whose rays along all of `others` may hit
+        S (`maybe`): a superset of the floaters, found without casting rays."""
+        if not len(others):
+            return np.arange(len(self.B[k]))
+        bits = self._maybe_bits(k, others[0])
+        for k2 in others[1:]:
+            bits = bits & self._maybe_bits(k, k2)
+        return np.flatnonzero(np.unpackbits(bits, count=len(self.B[k])))
 
-    def prefetch(self, combos, only=None) -> None:
-        """Cast the rays that `energy` needs for every combination in `combos` (for the
-        floaters of the directions in `only`, default all), in one call per filtering step
-        instead of one per pair of directions."""
+    def prefetch(self, combos) -> None:
+        """Cast the rays that `energy` needs for every combination in `combos`, in one call
+        per filtering step instead of one per pair of directions."""
         items = {}
         for ks in combos:
             ks = sorted(set(ks))
-            for k in ks if only is None else only:
+            for k in ks:
                 items[(k, tuple(k2 for k2 in ks if k2 != k))] = None
-        alive = {it: np.arange(len(self.B[it[0]])) for it in items}
+        alive = {it: self._may_float(*it) for it in items}
         step = 0
         while True:
             live = [it for it in alive if step < len(it[1]) and len(alive[it])]
@@ -643,6 +708,16 @@ class _Problem:
             self._TP[(k, angle)] = t
         return t
 
+    def TPmin(self, angle: float) -> np.ndarray:
+        """The least On of each surface sample over every direction."""
+        t = self._TP.get(("min", angle))
+        if t is None:
+            t = self.TP(0, angle)
+            for k in range(1, len(self.dirs)):
+                t = np.minimum(t, self.TP(k, angle))
+            self._TP[("min", angle)] = t
+        return t
+
     def _visible_terms(self, ks, angle: float) -> tuple[float, int]:
         """The surface samples visible along one of the directions `ks` (sorted): the sum of
         their On values (the least over the directions) and their count."""
@@ -651,33 +726,6 @@ class _Problem:
         for k in ks:
             on_p = np.minimum(on_p, self.TP(k, angle))
         return float(on_p[vis].sum()), int(vis.sum())
-
-    def floater_bound(self, dhf, ks, cd_st: float, eps1: float, eps2: float, angle: float) -> float:
-        """A lower bound of E for the directions `ks` (the DHF pair `dhf` among them) from
-        the DHF's floaters alone. E grows with Dist and mu, and the HFs' floaters only add
-        distances and On values >= 0 to the sums of `energy`, so with n_max = the visible
-        surface samples + the DHF's floaters + every boundary sample of the HFs (at least
-        n): Dist >= cd_st + (the DHF floaters' summed distances) / n_max and
-        mu >= (the On values of the visible surface samples and the DHF's floaters) / n_max.
-        `cd_st`: a lower bound of CD(S, S~). Needs only the rays of the DHF's boundary
-        samples."""
-        ks = sorted(set(ks))
-        tot_on, n = self._visible_terms(ks, angle)
-        tot_d = 0.0
-        for k in ks:
-            if k in dhf:
-                f = self.floaters(k, [k2 for k2 in ks if k2 != k])
-                tot_d += float(self.Bd[k][f].sum())
-                tot_on += float(self.T(k, k, angle)[f].sum())
-                n += len(f)
-            else:
-                # an HF's floaters lie inside the DHF: count those when their rays are known
-                f = self._known_floaters(k, sorted(dhf))
-                n += len(self.B[k]) if f is None else len(f)
-        if n == 0:
-            return cd_st
-        dist = cd_st + tot_d / n
-        return dist + min(tot_on / n * (dist + eps1), eps2)
 
     def energy(self, ks, eps1: float, eps2: float, angle: float = 85.0) -> dict:
         """E (Eq. 1-5) of the ESI bounded by the signed directions `ks`.
@@ -726,7 +774,8 @@ class ESI(NamedTuple):
       `[-1/1.1, 1/1.1]^3`).
     - `by_m`: `(M,)` float64, the least E found with exactly `m = 0, 1, ...` HFs (the
       search stops at the first `m` that does not lower E by more than `tol`, unless
-      `stop_early=False`).
+      `stop_early=False`; that last level only looks for a choice below the previous best
+      minus `tol`, and its entry is `nan` when there is none).
     - `dhf_index`, `hf_indices`: indices into the candidate arrays.
     - `chamfer`: the selection's Chamfer `Dist = CD(S, S~) + CD(S~, S)` (same units).
     - `mu`: its uncovered fraction (Eq. 4).
@@ -760,12 +809,160 @@ class ESI(NamedTuple):
 _CHUNK = 8  # leaves whose rays are cast together
 
 
-def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
+def _top_sums(c: np.ndarray, r: int) -> list:
+    """`out[s][j]` = the sum of the `s` largest of `c[j:]` (`s <= r`), with `out[s][len(c)] = 0`."""
+    n = len(c)
+    out = [np.zeros(n + 1) for _ in range(r + 1)]
+    top: list = []
+    for j in range(n - 1, -1, -1):
+        top = sorted(top + [float(c[j])], reverse=True)[:r]
+        for s in range(1, r + 1):
+            out[s][j] = sum(top[:s])
+    return out
+
+
+class _DhfTerms:
+    """What a DHF pair fixes of E, for lower bounds of E over its choices of HFs.
+
+    With the DHF along `(kp, km)` and HFs `H` from the candidates `hk`:
+
+    - `CD(S, S~)` sums `min(D)` over the surface samples hidden from the DHF (`rows`);
+    - the visible surface samples count `n_vis(H)` (distance 0) in `n`;
+    - the DHF's floaters are those of the DHF alone (`F0`, boundary samples of `+-d`
+      inside the other side) whose rays along every HF of `H` hit S (`IN`, cast as needed);
+    - every floater of an HF is a boundary sample off S, so its distance is more than
+      `on_surface` and its On at least 0; there are at most `c[j]` of them for HF `j`
+      (its boundary samples that may lie inside the DHF, by `_Problem.maybe`).
+    """
+
+    def __init__(self, prob: _Problem, kp: int, km: int, hk, angle: float, counts: bool):
+        N = prob.n_samples
+        hk = list(hk)
+        nh = len(hk)
+        visd = prob.visP[:, kp] | prob.visP[:, km]
+        self.rows = np.flatnonzero(~visd)
+        self.cur = np.minimum(prob.D[self.rows, kp], prob.D[self.rows, km])
+        self.Dr = prob.D[np.ix_(self.rows, hk)]
+        self.Vr = prob.visP[np.ix_(self.rows, hk)]
+        inf = np.full((len(self.rows), 1), np.inf)
+        self.suf = np.concatenate([np.minimum.accumulate(self.Dr[:, ::-1], axis=1)[:, ::-1], inf], 1)
+        self.sufv = np.concatenate(
+            [np.logical_or.accumulate(self.Vr[:, ::-1], axis=1)[:, ::-1], np.zeros_like(inf, bool)], 1
+        )
+        self.n_vis = N - len(self.rows)
+        # the On of the samples the DHF sees, at least the least over every direction
+        self.on_vis = float(
+            np.minimum(np.minimum(prob.TP(kp, angle), prob.TP(km, angle)), prob.TPmin(angle))[visd].sum()
+        )
+        own = [prob.floaters(kp, [km]), prob.floaters(km, [kp])]
+        dhf = {kp, km}
+        self.sides = list(zip((kp, km), own))
+        self.hk = hk
+        # IN[b, j]: the ray of DHF floater b along HF j hits S (columns cast when needed;
+        # an HF along the DHF's own line changes nothing)
+        self.IN = np.ones((len(own[0]) + len(own[1]), nh), bool)
+        self.known = np.array([k2 in dhf for k2 in hk], bool)
+        self.bd = np.concatenate([prob.Bd[kp][own[0]], prob.Bd[km][own[1]]])
+        self.t = np.concatenate([prob.T(kp, kp, angle)[own[0]], prob.T(km, km, angle)[own[1]]])
+        if counts:
+            c = [0 if k2 in dhf else len(prob._may_float(k2, [kp, km])) for k2 in hk]
+        else:
+            c = [0 if k2 in dhf else len(prob.B[k2]) for k2 in hk]
+        self.c = np.asarray(c, np.float64)
+        self.topc = None
+
+    def need(self, prob: _Problem, cols) -> None:
+        """Cast the rays of the DHF floaters along the HFs `cols` not cast yet."""
+        cols = [int(j) for j in cols if not self.known[j]]
+        if not cols:
+            return
+        prob._ensure([(k, self.hk[j], f) for k, f in self.sides for j in cols])
+        for j in cols:
+            self.IN[:, j] = np.concatenate([prob._hit[(k, self.hk[j])][f] == 1 for k, f in self.sides])
+            self.known[j] = True
+
+    def root_cd(self, prob: _Problem) -> float:
+        """The `CD(S, S~)` bound of the DHF with the best of every HF."""
+        return float(np.minimum(self.cur, self.suf[:, 0]).sum() / prob.n_samples) * (1 - 1e-9)
+
+    def root(self):
+        """The search state of the DHF alone: `(hs, rows, cur, n_vis, floaters, x)`."""
+        return ((), np.arange(len(self.rows)), self.cur, self.n_vis, np.arange(len(self.bd)), 0.0)
+
+    def children(self, node, m: int, prob: _Problem, eps1: float, eps2: float, best: float = math.inf):
+        """Lower bounds of E over the subtrees of the children of `node` (each adds one
+        HF `h >= start`; `r - 1` more follow from `(h, n_h)`), as `(H, bounds, state)`.
+        Children whose `CD(S, S~)` bound alone exceeds `best` are left out."""
+        hs, rr, cur, n_vis, A, x = node
+        nh = self.IN.shape[1]
+        r = m - len(hs)
+        start = hs[-1] + 1 if hs else 0
+        if self.topc is None or len(self.topc) <= r:
+            self.topc = _top_sums(self.c, max(r, m))
+        N = prob.n_samples
+        Dn = self.Dr[rr, start : nh - r + 1]
+        C = np.minimum(cur[:, None], Dn)
+        if r > 1:
+            cd = np.minimum(C, self.suf[rr, start + 1 : nh - r + 2]).sum(0) / N
+        else:
+            cd = C.sum(0) / N
+        H = np.arange(start, nh - r + 1)
+        if best < math.inf:  # the cheap part of the bound first
+            keep = cd * (1 - 1e-9) <= best
+            if not keep.all():
+                H, C, cd = H[keep], C[:, keep], cd[keep]
+        self.need(prob, H)
+        if r > 1 and len(H):
+            self.need(prob, range(H[0] + 1, nh))
+        Vn = self.Vr[np.ix_(rr, H)]
+        if r > 1:
+            vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
+        else:
+            vmax = n_vis + Vn.sum(0)
+        INA = self.IN[np.ix_(A, H)]
+        bdA, tA = self.bd[A], self.t[A]
+        td = bdA @ INA
+        tt = tA @ INA
+        nd = INA.sum(0)
+        if r > 1 and len(A):
+            # the next r - 1 HFs can remove at most the floaters of their r - 1 best
+            out = ~self.IN[A]
+            later = np.arange(nh)[None, :] > H[:, None]
+            for w, tot in ((bdA, td), (tA, tt)):
+                M = np.where(later, ((INA * w[:, None]).T @ out), 0.0)
+                M.sort(axis=1)
+                tot -= M[:, nh - (r - 1) :].sum(1)
+            td = np.maximum(td, 0.0)
+            tt = np.maximum(tt, 0.0)
+        xm = x + self.c[H] + self.topc[r - 1][H + 1]
+        n0 = vmax + nd
+        a = prob.on_surface
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r1 = np.where(n0 > 0, td / np.maximum(n0, 1), np.inf)
+            r2 = np.where(n0 + xm > 0, (td + a * xm) / np.maximum(n0 + xm, 1), np.inf)
+            mu = np.where(n0 + xm > 0, (self.on_vis + tt) / np.maximum(n0 + xm, 1), 0.0)
+        dist = cd + np.minimum(r1, r2)
+        E = dist + np.minimum(mu * (dist + eps1), eps2)
+        E = E * (1 - 1e-9)
+        E[~np.isfinite(dist)] = np.inf
+        return H, E, (C, Vn, INA, A, x, n_vis, rr, hs, H)
+
+    def child(self, state, o: int):
+        """The search state of child `o` of a `children` result."""
+        C, Vn, INA, A, x, n_vis, rr, hs, H = state
+        keep = ~Vn[:, o]
+        h = int(H[o])
+        return (hs + (h,), rr[keep], C[keep, o], n_vis + int(Vn[:, o].sum()), A[INA[:, o]], x + self.c[h])
+
+
+def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=True, cap=math.inf, first=None):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
-    HFs from `hk`, by branch and bound on `CD(S, S~) <= E` (partial choices and leaves)
-    and on `_Problem.floater_bound` (leaves), counting leaves and full evaluations."""
+    HFs from `hk`, by branch and bound on the lower bounds of `_DhfTerms` (best first),
+    counting leaves and full evaluations. With `cap`, only combinations with E <= cap are
+    sought (`best` stays `[cap, inf, ()]` when there is none). `first`: the DHF searched
+    first (then the others by their `CD(S, S~)` bound)."""
     n_h = len(hk)
-    best = [math.inf, math.inf, ()]
+    best = [cap, math.inf, ()]
     leaves = math.comb(n_h, m) * len(dk)
     n0 = prob.n_full
 
@@ -773,67 +970,54 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive):
         if (E, i, hs) < tuple(best):
             best[0], best[1], best[2] = E, i, hs
 
-    Dh = prob.D[:, hk]
-    if m == 0:
-        prob.prefetch([[kp, km] for kp, km in dk])
-    for i, (kp, km) in enumerate(dk):
-        if m == 0:
-            E = prob.energy([kp, km], eps1, eps2, angle)["E"]
-            consider(E, i, ())
-            continue
-        base = np.minimum(prob.D[:, kp], prob.D[:, km])
-        rows = base > 0  # samples on the DHF's surface are at distance 0 whatever follows
-        cur0 = base[rows]
-        Dr = Dh[rows]
-        n = prob.n_samples
-        # suffix minima: the best any later HF can do, for the bound of a partial choice
-        suf = np.minimum.accumulate(Dr[:, ::-1], axis=1)[:, ::-1] if len(Dr) else Dr
-        stack = [((), cur0)]
-        while stack:
-            hs, cur = stack.pop()
-            start = hs[-1] + 1 if hs else 0
-            depth = len(hs)
-            if depth == m - 1:
-                if start >= n_h:
+    def evaluate(i, combos, bounds=None):
+        kp, km = dk[i]
+        for c0 in range(0, len(combos), _CHUNK):
+            chunk = combos[c0 : c0 + _CHUNK]
+            prob.prefetch([[kp, km] + [hk[j] for j in hs] for hs in chunk])
+            for c, hs in enumerate(chunk):
+                if bounds is not None and bounds[c0 + c] > best[0]:
                     continue
-                lbs = np.minimum(cur[:, None], Dr[:, start:]).sum(0) / n
-                order = np.argsort(lbs, kind="stable")
-                pre = [kp, km] + [hk[j] for j in hs]
-                ks_of = lambda o, pre=pre, start=start: pre + [hk[start + o]]  # noqa: E731
-                for c0 in range(0, len(order), _CHUNK):
-                    # the rays of the next leaves still within the bound, cast together
-                    chunk = [int(o) for o in order[c0 : c0 + _CHUNK] if exhaustive or lbs[o] <= best[0]]
-                    if not exhaustive:
-                        # first the cheap bound from the DHF's floaters (a margin for the
-                        # rounding of the two ways CD(S, S~) is summed)
-                        prob.prefetch([ks_of(o) for o in chunk], only=(kp, km))
-                        fb = {
-                            o: prob.floater_bound((kp, km), ks_of(o), lbs[o], eps1, eps2, angle) * (1 - 1e-9)
-                            for o in chunk
-                        }
-                        live = [o for o in chunk if fb[o] <= best[0]]
-                    else:
-                        live = chunk
-                    prob.prefetch([ks_of(o) for o in live])
-                    for o in chunk:
-                        if not exhaustive and lbs[o] > best[0]:
-                            break
-                        if not exhaustive and fb[o] > best[0]:
-                            continue
-                        combo = hs + (start + o,)
-                        E = prob.energy(ks_of(o), eps1, eps2, angle)["E"]
-                        consider(E, i, combo)
-                    if not exhaustive and (len(chunk) < min(_CHUNK, len(order) - c0) or lbs[chunk[-1]] > best[0]):
-                        break  # the rest of the (sorted) leaves is beyond the bound
-                continue
-            last = n_h - (m - depth)
-            for h in range(last, start - 1, -1):  # pushed in reverse: popped in order
-                new = np.minimum(cur, Dr[:, h])
-                if not exhaustive and h + 1 < n_h:
-                    lb = np.minimum(new, suf[:, h + 1]).sum() / n
-                    if lb > best[0]:
-                        continue
-                stack.append((hs + (h,), new))
+                consider(prob.energy([kp, km] + [hk[j] for j in hs], eps1, eps2, angle)["E"], i, tuple(hs))
+
+    if m == 0 or exhaustive:
+        import itertools
+
+        for i in range(len(dk)):
+            evaluate(i, list(itertools.combinations(range(n_h), m)))
+        return best, leaves, prob.n_full - n0
+    terms = []
+    for kp, km in dk:
+        key = (kp, km, tuple(hk), angle, counts)
+        t = prob._terms.get(key)
+        if t is None:
+            t = prob._terms[key] = _DhfTerms(prob, kp, km, hk, angle, counts)
+        terms.append(t)
+
+    def expand(i, H, E, state):
+        hs = state[7]
+        order = np.argsort(E, kind="stable")
+        if len(hs) + 1 == m:  # the children are leaves: evaluate those within the bound
+            for c0 in range(0, len(order), _CHUNK):
+                sel = [o for o in order[c0 : c0 + _CHUNK] if E[o] <= best[0]]
+                if not sel:
+                    break
+                evaluate(i, [hs + (int(H[o]),) for o in sel], [E[o] for o in sel])
+            return
+        t = terms[i]
+        for o in order:
+            if E[o] > best[0]:
+                break  # sorted: the rest is beyond the bound too
+            expand(i, *t.children(t.child(state, o), m, prob, eps1, eps2, best[0]))
+
+    # the DHF `first` (the best one with m - 1 HFs), then the others in the order of their
+    # CD(S, S~) bounds: the rays of a DHF's floaters are cast only as its bounds need them
+    order = sorted((t.root_cd(prob), i) for i, t in enumerate(terms) if i != first)
+    for lb, i in ([] if first is None else [(-math.inf, first)]) + order:
+        if lb > best[0]:
+            break
+        t = terms[i]
+        expand(i, *t.children(t.root(), m, prob, eps1, eps2, best[0]))
     return best, leaves, prob.n_full - n0
 
 
@@ -899,14 +1083,18 @@ def select(
 
     Each height field's boundary comes from a `resolution^2` depth map (exact hits at
     pixel centres, linear in between). `m = 0, 1, ...` HFs are tried in turn; for each,
-    every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree
-    whose partial choices are bounded below by `CD(S, S~)` with the best remaining
-    candidates, and whose leaves are bounded again from the DHF's own floaters (which
-    need only the DHF's boundary rays) before the HFs' rays are cast, so most leaves are
-    never evaluated (`ESI.prune_rate`). The search stops
+    every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree,
+    explored best first. A partial choice (the DHF and some HFs) is bounded below over
+    every combination that completes it: `CD(S, S~)` with the best remaining candidates,
+    and `CD(S~, S)` and `mu` from what no further HF can change, namely the DHF's own
+    floaters that the remaining HFs cannot all remove, the visible surface samples (at
+    distance 0) that they can at most add, and the HFs' floaters, each farther from S than
+    the on-surface distance. Rays that cannot hit S (from a point above every triangle over
+    its cell of the ray's depth-map frame) are never cast. Most leaves are never evaluated
+    (`ESI.prune_rate`), and the result is the exhaustive optimum. The search stops
     at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
     (default `eps1`: an extra height field must be worth more than the noise of the
-    sampled energy).
+    sampled energy); that level only looks for a choice below that threshold.
 
     **Arguments:**
 
@@ -945,11 +1133,18 @@ def _select(prob, dk, hk, cdhf, chf, max_hf, eps1, eps2, angle, tol, stop_early,
     for m in range(max_hf + 1):
         if m > len(hk):
             break
-        best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive)
+        # with the early stop, level m only matters if it beats the chosen level by more
+        # than tol: what is not below that is pruned from the start
+        cap = results[chosen][0] - tol if stop_early and chosen is not None and not exhaustive else math.inf
+        # the DHF of the best choice with one HF less first: a good incumbent early
+        first = results[-1][1] if results and results[-1][1] != math.inf else None
+        best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap, first=first)
+        if best[1] == math.inf:  # nothing below the cap
+            best = [math.nan, math.inf, ()]
         results.append(best)
         leaves.append(n_leaves)
         evals.append(n_eval)
-        if chosen is None or best[0] < results[chosen][0] - tol:
+        if chosen is None or (best[1] != math.inf and best[0] < results[chosen][0] - tol):
             chosen = m
         elif stop_early:
             break
