@@ -122,7 +122,7 @@ def csg_scenes(
             print(json.dumps(rows[-1], default=str), flush=True)
             continue
         v, f = mesh.vertices, mesh.faces
-        vol = float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6)
+        vol = mesh.signed_volume()
         ref = solid.to_mesh()
         refm = voxax.Mesh(np.asarray(ref.vert_properties)[:, :3], np.asarray(ref.tri_verts))
         edge = float(np.mean(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)))
@@ -161,9 +161,19 @@ def csg_scenes(
     }
 
 
+@jax.jit
+def grid_lloyd(y, x, w):
+    """One Lloyd step by the plain grid search and XLA segment sums, the fragments as
+    arguments (how `cvt.optimize` stepped before its warm-started assignment kernel)."""
+    n = y.shape[0]
+    idx = voxax.nearest_neighbors(y, x, k=1)[1][:, 0]
+    mass = jax.ops.segment_sum(w, idx, num_segments=n)
+    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+    return jax.numpy.where(mass[:, None] > 0, first / jax.numpy.where(mass > 0, mass, 1.0)[:, None], y)
+
+
 def kernel_times(n: int, alpha: float, repeat: int = 7) -> dict:
-    """Best-of-`repeat` wall time of the nearest-seed pass and of one jitted Lloyd step (FFI
-    search plus segment sums, the fragments as arguments), on the octic's fragments from a
+    """Best-of-`repeat` wall time of the nearest-seed pass and of one `grid_lloyd` step, on the octic's fragments from a
     cubic grid sized for about `alpha * n` fragments, with `n` area-proportional seeds."""
     out = {"seeds": n, "cores": os.cpu_count(), "load_average_start": os.getloadavg()}
     cells = 64
@@ -178,17 +188,9 @@ def kernel_times(n: int, alpha: float, repeat: int = 7) -> dict:
     voxax.nearest_neighbors(seeds, frag.points, k=1)
     out["nearest_seed_s"], _ = best_of(lambda: voxax.nearest_neighbors(seeds, frag.points, k=1), repeat)
     x, w = jax.numpy.asarray(frag.points), jax.numpy.asarray(frag.weights)
-
-    @jax.jit
-    def lloyd(y, x, w):
-        idx = voxax.nearest_neighbors(y, x, k=1)[1][:, 0]
-        mass = jax.ops.segment_sum(w, idx, num_segments=n)
-        first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
-        return jax.numpy.where(mass[:, None] > 0, first / jax.numpy.where(mass > 0, mass, 1.0)[:, None], y)
-
     y = jax.numpy.asarray(seeds)
-    jax.block_until_ready(lloyd(y, x, w))
-    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(lloyd(y, x, w)), repeat)
+    jax.block_until_ready(grid_lloyd(y, x, w))
+    out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(grid_lloyd(y, x, w)), repeat)
     out["load_average_end"] = os.getloadavg()
     return out
 
@@ -241,17 +243,20 @@ def main():
     out["reference_vertices"] = len(ref.vertices)
 
     # fragments, nearest-seed pass, Lloyd step at n seeds
+    def remesh_octic(seeds):
+        return cvt.remesh(
+            octic,
+            seeds,
+            grid=voxax.Grid.cube(64, half_width=HALF),
+            method=args.method,
+            steps=args.steps,
+            polish=args.polish,
+            relax=args.relax,
+            alpha=args.alpha,
+        )
+
     t, c = time.perf_counter(), time.process_time()
-    mesh, rep = cvt.remesh(
-        octic,
-        n,
-        grid=voxax.Grid.cube(64, half_width=HALF),
-        method=args.method,
-        steps=args.steps,
-        polish=args.polish,
-        relax=args.relax,
-        alpha=args.alpha,
-    )
+    mesh, rep = remesh_octic(n)
     out["remesh_s"] = time.perf_counter() - t
     out["remesh_cpu_s"] = time.process_time() - c
     out["remesh_times"] = rep["time"]
@@ -271,18 +276,10 @@ def main():
     voxax.nearest_neighbors(seeds, frag.points, k=1, threads=1)
     out["nearest_seed_1thread_cpu_s"] = time.process_time() - c
     x, w = jax.numpy.asarray(frag.points), jax.numpy.asarray(frag.weights)
-
-    @jax.jit
-    def lloyd(y, x, w):  # one Lloyd step with the fragments as arguments, as cvt.optimize runs it
-        idx = voxax.nearest_neighbors(y, x, k=1)[1][:, 0]
-        mass = jax.ops.segment_sum(w, idx, num_segments=n)
-        first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
-        return jax.numpy.where(mass[:, None] > 0, first / jax.numpy.where(mass > 0, mass, 1.0)[:, None], y)
-
     seeds = jax.numpy.asarray(seeds)
 
     def step(y):
-        return lloyd(y, x, w)
+        return grid_lloyd(y, x, w)
 
     jax.block_until_ready(step(seeds))
     out["lloyd_step_s"], _ = best_of(lambda: jax.block_until_ready(step(seeds)), 5)
@@ -326,16 +323,7 @@ def main():
         out["mc_pymeshlab"] = {"time_s": time.perf_counter() - t, "mc_cells": 120, **summary(rm, ref, diag)}
 
         t = time.perf_counter()
-        m2, rep2 = cvt.remesh(
-            octic,
-            2 * n,
-            grid=voxax.Grid.cube(64, half_width=HALF),
-            method=args.method,
-            steps=args.steps,
-            polish=args.polish,
-            relax=args.relax,
-            alpha=args.alpha,
-        )
+        m2, rep2 = remesh_octic(2 * n)
         out["remesh_2x_s"] = time.perf_counter() - t
         out["t2x_over_t"] = out["remesh_2x_s"] / out["remesh_s"]
         out["cvt_2x"] = {"fragments": rep2["n_fragments"], **summary(m2, ref, diag)}
