@@ -808,6 +808,8 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
+    from voxax._cvt_optimize import _assign_moments, assign_moments_host
+
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     bad = {
         "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
@@ -842,6 +844,23 @@ def run_spatial(rng, n_inputs):
             jax.ShapeDtypeStruct((5,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 3))), "outputs"),
+        # the CVT assignment kernel, host and FFI
+        "CVT assign NaN seed": (lambda: assign_moments_host(np.where(v == v[0], np.nan, v), v, np.ones(30)), "NaN"),
+        "CVT assign no seeds": (lambda: assign_moments_host(np.zeros((0, 3)), v, np.ones(30)), "seeds"),
+        "CVT assign negative weight": (lambda: assign_moments_host(v, v, -np.ones(30)), "weights"),
+        "CVT assign tiny seeds": (lambda: assign_moments_host(v * 1e-200, v, np.ones(30)), "below 1e-75"),
+        "jit CVT assign NaN weight": (lambda: jax.jit(_assign_moments)(
+            v, v, jnp.full(30, jnp.nan), jnp.full(30, 1 << 30, jnp.int32)), "weights"),
+        "jit CVT assign Inf sample": (lambda: jax.jit(_assign_moments)(
+            v, jnp.full((30, 3), jnp.inf), jnp.ones(30), jnp.zeros(30, jnp.int32)), "NaN or Inf"),
+        "raw FFI CVT assign short hint": (lambda: jax.ffi.ffi_call(_ffi.CVT_ASSIGN, (
+            jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((30, 4), jnp.float64),
+            jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.float64)))(
+            jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(29, jnp.int32)), "shape"),
+        "raw FFI CVT assign wrong outputs": (lambda: jax.ffi.ffi_call(_ffi.CVT_ASSIGN, (
+            jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((29, 4), jnp.float64),
+            jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.float64)))(
+            jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(30, jnp.int32)), "outputs"),
     }
     for name, (call, match) in bad.items():
         try:
