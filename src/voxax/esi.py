@@ -540,8 +540,49 @@ class _Problem:
         self._cols: dict = {}
         self._maybe: dict = {}
         self._terms: dict = {}
+        self._reset_candidates()
         self.n_full = 0
         self.n_rays = 0
+
+    def _reset_candidates(self) -> None:
+        # the candidate floaters of every DHF searched so far, numbered once across DHFs,
+        # and whether their rays along each direction hit S (-1: not cast yet)
+        self._gid = [np.full(len(b), -1, np.int64) for b in self.B]
+        self._gpts = np.zeros((0, 3))
+        self._ghit = np.zeros((len(self.dirs), 0), np.int8)
+
+    def register(self, k: int, idx: np.ndarray) -> np.ndarray:
+        """Numbers for the boundary samples `idx` of HF k in the candidate registry."""
+        g = self._gid[k]
+        new = idx[g[idx] < 0]
+        if len(new):
+            n0 = len(self._gpts)
+            g[new] = np.arange(n0, n0 + len(new))
+            self._gpts = np.concatenate([self._gpts, self.B[k][new]])
+            cap = self._ghit.shape[1]
+            if len(self._gpts) > cap:
+                grown = np.full((len(self.dirs), max(2 * cap, len(self._gpts))), -1, np.int8)
+                grown[:, :cap] = self._ghit
+                self._ghit = grown
+        return g[idx]
+
+    def hits_of(self, ks: np.ndarray, gids: np.ndarray) -> np.ndarray:
+        """Whether the rays of registered candidates `gids` along directions `ks` (paired)
+        hit S, cast (in one call) where not known yet."""
+        h = self._ghit[ks, gids]
+        todo = np.flatnonzero(h < 0)
+        if len(todo):
+            tk, tg = ks[todo], gids[todo]
+            pts = self._gpts[tg]
+            mb = self.may_hit_many(pts, tk)
+            sel = np.flatnonzero(mb)
+            res = np.zeros(len(todo), np.int8)
+            if len(sel):
+                res[sel] = self.bvh.any_hits(pts[sel], self.vec[tk[sel]], t_min=self.eps, threads=self.threads)
+                self.n_rays += len(sel)
+            self._ghit[tk, tg] = res
+            h[todo] = res
+        return h == 1
 
     def columns(self, li: int):
         """Conservative depth bounds of S per cell of a `G x G` grid in the frame of line
@@ -576,21 +617,53 @@ class _Problem:
         self._cols[li] = col
         return col
 
+    def may_hit(self, points: np.ndarray, k2: int) -> np.ndarray:
+        """`(n,)` bool: False where the ray from a point along direction k2 certainly misses
+        S (by `columns`), True where it may hit."""
+        li, s = self.dirs[k2]
+        fr, R, h, lo, hi = self.columns(li)
+        G = fr.resolution
+        M = np.stack([fr.u, fr.v, fr.d], 1)
+        loc = points @ M - fr.center @ M
+        fi = (loc[:, 0] + R) / h
+        fj = (loc[:, 1] + R) / h
+        mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
+        cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
+        mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
+        return mb
+
+    def may_hit_many(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
+        """`may_hit` of each point along its own direction `ks[i]` (vectorised over the
+        directions; the same conservative test)."""
+        tab = self._TP.get("frames")
+        if tab is None:
+            lines = sorted({li for li, _ in self.dirs})
+            cols = [self.columns(li) for li in lines]
+            Ms = np.zeros((len(self.dirs), 3, 3))
+            c0 = np.zeros((len(self.dirs), 3))
+            lim = np.zeros((len(self.dirs), len(cols[0][3])))
+            sgn = np.zeros(len(self.dirs))
+            for k, (li, s) in enumerate(self.dirs):
+                fr, R, h, lo, hi = cols[lines.index(li)]
+                Ms[k] = np.stack([fr.u, fr.v, fr.d], 1)
+                c0[k] = fr.center @ Ms[k]
+                lim[k] = hi if s > 0 else -lo
+                sgn[k] = s
+            tab = self._TP["frames"] = (Ms, c0, lim, sgn, R, h, fr.resolution)
+        Ms, c0, lim, sgn, R, h, G = tab
+        loc = np.einsum("ij,ijk->ik", points, Ms[ks]) - c0[ks]
+        fi = (loc[:, 0] + R) / h
+        fj = (loc[:, 1] + R) / h
+        mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
+        cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
+        mb &= sgn[ks] * loc[:, 2] < lim[ks, cell]
+        return mb
+
     def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
         """`maybe` of every boundary sample of HF k along k2, as packed bits (kept)."""
         bits = self._maybe.get((k, k2))
         if bits is None:
-            li, s = self.dirs[k2]
-            fr, R, h, lo, hi = self.columns(li)
-            G = fr.resolution
-            M = np.stack([fr.u, fr.v, fr.d], 1)
-            loc = self.B[k] @ M - fr.center @ M
-            fi = (loc[:, 0] + R) / h
-            fj = (loc[:, 1] + R) / h
-            mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
-            cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
-            mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
-            bits = self._maybe[(k, k2)] = np.packbits(mb)
+            bits = self._maybe[(k, k2)] = np.packbits(self.may_hit(self.B[k], k2))
         return bits
 
     def maybe(self, k: int, k2: int, idx) -> np.ndarray:
@@ -669,6 +742,21 @@ class _Problem:
             bits = bits & self._maybe_bits(k, k2)
         return np.flatnonzero(np.unpackbits(bits, count=len(self.B[k])))
 
+    def filter_many(self, items) -> list:
+        """`floaters(k, others)` of every `(k, others)` in `items`, casting the rays of all
+        of them in one call per filtering step."""
+        alive = [self._may_float(k, others) for k, others in items]
+        step = 0
+        while True:
+            live = [t for t, (_, others) in enumerate(items) if step < len(others) and len(alive[t])]
+            if not live:
+                return alive
+            self._ensure([(items[t][0], items[t][1][step], alive[t]) for t in live])
+            for t in live:
+                k, k2 = items[t][0], items[t][1][step]
+                alive[t] = alive[t][self._hit[(k, k2)][alive[t]] == 1]
+            step += 1
+
     def prefetch(self, combos) -> None:
         """Cast the rays that `energy` needs for every combination in `combos`, in one call
         per filtering step instead of one per pair of directions."""
@@ -677,17 +765,7 @@ class _Problem:
             ks = sorted(set(ks))
             for k in ks:
                 items[(k, tuple(k2 for k2 in ks if k2 != k))] = None
-        alive = {it: self._may_float(*it) for it in items}
-        step = 0
-        while True:
-            live = [it for it in alive if step < len(it[1]) and len(alive[it])]
-            if not live:
-                return
-            self._ensure([(it[0], it[1][step], alive[it]) for it in live])
-            for it in live:
-                k, k2 = it[0], it[1][step]
-                alive[it] = alive[it][self._hit[(k, k2)][alive[it]] == 1]
-            step += 1
+        self.filter_many(list(items))
 
     def cd_st(self, ks) -> float:
         return float(self.D[:, list(ks)].min(1).mean())
@@ -706,6 +784,20 @@ class _Problem:
         if t is None:
             t = np.where(self.visP[:, k], _T_of(self.Pn @ self.vec[k], angle), 1.0)
             self._TP[(k, angle)] = t
+        return t
+
+    def TPall(self, angle: float) -> np.ndarray:
+        """`(K, N)`: `TP` of every direction."""
+        t = self._TP.get(("all", angle))
+        if t is None:
+            t = self._TP[("all", angle)] = np.stack([self.TP(k, angle) for k in range(len(self.dirs))])
+        return t
+
+    def visT(self) -> np.ndarray:
+        """`(K, N)`: `visP` transposed (rows are contiguous)."""
+        t = self._TP.get("visT")
+        if t is None:
+            t = self._TP["visT"] = np.ascontiguousarray(self.visP.T)
         return t
 
     def TPmin(self, angle: float) -> np.ndarray:
@@ -806,7 +898,7 @@ class ESI(NamedTuple):
         return [self.dhf_axis, -self.dhf_axis] + list(self.hf_axes)
 
 
-_CHUNK = 8  # leaves whose rays are cast together
+_CHUNK = 8  # leaves whose rays are cast together (exhaustive search)
 
 
 def _top_sums(c: np.ndarray, r: int) -> list:
@@ -821,24 +913,38 @@ def _top_sums(c: np.ndarray, r: int) -> list:
     return out
 
 
-class _DhfTerms:
-    """What a DHF pair fixes of E, for lower bounds of E over its choices of HFs.
+class _Node(NamedTuple):
+    """A partial choice of HFs `hs` (ascending candidate indices) below one DHF."""
 
-    With the DHF along `(kp, km)` and HFs `H` from the candidates `hk`:
+    hs: tuple
+    rr: np.ndarray  # indices into `_Dhf.rows` of the surface samples hidden from every axis so far
+    cur: np.ndarray  # their least distance to the boundary of one of the height fields so far
+    n_vis: int  # surface samples visible along one of the axes so far
+    vis: np.ndarray  # (N,) bool: which
+    base: np.ndarray  # (N,) the least On of each surface sample over the axes so far
+    alive: np.ndarray  # (R,) bool: the candidate floaters inside every HF of `hs` (but their own)
+
+
+class _Dhf:
+    """Everything one DHF fixes of E, for the exact energies and lower bounds of E of its
+    choices of HFs (the nodes of its search tree).
+
+    With the DHF along `(kp, km)` and HFs from the candidates `hk`:
 
     - `CD(S, S~)` sums `min(D)` over the surface samples hidden from the DHF (`rows`);
-    - the visible surface samples count `n_vis(H)` (distance 0) in `n`;
-    - the DHF's floaters are those of the DHF alone (`F0`, boundary samples of `+-d`
-      inside the other side) whose rays along every HF of `H` hit S (`IN`, cast as needed);
-    - every floater of an HF is a boundary sample off S, so its distance is more than
-      `on_surface` and its On at least 0; there are at most `c[j]` of them for HF `j`
-      (its boundary samples that may lie inside the DHF, by `_Problem.maybe`).
+    - the visible surface samples count at distance 0;
+    - the *candidate floaters* are the boundary samples that can be floaters of some choice
+      of HFs: for each HF candidate `j` those of `HF(j)` inside both sides of the DHF
+      (block `j`), and those of each side of the DHF inside the other (the last two
+      blocks). `IN[j, row]` says whether a row's ray along HF candidate `j` hits S (cast
+      as needed, `KN` says which are known). The floaters of a choice of HFs are the rows
+      of its blocks that lie inside all of its other HFs.
     """
 
-    def __init__(self, prob: _Problem, kp: int, km: int, hk, angle: float, counts: bool):
-        N = prob.n_samples
-        hk = list(hk)
-        nh = len(hk)
+    def __init__(self, prob: _Problem, kp: int, km: int, hk, angle: float):
+        self.prob, self.kp, self.km, self.angle = prob, kp, km, angle
+        self.hk = hk = list(hk)
+        self.nh = len(hk)
         visd = prob.visP[:, kp] | prob.visP[:, km]
         self.rows = np.flatnonzero(~visd)
         self.cur = np.minimum(prob.D[self.rows, kp], prob.D[self.rows, km])
@@ -849,115 +955,258 @@ class _DhfTerms:
         self.sufv = np.concatenate(
             [np.logical_or.accumulate(self.Vr[:, ::-1], axis=1)[:, ::-1], np.zeros_like(inf, bool)], 1
         )
-        self.n_vis = N - len(self.rows)
-        # the On of the samples the DHF sees, at least the least over every direction
-        self.on_vis = float(
-            np.minimum(np.minimum(prob.TP(kp, angle), prob.TP(km, angle)), prob.TPmin(angle))[visd].sum()
-        )
-        own = [prob.floaters(kp, [km]), prob.floaters(km, [kp])]
-        dhf = {kp, km}
-        self.sides = list(zip((kp, km), own))
-        self.hk = hk
-        # IN[b, j]: the ray of DHF floater b along HF j hits S (columns cast when needed;
-        # an HF along the DHF's own line changes nothing)
-        self.IN = np.ones((len(own[0]) + len(own[1]), nh), bool)
-        self.known = np.array([k2 in dhf for k2 in hk], bool)
-        self.bd = np.concatenate([prob.Bd[kp][own[0]], prob.Bd[km][own[1]]])
-        self.t = np.concatenate([prob.T(kp, kp, angle)[own[0]], prob.T(km, km, angle)[own[1]]])
-        if counts:
-            c = [0 if k2 in dhf else len(prob._may_float(k2, [kp, km])) for k2 in hk]
-        else:
-            c = [0 if k2 in dhf else len(prob.B[k2]) for k2 in hk]
-        self.c = np.asarray(c, np.float64)
-        self.topc = None
+        self.visd = visd
+        self.base = np.minimum(prob.TP(kp, angle), prob.TP(km, angle))
+        self.tpmin = prob.TPmin(angle)
+        self.same = np.array([k in (kp, km) for k in hk], bool)
+        self.built = False
 
-    def need(self, prob: _Problem, cols) -> None:
-        """Cast the rays of the DHF floaters along the HFs `cols` not cast yet."""
-        cols = [int(j) for j in cols if not self.known[j]]
-        if not cols:
+    def _build(self) -> None:
+        """The candidate floaters (two batched casts along the DHF's sides)."""
+        prob, kp, km, nh = self.prob, self.kp, self.km, self.nh
+        items = [(k, [kp, km]) for k in self.hk] + [(kp, [km]), (km, [kp])]
+        found = prob.filter_many(items)
+        bk = list(self.hk) + [kp, km]
+        bidx = [np.zeros(0, np.int64) if j < nh and self.same[j] else found[j] for j in range(nh + 2)]
+        self.bk = bk
+        sizes = np.array([len(i) for i in bidx])
+        self.off = np.concatenate([[0], np.cumsum(sizes)])
+        R = int(self.off[-1])
+        self.owner = np.repeat(np.arange(nh + 2), sizes)
+        self.gid = np.concatenate([prob.register(k, i) for k, i in zip(bk, bidx)]).astype(np.int64)
+        self.hkarr = np.asarray(self.hk, np.int64)
+        self.wd = np.concatenate([prob.Bd[k][i] for k, i in zip(bk, bidx)])
+        self.wt = np.concatenate([prob.T(k, k, self.angle)[i] for k, i in zip(bk, bidx)])
+        self.IN = np.zeros((nh, R), bool)
+        self.KN = np.zeros((nh, R), bool)
+        # a height field along the DHF's own line changes nothing; a block is not
+        # filtered by its own height field
+        self.IN[self.same] = self.KN[self.same] = True
+        for j in range(nh):
+            self.IN[j, self.off[j] : self.off[j + 1]] = self.KN[j, self.off[j] : self.off[j + 1]] = True
+        self.brows = [np.arange(self.off[b], self.off[b + 1]) for b in range(nh + 2)]
+        self.built = True
+
+    def ensure(self, rows: np.ndarray, cols) -> None:
+        """Know `IN` of `rows` along the HF candidates `cols`, casting the rays not cast yet
+        through the problem's registry (a boundary sample's ray along a direction is the
+        same ray for every DHF), in one call."""
+        cols = np.asarray(cols, np.int64)
+        if not len(rows) or not len(cols):
             return
-        prob._ensure([(k, self.hk[j], f) for k, f in self.sides for j in cols])
-        for j in cols:
-            self.IN[:, j] = np.concatenate([prob._hit[(k, self.hk[j])][f] == 1 for k, f in self.sides])
-            self.known[j] = True
+        kn = self.KN[np.ix_(cols, rows)]
+        if kn.all():
+            return
+        ci, ri = np.nonzero(~kn)
+        J, Rw = cols[ci], rows[ri]
+        self.IN[J, Rw] = self.prob.hits_of(self.hkarr[J], self.gid[Rw])
+        self.KN[J, Rw] = True
 
-    def root_cd(self, prob: _Problem) -> float:
+    def root_cd(self) -> float:
         """The `CD(S, S~)` bound of the DHF with the best of every HF."""
-        return float(np.minimum(self.cur, self.suf[:, 0]).sum() / prob.n_samples) * (1 - 1e-9)
+        return float(np.minimum(self.cur, self.suf[:, 0]).sum() / self.prob.n_samples) * (1 - 1e-9)
 
-    def root(self):
-        """The search state of the DHF alone: `(hs, rows, cur, n_vis, floaters, x)`."""
-        return ((), np.arange(len(self.rows)), self.cur, self.n_vis, np.arange(len(self.bd)), 0.0)
+    def root(self) -> _Node:
+        if not self.built:
+            self._build()
+        n_vis = self.prob.n_samples - len(self.rows)
+        return _Node((), np.arange(len(self.rows)), self.cur, n_vis, self.visd, self.base, np.ones(len(self.owner), bool))
 
-    def children(self, node, m: int, prob: _Problem, eps1: float, eps2: float, best: float = math.inf):
-        """Lower bounds of E over the subtrees of the children of `node` (each adds one
-        HF `h >= start`; `r - 1` more follow from `(h, n_h)`), as `(H, bounds, state)`.
-        Children whose `CD(S, S~)` bound alone exceeds `best` are left out."""
-        hs, rr, cur, n_vis, A, x = node
-        nh = self.IN.shape[1]
+    def _block_sums(self, x: np.ndarray) -> np.ndarray:
+        """`(nh + 2,)` the sums of `x` (per row) over each block."""
+        out = np.add.reduceat(np.append(x.astype(np.float64), 0.0), self.off[:-1])
+        out[self.off[:-1] == self.off[1:]] = 0.0
+        return out
+
+    def _blocks(self, hs) -> list:
+        """The blocks of the DHF and of the HFs `hs`."""
+        return [self.nh, self.nh + 1] + [j for j in hs if not self.same[j]]
+
+    def children(self, node: _Node, m: int, eps1: float, eps2: float, best: float = math.inf):
+        """Lower bounds of E over the subtrees of the children of `node` (each adds one HF
+        `h` after the node's; `r - 1` more follow), as `(H, bounds, state)`. When the
+        children are leaves (`r = 1`) the bounds are their energies, summed in another
+        order and scaled by `1 - 1e-9`. Children whose bound exceeds `best` are left out."""
+        prob, nh, N = self.prob, self.nh, self.prob.n_samples
+        hs, rr, cur, n_vis = node.hs, node.rr, node.cur, node.n_vis
         r = m - len(hs)
         start = hs[-1] + 1 if hs else 0
-        if self.topc is None or len(self.topc) <= r:
-            self.topc = _top_sums(self.c, max(r, m))
-        N = prob.n_samples
-        Dn = self.Dr[rr, start : nh - r + 1]
-        C = np.minimum(cur[:, None], Dn)
+        H = np.arange(start, nh - r + 1)
+        C = np.minimum(cur[:, None], self.Dr[rr, start : nh - r + 1])
         if r > 1:
             cd = np.minimum(C, self.suf[rr, start + 1 : nh - r + 2]).sum(0) / N
         else:
             cd = C.sum(0) / N
-        H = np.arange(start, nh - r + 1)
-        if best < math.inf:  # the cheap part of the bound first
-            keep = cd * (1 - 1e-9) <= best
-            if not keep.all():
-                H, C, cd = H[keep], C[:, keep], cd[keep]
-        self.need(prob, H)
-        if r > 1 and len(H):
-            self.need(prob, range(H[0] + 1, nh))
+
+        def prune(E, *arrays):
+            keep = E <= best
+            if keep.all():
+                return (E,) + arrays
+            return (E[keep],) + tuple(a[..., keep] for a in arrays)
+
+        cd, H, C = prune(cd * (1 - 1e-9), cd, H, C)[1:]  # the cheap part of the bound first
+        if not len(H):
+            return H, cd, None
         Vn = self.Vr[np.ix_(rr, H)]
-        if r > 1:
-            vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
-        else:
-            vmax = n_vis + Vn.sum(0)
-        INA = self.IN[np.ix_(A, H)]
-        bdA, tA = self.bd[A], self.t[A]
-        td = bdA @ INA
-        tt = tA @ INA
-        nd = INA.sum(0)
-        if r > 1 and len(A):
-            # the next r - 1 HFs can remove at most the floaters of their r - 1 best
-            out = ~self.IN[A]
-            later = np.arange(nh)[None, :] > H[:, None]
-            for w, tot in ((bdA, td), (tA, tt)):
-                M = np.where(later, ((INA * w[:, None]).T @ out), 0.0)
-                M.sort(axis=1)
-                tot -= M[:, nh - (r - 1) :].sum(1)
-            td = np.maximum(td, 0.0)
-            tt = np.maximum(tt, 0.0)
-        xm = x + self.c[H] + self.topc[r - 1][H + 1]
-        n0 = vmax + nd
+        nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
+        nr = nr[node.alive[nr]]
+        self.ensure(nr, np.arange(H[0], nh) if r > 1 else H)
+        INA = self.IN[H][:, nr]
+        wd, wt = self.wd[nr], self.wt[nr]
+        td = INA @ wd
+        tt = INA @ wt
+        nd = INA.sum(1).astype(np.float64)
+        # the rows of the children's own blocks inside the node's HFs
+        cnt = self._block_sums(node.alive)[:nh]
         a = prob.on_surface
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r1 = np.where(n0 > 0, td / np.maximum(n0, 1), np.inf)
-            r2 = np.where(n0 + xm > 0, (td + a * xm) / np.maximum(n0 + xm, 1), np.inf)
-            mu = np.where(n0 + xm > 0, (self.on_vis + tt) / np.maximum(n0 + xm, 1), 0.0)
-        dist = cd + np.minimum(r1, r2)
-        E = dist + np.minimum(mu * (dist + eps1), eps2)
-        E = E * (1 - 1e-9)
-        E[~np.isfinite(dist)] = np.inf
-        return H, E, (C, Vn, INA, A, x, n_vis, rr, hs, H)
+        on_vis = float(np.minimum(node.base, self.tpmin)[node.vis].sum())
+        if r == 1:
+            # exact: every term of E; first with the On of the visible surface samples
+            # bounded below, then exactly for the children still within the bound
+            td = td + self._block_sums(np.where(node.alive, self.wd, 0.0))[H]
+            tt = tt + self._block_sums(np.where(node.alive, self.wt, 0.0))[H]
+            nd = nd + cnt[H]
+            n = n_vis + Vn.sum(0) + nd
 
-    def child(self, state, o: int):
-        """The search state of child `o` of a `children` result."""
-        C, Vn, INA, A, x, n_vis, rr, hs, H = state
+            def energy(on):
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    cd_ts = np.where(n > 0, td / np.maximum(n, 1), np.inf)
+                    mu = np.where(n > 0, (on + tt) / np.maximum(n, 1), 1.0)
+                dist = cd + cd_ts
+                E = dist + np.minimum(mu * (dist + eps1), eps2)
+                E = E * (1 - 1e-9)
+                E[~np.isfinite(dist)] = np.inf
+                return E
+
+            E, H, C, Vn, cd, td, tt, n = prune(energy(on_vis), H, C, Vn, cd, td, tt, n)
+            if not len(H):
+                return H, E, None
+            hkH = [self.hk[j] for j in H]
+            TP = prob.TPall(self.angle)
+            z = np.flatnonzero(node.vis & (node.base > 0))
+            on = np.minimum(node.base[z][None, :], TP[np.ix_(hkH, z)]).sum(1)
+            on = on + (Vn * TP[np.ix_(hkH, self.rows[rr])].T).sum(0)
+            return H, energy(on), (node, H, C, Vn)
+        # the next r - 1 HFs can remove at most the floaters of their r - 1 best: `Md[h3, h]`
+        # (`Mt`) sums the distances (On values) of the rows child `h` keeps that HF `h3`
+        # would remove
+        lat = np.arange(nh)[:, None] > H[None, :]
+        if len(nr):
+            out = ~self.IN[:, nr]
+            Md, Mt = out @ (INA * wd[None, :]).T, out @ (INA * wt[None, :]).T
+        else:
+            Md = Mt = np.zeros((nh, len(H)))
+        vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
+        topc = _top_sums(cnt, r - 1)[r - 1]
+
+        def bound(td, tt, nd, Md, Mt, lat, vmax, cd, xm):
+            td = np.maximum(td - np.sort(np.where(lat, Md, 0.0), axis=0)[nh - (r - 1) :].sum(0), 0.0)
+            tt = np.maximum(tt - np.sort(np.where(lat, Mt, 0.0), axis=0)[nh - (r - 1) :].sum(0), 0.0)
+            n0 = vmax + nd
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r1 = np.where(n0 > 0, td / np.maximum(n0, 1), np.inf)
+                r2 = np.where(n0 + xm > 0, (td + a * xm) / np.maximum(n0 + xm, 1), np.inf)
+                mu = np.where(n0 + xm > 0, (on_vis + tt) / np.maximum(n0 + xm, 1), 0.0)
+            dist = cd + np.minimum(r1, r2)
+            E = dist + np.minimum(mu * (dist + eps1), eps2)
+            E = E * (1 - 1e-9)
+            E[~np.isfinite(dist)] = np.inf
+            return E
+
+        # first with the floaters of the child and of the HFs after it unknown (at most
+        # their blocks' rows inside the node's HFs, each farther from S than `a`)
+        E = bound(td, tt, nd, Md, Mt, lat, vmax, cd, cnt[H] + topc[H + 1])
+        E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax = prune(E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax)
+        if not len(H):
+            return H, E, None
+        # then with the child's own rows inside the node's HFs known, less what the HFs
+        # after it can remove (their rays are cast for the children still within the bound)
+        mine = np.zeros(len(self.owner), bool)
+        for h in H:
+            mine[self.off[h] : self.off[h + 1]] = True
+        rc = np.flatnonzero(mine & node.alive)
+        self.ensure(rc, np.arange(H[0] + 1, nh))
+        seg = np.searchsorted(rc, self.off[H])
+        nonempty = seg < np.searchsorted(rc, self.off[H + 1])
+        outc = ~self.IN[:, rc]
+        own = []
+        for w in (self.wd[rc], self.wt[rc]):
+            tot = np.zeros(len(H))
+            rem = np.zeros((nh, len(H)))
+            if len(rc) and nonempty.any():
+                st = seg[nonempty]
+                tot[nonempty] = np.add.reduceat(w, st)
+                rem[:, nonempty] = np.add.reduceat(outc * w[None, :], st, axis=1)
+            own.append((tot, rem))
+        (od, rd), (ot, rt) = own
+        E2 = bound(td + od, tt + ot, nd + cnt[H], Md + rd, Mt + rt, lat, vmax, cd, topc[H + 1])
+        return H, np.maximum(E, E2), (node, H, C, Vn)
+
+    def child(self, state, o: int) -> _Node:
+        """The node of child `o` of a `children` result. Its candidate floaters are the rows
+        of its own blocks and of the blocks after its last HF that lie inside its HFs (the
+        rays along the new HF are cast here)."""
+        node, H, C, Vn = state
+        prob, h, nh = self.prob, int(H[o]), self.nh
+        k = self.hk[h]
+        mine = np.zeros(len(self.owner), bool)
+        for b in self._blocks(node.hs + (h,)):
+            mine[self.off[b] : self.off[b + 1]] = True
+        mine[self.off[h + 1] : self.off[nh]] = True
+        rows = np.flatnonzero(node.alive & mine)
+        self.ensure(rows, [h])
+        alive = np.zeros(len(self.owner), bool)
+        alive[rows] = self.IN[h, rows]
         keep = ~Vn[:, o]
-        h = int(H[o])
-        return (hs + (h,), rr[keep], C[keep, o], n_vis + int(Vn[:, o].sum()), A[INA[:, o]], x + self.c[h])
+        return _Node(
+            node.hs + (h,),
+            node.rr[keep],
+            C[keep, o],
+            node.n_vis + int(Vn[:, o].sum()),
+            node.vis | prob.visT()[k],
+            np.minimum(node.base, prob.TP(k, self.angle)),
+            alive,
+        )
+
+    def leaf_energy(self, state, o: int, eps1: float, eps2: float) -> float:
+        """E of leaf `o` of a `children` result with `r = 1`: the arithmetic of
+        `_Problem.energy`, term for term and in its order, so the same value to the bit."""
+        node, H, C, Vn = state
+        prob, nh, h = self.prob, self.nh, int(H[o])
+        k = self.hk[h]
+        prob.n_full += 1
+        vis = node.vis | prob.visT()[k]
+        on_p = np.minimum(node.base, prob.TP(k, self.angle))
+        tot_on, n = float(on_p[vis].sum()), int(vis.sum())
+        blocks = {self.kp: nh, self.km: nh + 1}
+        for j in node.hs + (h,):
+            if not self.same[j]:
+                blocks[self.hk[j]] = j
+        tot_d = 0.0
+        for kk in sorted(blocks):
+            b = blocks[kk]
+            sl = slice(self.off[b], self.off[b + 1])
+            keep = node.alive[sl] & self.IN[h, sl]
+            if not keep.any():
+                continue
+            tot_on += float(self.wt[sl][keep].sum())
+            tot_d += float(self.wd[sl][keep].sum())
+            n += int(keep.sum())
+        z = np.zeros(prob.n_samples)
+        keep = ~Vn[:, o]
+        z[self.rows[node.rr[keep]]] = C[keep, o]
+        cd_st = float(z.mean())
+        if n == 0:
+            return math.inf
+        cd_ts = tot_d / n
+        mu = tot_on / n
+        dist = cd_st + cd_ts
+        return dist + min(mu * (dist + eps1), eps2)
 
 
-def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=True, cap=math.inf, first=None):
+def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=math.inf, first=None):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
-    HFs from `hk`, by branch and bound on the lower bounds of `_DhfTerms` (best first),
+    HFs from `hk`, by branch and bound on the lower bounds of `_Dhf` (best first),
     counting leaves and full evaluations. With `cap`, only combinations with E <= cap are
     sought (`best` stays `[cap, inf, ()]` when there is none). `first`: the DHF searched
     first (then the others by their `CD(S, S~)` bound)."""
@@ -970,54 +1219,45 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, counts=
         if (E, i, hs) < tuple(best):
             best[0], best[1], best[2] = E, i, hs
 
-    def evaluate(i, combos, bounds=None):
-        kp, km = dk[i]
-        for c0 in range(0, len(combos), _CHUNK):
-            chunk = combos[c0 : c0 + _CHUNK]
-            prob.prefetch([[kp, km] + [hk[j] for j in hs] for hs in chunk])
-            for c, hs in enumerate(chunk):
-                if bounds is not None and bounds[c0 + c] > best[0]:
-                    continue
-                consider(prob.energy([kp, km] + [hk[j] for j in hs], eps1, eps2, angle)["E"], i, tuple(hs))
-
     if m == 0 or exhaustive:
         import itertools
 
-        for i in range(len(dk)):
-            evaluate(i, list(itertools.combinations(range(n_h), m)))
+        for i, (kp, km) in enumerate(dk):
+            combos = list(itertools.combinations(range(n_h), m))
+            for c0 in range(0, len(combos), _CHUNK):
+                chunk = combos[c0 : c0 + _CHUNK]
+                prob.prefetch([[kp, km] + [hk[j] for j in hs] for hs in chunk])
+                for hs in chunk:
+                    consider(prob.energy([kp, km] + [hk[j] for j in hs], eps1, eps2, angle)["E"], i, tuple(hs))
         return best, leaves, prob.n_full - n0
     terms = []
     for kp, km in dk:
-        key = (kp, km, tuple(hk), angle, counts)
+        key = (kp, km, tuple(hk), angle)
         t = prob._terms.get(key)
         if t is None:
-            t = prob._terms[key] = _DhfTerms(prob, kp, km, hk, angle, counts)
+            t = prob._terms[key] = _Dhf(prob, kp, km, hk, angle)
         terms.append(t)
 
-    def expand(i, H, E, state):
-        hs = state[7]
-        order = np.argsort(E, kind="stable")
-        if len(hs) + 1 == m:  # the children are leaves: evaluate those within the bound
-            for c0 in range(0, len(order), _CHUNK):
-                sel = [o for o in order[c0 : c0 + _CHUNK] if E[o] <= best[0]]
-                if not sel:
-                    break
-                evaluate(i, [hs + (int(H[o]),) for o in sel], [E[o] for o in sel])
-            return
+    def expand(i, node):
         t = terms[i]
-        for o in order:
+        H, E, state = t.children(node, m, eps1, eps2, best[0])
+        leaf = len(node.hs) + 1 == m
+        for o in np.argsort(E, kind="stable"):
             if E[o] > best[0]:
                 break  # sorted: the rest is beyond the bound too
-            expand(i, *t.children(t.child(state, o), m, prob, eps1, eps2, best[0]))
+            if leaf:
+                consider(t.leaf_energy(state, int(o), eps1, eps2), i, node.hs + (int(H[o]),))
+            else:
+                expand(i, t.child(state, int(o)))
 
     # the DHF `first` (the best one with m - 1 HFs), then the others in the order of their
-    # CD(S, S~) bounds: the rays of a DHF's floaters are cast only as its bounds need them
-    order = sorted((t.root_cd(prob), i) for i, t in enumerate(terms) if i != first)
+    # CD(S, S~) bounds: the rays of a DHF's candidate floaters are cast only as its
+    # bounds need them
+    order = sorted((t.root_cd(), i) for i, t in enumerate(terms) if i != first)
     for lb, i in ([] if first is None else [(-math.inf, first)]) + order:
         if lb > best[0]:
             break
-        t = terms[i]
-        expand(i, *t.children(t.root(), m, prob, eps1, eps2, best[0]))
+        expand(i, terms[i].root())
     return best, leaves, prob.n_full - n0
 
 
