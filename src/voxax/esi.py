@@ -572,6 +572,7 @@ class _Problem:
         h = self._ghit[ks, gids]
         todo = np.flatnonzero(h < 0)
         if len(todo):
+            todo = todo[np.argsort(ks[todo], kind="stable")]
             tk, tg = ks[todo], gids[todo]
             pts = self._gpts[tg]
             mb = self.may_hit_many(pts, tk)
@@ -633,8 +634,8 @@ class _Problem:
         return mb
 
     def may_hit_many(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
-        """`may_hit` of each point along its own direction `ks[i]` (vectorised over the
-        directions; the same conservative test)."""
+        """`may_hit` of each point along its own direction `ks[i]` (the same conservative
+        test, one product per run of equal directions: sort `ks` first)."""
         tab = self._TP.get("frames")
         if tab is None:
             lines = sorted({li for li, _ in self.dirs})
@@ -651,7 +652,10 @@ class _Problem:
                 sgn[k] = s
             tab = self._TP["frames"] = (Ms, c0, lim, sgn, R, h, fr.resolution)
         Ms, c0, lim, sgn, R, h, G = tab
-        loc = np.einsum("ij,ijk->ik", points, Ms[ks]) - c0[ks]
+        loc = np.empty((len(points), 3))
+        cut = np.concatenate([[0], np.flatnonzero(np.diff(ks)) + 1, [len(ks)]])
+        for a, b in zip(cut[:-1], cut[1:]):  # runs of one direction
+            loc[a:b] = points[a:b] @ Ms[ks[a]] - c0[ks[a]]
         fi = (loc[:, 0] + R) / h
         fj = (loc[:, 1] + R) / h
         mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
@@ -1117,9 +1121,11 @@ class _Dhf:
         # their blocks' rows inside the node's HFs, each farther from S than `a`)
         E = bound(td, tt, nd, Md, Mt, lat, vmax, cd, cnt[H] + topc[H + 1])
         E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax = prune(E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax)
-        if not len(H):
-            return H, E, None
-        # then with the child's own rows inside the node's HFs known, less what the HFs
+        if not len(H) or not hs:
+            # (at the root this would cast the rays of nearly every candidate floater along
+            # every HF: measured slower on the knot)
+            return H, E, (node, H, C, Vn)
+        # then, below the root, with the child's own rows inside the node's HFs known, less what the HFs
         # after it can remove (their rays are cast for the children still within the bound)
         mine = np.zeros(len(self.owner), bool)
         for h in H:
