@@ -1244,9 +1244,9 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=mat
             t = prob._terms[key] = _Dhf(prob, kp, km, hk, angle)
         terms.append(t)
 
-    def expand(i, node):
+    def expand(i, node, kids=None):
         t = terms[i]
-        H, E, state = t.children(node, m, eps1, eps2, best[0])
+        H, E, state = t.children(node, m, eps1, eps2, best[0]) if kids is None else kids
         leaf = len(node.hs) + 1 == m
         for o in np.argsort(E, kind="stable"):
             if E[o] > best[0]:
@@ -1256,14 +1256,21 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=mat
             else:
                 expand(i, t.child(state, int(o)))
 
-    # the DHF `first` (the best one with m - 1 HFs), then the others in the order of their
-    # CD(S, S~) bounds: the rays of a DHF's candidate floaters are cast only as its
-    # bounds need them
-    order = sorted((t.root_cd(), i) for i, t in enumerate(terms) if i != first)
-    for lb, i in ([] if first is None else [(-math.inf, first)]) + order:
+    # the DHF `first` (the best one with m - 1 HFs) gives an incumbent; then every other
+    # DHF's root is bounded, and they are searched from the least bound up
+    if first is not None:
+        expand(first, terms[first].root())
+    roots = []
+    for i, t in enumerate(terms):
+        if i != first and t.root_cd() <= best[0]:
+            node = t.root()
+            kids = t.children(node, m, eps1, eps2, best[0])
+            roots.append((float(kids[1].min()) if len(kids[0]) else math.inf, i, node, kids))
+    roots.sort(key=lambda x: x[:2])
+    for lb, i, node, kids in roots:
         if lb > best[0]:
             break
-        expand(i, terms[i].root())
+        expand(i, node, kids)
     return best, leaves, prob.n_full - n0
 
 
