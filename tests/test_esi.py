@@ -219,6 +219,8 @@ def test_select_and_occupancy_reject_bad_input():
         esi.select(cube, candidates_dhf=[[0.0, 0.0, 0.0]], candidates_hf=np.eye(3))
     with pytest.raises(ValueError, match="max_hf"):
         esi.select(cube, max_hf=-1)
+    with pytest.raises(ValueError, match=r"repeats a direction \(rows 0 and 2\)"):
+        esi.select(cube, candidates_dhf=np.eye(3), candidates_hf=[[0, 0, 1], [0, 1, 0], [0, 0, 2]])
     with pytest.raises(ValueError, match="direction is zero"):
         esi.occupancy(((0, 0, 0), ()), cube, np.zeros((2, 3)))
     with pytest.raises(ValueError, match="points"):

@@ -998,11 +998,17 @@ class _Dhf:
         cols = np.asarray(cols, np.int64)
         if not len(rows) or not len(cols):
             return
-        kn = self.KN[np.ix_(cols, rows)]
-        if kn.all():
-            return
-        ci, ri = np.nonzero(~kn)
-        J, Rw = cols[ci], rows[ri]
+        if len(cols) == 1:
+            Rw = rows[~self.KN[cols[0], rows]]
+            if not len(Rw):
+                return
+            J = np.full(len(Rw), cols[0])
+        else:
+            kn = self.KN[np.ix_(cols, rows)]
+            if kn.all():
+                return
+            ci, ri = np.nonzero(~kn)
+            J, Rw = cols[ci], rows[ri]
         self.IN[J, Rw] = self.prob.hits_of(self.hkarr[J], self.gid[Rw])
         self.KN[J, Rw] = True
 
@@ -1055,11 +1061,9 @@ class _Dhf:
         nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
         nr = nr[node.alive[nr]]
         self.ensure(nr, np.arange(H[0], nh) if r > 1 else H)
-        INA = self.IN[H][:, nr]
+        INA = self.IN[H][:, nr].astype(np.float64)
         wd, wt = self.wd[nr], self.wt[nr]
-        td = INA @ wd
-        tt = INA @ wt
-        nd = INA.sum(1).astype(np.float64)
+        td, tt, nd = (INA @ np.stack([wd, wt, np.ones(len(nr))], 1)).T
         # the rows of the children's own blocks inside the node's HFs
         cnt = self._block_sums(node.alive)[:nh]
         a = prob.on_surface
@@ -1096,8 +1100,8 @@ class _Dhf:
         # would remove
         lat = np.arange(nh)[:, None] > H[None, :]
         if len(nr):
-            out = ~self.IN[:, nr]
-            Md, Mt = out @ (INA * wd[None, :]).T, out @ (INA * wt[None, :]).T
+            out = (~self.IN[:, nr]).astype(np.float64)
+            Md, Mt = np.split(out @ np.concatenate([INA * wd[None, :], INA * wt[None, :]]).T, 2, axis=1)
         else:
             Md = Mt = np.zeros((nh, len(H)))
         vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
@@ -1282,6 +1286,11 @@ def _prepare(where, vertices, faces, dhf, hf, resolution, n_samples, seed, threa
     if len(dhf) == 0:
         raise ValueError(f"{where}: needs at least one DHF candidate")
     hf = np.stack([unit_direction(where, d) for d in hf]) if len(hf) else hf.reshape(0, 3)
+    seen: dict = {}
+    for j, d in enumerate(hf):  # the search counts each HF's floaters once
+        i = seen.setdefault(_canonical(d), j)
+        if i != j:
+            raise ValueError(f"{where}: candidates_hf repeats a direction (rows {i} and {j})")
     res = _validate.positive_int(where, "resolution", resolution, minimum=2)
     ns = _validate.positive_int(where, "n_samples", n_samples)
     prob = _Problem(
@@ -1339,11 +1348,16 @@ def select(
     every combination of a DHF candidate and `m` HF candidates is a leaf of a search tree,
     explored best first. A partial choice (the DHF and some HFs) is bounded below over
     every combination that completes it: `CD(S, S~)` with the best remaining candidates,
-    and `CD(S~, S)` and `mu` from what no further HF can change, namely the DHF's own
-    floaters that the remaining HFs cannot all remove, the visible surface samples (at
-    distance 0) that they can at most add, and the HFs' floaters, each farther from S than
-    the on-surface distance. Rays that cannot hit S (from a point above every triangle over
-    its cell of the ray's depth-map frame) are never cast. Most leaves are never evaluated
+    and `CD(S~, S)` and `mu` from what no further HF can change, namely the floaters of the
+    DHF, of the chosen HFs and of the next one that the remaining HFs cannot all remove,
+    the visible surface samples (at distance 0) that they can at most add, and the later
+    HFs' floaters, each farther from S than the on-surface distance. The children of the
+    last inner level are leaves: their energies are computed together, and only those
+    within the bound are evaluated one by one (with `energy`'s own arithmetic, so to the
+    bit). The candidate floaters (the boundary samples inside the DHF) are numbered once
+    for all DHFs, so a ray is cast at most once per sample and direction, and rays that
+    cannot hit S (from a point above every triangle over its cell of the ray's depth-map
+    frame) are never cast. Most leaves are never evaluated
     (`ESI.prune_rate`), and the result is the exhaustive optimum. The search stops
     at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
     (default `eps1`: an extra height field must be worth more than the noise of the
