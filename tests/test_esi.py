@@ -303,3 +303,21 @@ def test_selection_bounds_hold_for_every_choice_below_them(small_problem):
                         assert t.leaf_energy(state, o, 1e-4, 1e-3) == e
                         exact += 1
     assert checked > 500 and exact > 300
+
+
+def test_selection_ray_registry_matches_direct_casts(small_problem):
+    """The rays of the candidate floaters, cast once per sample and direction for every DHF
+    through the registry, against rays cast here; the direction-grouped column test equals
+    the per-direction one."""
+    prob, dk, hk = small_problem
+    esi._search(prob, dk, hk, 2, 1e-4, 1e-3, 85.0, False)
+    known = np.argwhere(prob._ghit >= 0)
+    assert len(known) > 1000
+    k, g = known[:, 0], known[:, 1]
+    direct = voxax.any_hits(prob.mesh, prob._gpts[g], prob.vec[k], t_min=prob.eps)
+    assert np.array_equal(prob._ghit[k, g] == 1, direct)
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-1.0, 1.0, (3000, 3))
+    ks = np.sort(rng.integers(len(prob.vec), size=3000))
+    expected = np.concatenate([prob.may_hit(pts[ks == q], q) for q in np.unique(ks)])
+    assert np.array_equal(prob.may_hit_many(pts, ks), expected)
