@@ -321,3 +321,16 @@ def test_selection_ray_registry_matches_direct_casts(small_problem):
     ks = np.sort(rng.integers(len(prob.vec), size=3000))
     expected = np.concatenate([prob.may_hit(pts[ks == q], q) for q in np.unique(ks)])
     assert np.array_equal(prob.may_hit_many(pts, ks), expected)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_bnb_equals_exhaustive_up_to_three_hfs_on_a_knot(seed):
+    """Every level m = 0..3 of the branch and bound against evaluating every leaf (E to the
+    bit, same axes), on a knotted tube whose optimum keeps improving up to three HFs."""
+    m = data.large(2000)
+    kw = dict(n_dhf=5, n_hf=7, max_hf=3, n_samples=800, resolution=40, stop_early=False, seed=seed)
+    r, ex = esi.select(m, **kw), esi.select(m, exhaustive=True, **kw)
+    assert (r.dhf_index, r.hf_indices) == (ex.dhf_index, ex.hf_indices)
+    np.testing.assert_array_equal(r.by_m, ex.by_m)
+    assert len(r.hf_axes) == 3 and np.all(np.diff(r.by_m) < 0)
+    assert r.evaluations[1:].sum() < 0.1 * r.leaves[1:].sum()
