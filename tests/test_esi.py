@@ -307,8 +307,8 @@ def test_selection_bounds_hold_for_every_choice_below_them(small_problem):
 
 def test_selection_ray_registry_matches_direct_casts(small_problem):
     """The rays of the candidate floaters, cast once per sample and direction for every DHF
-    through the registry, against rays cast here; the direction-grouped column test equals
-    the per-direction one."""
+    through the registry, against rays cast here; the direction-grouped column test only
+    rejects rays that miss S."""
     prob, dk, hk = small_problem
     esi._search(prob, dk, hk, 2, 1e-4, 1e-3, 85.0, False)
     known = np.argwhere(prob._ghit >= 0)
@@ -319,8 +319,9 @@ def test_selection_ray_registry_matches_direct_casts(small_problem):
     rng = np.random.default_rng(5)
     pts = rng.uniform(-1.0, 1.0, (3000, 3))
     ks = np.sort(rng.integers(len(prob.vec), size=3000))
-    expected = np.concatenate([prob.may_hit(pts[ks == q], q) for q in np.unique(ks)])
-    assert np.array_equal(prob.may_hit_many(pts, ks), expected)
+    mb = prob.may_hit_many(pts, ks)
+    hit = voxax.any_hits(prob.mesh, pts, prob.vec[ks], t_min=prob.eps)
+    assert not np.any(hit & ~mb) and (~mb).sum() > 300
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -618,49 +618,38 @@ class _Problem:
         self._cols[li] = col
         return col
 
+    def _frame_test(self, k2: int) -> tuple:
+        """The column test of direction k2: its frame's matrix and centre, and the depth
+        limits per cell as `sign * depth < limit` (the sign of k2 on its line)."""
+        key = ("frame", k2)
+        t = self._cols.get(key)
+        if t is None:
+            li, s = self.dirs[k2]
+            fr, R, h, lo, hi = self.columns(li)
+            M = np.stack([fr.u, fr.v, fr.d], 1)
+            t = self._cols[key] = (M, fr.center @ M, hi if s > 0 else -lo, float(s), R, h, fr.resolution)
+        return t
+
     def may_hit(self, points: np.ndarray, k2: int) -> np.ndarray:
         """`(n,)` bool: False where the ray from a point along direction k2 certainly misses
         S (by `columns`), True where it may hit."""
-        li, s = self.dirs[k2]
-        fr, R, h, lo, hi = self.columns(li)
-        G = fr.resolution
-        M = np.stack([fr.u, fr.v, fr.d], 1)
-        loc = points @ M - fr.center @ M
-        fi = (loc[:, 0] + R) / h
-        fj = (loc[:, 1] + R) / h
-        mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
-        cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
-        mb &= (loc[:, 2] < hi[cell]) if s > 0 else (loc[:, 2] > lo[cell])
-        return mb
+        return self.may_hit_many(points, np.full(len(points), k2))
 
     def may_hit_many(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
-        """`may_hit` of each point along its own direction `ks[i]` (the same conservative
-        test, one product per run of equal directions: sort `ks` first)."""
-        tab = self._TP.get("frames")
-        if tab is None:
-            lines = sorted({li for li, _ in self.dirs})
-            cols = [self.columns(li) for li in lines]
-            Ms = np.zeros((len(self.dirs), 3, 3))
-            c0 = np.zeros((len(self.dirs), 3))
-            lim = np.zeros((len(self.dirs), len(cols[0][3])))
-            sgn = np.zeros(len(self.dirs))
-            for k, (li, s) in enumerate(self.dirs):
-                fr, R, h, lo, hi = cols[lines.index(li)]
-                Ms[k] = np.stack([fr.u, fr.v, fr.d], 1)
-                c0[k] = fr.center @ Ms[k]
-                lim[k] = hi if s > 0 else -lo
-                sgn[k] = s
-            tab = self._TP["frames"] = (Ms, c0, lim, sgn, R, h, fr.resolution)
-        Ms, c0, lim, sgn, R, h, G = tab
-        loc = np.empty((len(points), 3))
+        """`may_hit` of each point along its own direction `ks[i]`, one product per run of
+        equal directions (sort `ks` first)."""
+        mb = np.zeros(len(points), bool)
         cut = np.concatenate([[0], np.flatnonzero(np.diff(ks)) + 1, [len(ks)]])
         for a, b in zip(cut[:-1], cut[1:]):  # runs of one direction
-            loc[a:b] = points[a:b] @ Ms[ks[a]] - c0[ks[a]]
-        fi = (loc[:, 0] + R) / h
-        fj = (loc[:, 1] + R) / h
-        mb = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
-        cell = np.where(mb, fi, 0).astype(np.int64) * G + np.where(mb, fj, 0).astype(np.int64)
-        mb &= sgn[ks] * loc[:, 2] < lim[ks, cell]
+            if a == b:
+                continue
+            M, c0, lim, s, R, h, G = self._frame_test(int(ks[a]))
+            loc = points[a:b] @ M - c0
+            fi = (loc[:, 0] + R) / h
+            fj = (loc[:, 1] + R) / h
+            inside = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
+            cell = np.where(inside, fi, 0).astype(np.int64) * G + np.where(inside, fj, 0).astype(np.int64)
+            mb[a:b] = inside & (s * loc[:, 2] < lim[cell])
         return mb
 
     def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
@@ -1219,7 +1208,7 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=mat
     HFs from `hk`, by branch and bound on the lower bounds of `_Dhf` (best first),
     counting leaves and full evaluations. With `cap`, only combinations with E <= cap are
     sought (`best` stays `[cap, inf, ()]` when there is none). `first`: the DHF searched
-    first (then the others by their `CD(S, S~)` bound)."""
+    first (then the others from the least bound of their roots' children up)."""
     n_h = len(hk)
     best = [cap, math.inf, ()]
     leaves = math.comb(n_h, m) * len(dk)
@@ -1232,8 +1221,8 @@ def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=mat
     if m == 0 or exhaustive:
         import itertools
 
+        combos = list(itertools.combinations(range(n_h), m))
         for i, (kp, km) in enumerate(dk):
-            combos = list(itertools.combinations(range(n_h), m))
             for c0 in range(0, len(combos), _CHUNK):
                 chunk = combos[c0 : c0 + _CHUNK]
                 prob.prefetch([[kp, km] + [hk[j] for j in hs] for hs in chunk])
