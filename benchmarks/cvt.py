@@ -63,25 +63,16 @@ def summary(m, ref, diag):
     }
 
 
-def csg_scenes(
-    count: int, seeds: int, rng_seed: int = 0, max_rounds: int = 10, relax: int = 2, relax_on_source: bool = False
-):
-    """`count` random 3-primitive scenes (spheres and boxes; union, intersection, difference)
-    meshed at `seeds` seeds: closed 2-manifold?, volume against manifold3d's exact boolean,
-    and Hausdorff distance against manifold3d's mesh in units of the CVT mesh's mean edge.
-    Scenes whose exact volume is below 0.02 are redrawn (and counted).
-
-    The primitives are `jax.tree_util.Partial` fields, so sampling and root refinement
-    compile once per primitive type, not once per scene."""
+def draw_scenes(rng_seed: int = 0):
+    """Random 3-primitive scenes (spheres and boxes; union, intersection, difference), as
+    `(index, ops, CSG expression, manifold3d solid)`; scenes whose exact volume is below
+    0.02 are skipped (their indices are not yielded)."""
     import manifold3d
     from jax.tree_util import Partial
 
     rng = np.random.default_rng(rng_seed)
-    rows = []
-    drawn = redrawn = 0
-    while len(rows) < count:
-        i = drawn
-        drawn += 1
+    i = 0
+    while True:
         prims = []
         for _ in range(3):
             c = tuple(float(x) for x in rng.uniform(-0.35, 0.35, 3))
@@ -103,9 +94,40 @@ def csg_scenes(
         for op, (f, m) in zip(ops, prims[1:]):
             expr = cvt.CSG(op, expr, f)
             solid = {"union": solid + m, "intersection": solid ^ m, "difference": solid - m}[op]
-        if solid.volume() < 0.02:
-            redrawn += 1
-            continue  # (nearly) empty scene: draw another
+        if solid.volume() >= 0.02:
+            yield i, ops, expr, solid
+        i += 1
+
+
+def csg_scenes(
+    count: int,
+    seeds: int,
+    rng_seed: int = 0,
+    max_rounds: int = 10,
+    relax: int = 2,
+    relax_on_source: bool = False,
+    components: bool = True,
+    only=None,
+    alpha: float = 50.0,
+):
+    """`count` random 3-primitive scenes (see `draw_scenes`) meshed at `seeds` seeds:
+    closed 2-manifold?, volume against manifold3d's exact boolean, and Hausdorff distance
+    against manifold3d's mesh in units of the CVT mesh's mean edge. Scenes whose exact
+    volume is below 0.02 are redrawn (and counted). `only`: scene indices to mesh (of the
+    same random stream), instead of the first `count`.
+
+    The primitives are `jax.tree_util.Partial` fields, so sampling and root refinement
+    compile once per primitive type, not once per scene."""
+    rows = []
+    drawn = 0
+    for i, ops, expr, solid in draw_scenes(rng_seed):
+        drawn = i + 1
+        if only is not None and i not in only:
+            if i > max(only):
+                break
+            continue
+        if only is None and len(rows) >= count:
+            break
         try:
             mesh, rep = cvt.remesh(
                 expr,
@@ -116,6 +138,8 @@ def csg_scenes(
                 max_rounds=max_rounds,
                 relax=relax,
                 relax_on_source=relax_on_source,
+                components=components,
+                alpha=alpha,
             )
         except ValueError as err:
             rows.append({"scene": i, "ops": ops, "error": str(err)})
@@ -147,7 +171,7 @@ def csg_scenes(
     return {
         "scenes": len(rows),
         "drawn": drawn,
-        "redrawn_nearly_empty": redrawn,
+        "redrawn_nearly_empty": drawn - len(rows) if only is None else None,
         "manifold": sum(r["manifold"] for r in ok),
         "volume_within_2pct": sum(abs(r["volume_err"]) <= 0.02 for r in ok),
         "hausdorff_within_1.5_edges": sum(r["hausdorff_edges"] <= 1.5 for r in ok),
@@ -210,6 +234,10 @@ def main():
         "--relax-on-source", action="store_true", help="relax CSG meshes onto the source, not the union with the balls"
     )
     ap.add_argument(
+        "--no-components", action="store_true", help="CSG meshes without seeds moved onto the surface's small pieces"
+    )
+    ap.add_argument("--only", default=None, help="comma-separated CSG scene indices to mesh (with --csg)")
+    ap.add_argument(
         "--kernels",
         action="store_true",
         help="only the nearest-seed pass and the Lloyd step at --seeds seeds and about alpha x seeds fragments",
@@ -223,7 +251,14 @@ def main():
         print(
             json.dumps(
                 csg_scenes(
-                    args.csg, 2000, max_rounds=args.csg_rounds, relax=args.relax, relax_on_source=args.relax_on_source
+                    args.csg,
+                    2000,
+                    max_rounds=args.csg_rounds,
+                    relax=args.relax,
+                    relax_on_source=args.relax_on_source,
+                    components=not args.no_components,
+                    only=None if args.only is None else {int(x) for x in args.only.split(",")},
+                    alpha=args.alpha,
                 ),
                 indent=1,
                 default=str,

@@ -135,6 +135,30 @@ def test_dexel_csg_with_an_operand_beyond_the_grid():
     assert cvt._open_lines(fr) == 0
 
 
+def test_dexel_csg_with_operands_without_surface():
+    # operands (and intermediate results) may have no surface on the grid: a ball between
+    # the lines, a box covering the grid, an empty intersection; only the whole must have one
+    from jax.tree_util import Partial
+
+    g = voxax.Grid.cube(16, half_width=1.0)
+    a = Partial(fields.sphere, radius=0.6)
+    ref = cvt.fragments(a, g)
+    speck = Partial(fields.sphere, radius=0.01, center=(0.03, 0.05, 0.07))  # no cell centre inside
+    cover = Partial(fields.box, half_extents=(3.0, 3.0, 3.0))
+    far = Partial(fields.sphere, radius=0.2, center=(0.8, 0.8, 0.8))
+    for scene in [
+        cvt.CSG("difference", a, speck),
+        cvt.CSG("intersection", a, cover),
+        cvt.CSG("union", cvt.CSG("intersection", speck, far), a),
+    ]:
+        fr = cvt.fragments(scene, g)
+        assert fr.size == ref.size and np.array_equal(fr.points, ref.points)
+    with pytest.raises(ValueError, match="CSG expression has no surface"):
+        cvt.fragments(cvt.CSG("intersection", a, far), g)
+    with pytest.raises(ValueError, match="CSG expression has no surface"):
+        cvt.fragments(cvt.CSG("difference", a, cover), g)
+
+
 def test_fragments_bad_input():
     g = voxax.Grid.cube(16)
     with pytest.raises(ValueError, match="empty surface"):
@@ -341,6 +365,24 @@ def test_remesh_torus_field():
     assert rep["quality_min"] >= 0.3
     # vertices on the torus (projected to the fragments' tangent planes)
     assert np.abs(np.asarray(fields.torus(m.vertices, 0.55, 0.25))).max() < 0.01
+
+
+def test_remesh_keeps_a_small_component():
+    # a ball 0.05 in radius next to one of 0.6: about two seeds' worth of area at 300 seeds,
+    # so area-proportional seeding alone often leaves it with too few seeds to close
+    from jax.tree_util import Partial
+
+    small_c = np.array([0.8, 0.0, 0.0])
+    scene = cvt.CSG("union", Partial(fields.sphere, radius=0.6), Partial(fields.sphere, radius=0.05, center=small_c))
+    for key in range(3):
+        m, rep = cvt.remesh(scene, 300, grid=voxax.Grid.cube(24, half_width=1.0), method="lloyd", steps=20, key=key)
+        assert rep["closed"] and rep["manifold"]
+        # two spheres: two components, chi 2 + 2
+        assert rep["euler_characteristic"] == 4 and rep["rdt"].components == 2
+        v = m.vertices
+        on_big = np.abs(np.linalg.norm(v, axis=1) - 0.6) < 0.01
+        on_small = np.abs(np.linalg.norm(v - small_c, axis=1) - 0.05) < 0.01
+        assert np.all(on_big | on_small) and on_small.sum() >= 4
 
 
 def test_relax_evens_out_a_mesh_on_the_surface(small):

@@ -73,6 +73,86 @@ def _mesh_source(source):
     return None
 
 
+def _components(frag: Fragments, threads=None) -> tuple[int, np.ndarray]:
+    """Connected pieces of the sampled surface: fragments closer than twice the grid
+    spacing are joined (neighbouring fragments of a connected surface are within
+    `sqrt(2)` spacings). **Returns:** `(count, label per fragment)`."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ._spatial import nearest_neighbors
+
+    k = min(12, frag.size - 1)
+    if k < 1:
+        return 1, np.zeros(frag.size, np.int64)
+    d, idx = nearest_neighbors(frag.points, frag.points, k=k + 1, threads=threads)
+    near = (d[:, 1:] < 2.0 * frag.spacing) & (idx[:, 1:] >= 0)
+    rows = np.repeat(np.arange(frag.size), k).reshape(-1, k)[near]
+    g = coo_matrix((np.ones(len(rows)), (rows, idx[:, 1:][near])), shape=(frag.size, frag.size))
+    return connected_components(g, directed=False)
+
+
+def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: int = 4) -> tuple[np.ndarray, int]:
+    """Gives every piece of the surface with at least one seed's share of the area four
+    seeds or more (the fewest that close a surface), taken from the pieces with the most
+    seeds; placed by farthest-point sampling from the fragment nearest the piece's
+    centroid. Deterministic. **Returns:** `(seeds, moved)`."""
+    count, label = _components(frag, threads)
+    if count < 2:
+        return seeds, 0
+    n = len(seeds)
+    area = np.bincount(label, frag.weights, minlength=count)
+    share = area / area.sum() * n
+    _, idx = _spatial_nearest(frag.points, seeds, threads)
+    owner = label[idx]  # the piece of each seed's nearest fragment
+    have = np.bincount(owner, minlength=count)
+    need = np.nonzero((share >= 1.0) & (have < least) & (np.bincount(label, minlength=count) >= 4))[0]
+    if len(need) == 0:
+        return seeds, 0
+    s = np.array(seeds, np.float64)
+    moved = 0
+    for c in need[np.argsort(-area[need], kind="stable")]:
+        pts = frag.points[label == c]
+        want = least - int(have[c])
+        # donors: seeds of the piece with the most seeds to spare, the last ones first
+        donors = []
+        for _ in range(want):
+            spare = have - least
+            spare[c] = -1
+            d = int(np.argmax(spare))
+            if spare[d] <= 0:
+                break
+            mine = np.nonzero(owner == d)[0]
+            mine = mine[~np.isin(mine, donors)]
+            donors.append(int(mine[-1]))
+            have[d] -= 1
+        taken = s[owner == c]
+        pick = []
+        if len(taken):
+            gap = np.min(np.sum((pts[:, None, :] - taken[None]) ** 2, axis=2), axis=1)
+        else:  # start at the fragment nearest the piece's centroid
+            centroid = np.average(pts, axis=0, weights=frag.weights[label == c])
+            pick = [int(np.argmin(np.sum((pts - centroid) ** 2, axis=1)))]
+            gap = np.sum((pts - pts[pick[0]]) ** 2, axis=1)
+        while len(pick) < len(donors):
+            j = int(np.argmax(gap))
+            pick.append(j)
+            gap = np.minimum(gap, np.sum((pts - pts[j]) ** 2, axis=1))
+        for i, j in zip(donors, pick):
+            s[i] = pts[j]
+            owner[i] = c
+        have[c] += len(donors)
+        moved += len(donors)
+    return s, moved
+
+
+def _spatial_nearest(points, queries, threads):
+    from ._spatial import nearest_neighbors
+
+    d, idx = nearest_neighbors(points, queries, k=1, threads=threads)
+    return d[:, 0], idx[:, 0].astype(np.int64)
+
+
 def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:
     """Undirected edges `(E, 2)` with other than two triangles, and the edges at vertices
     whose triangles do not form one fan."""
@@ -221,6 +301,7 @@ def remesh(
     project: bool = True,
     relax: int = 2,
     relax_on_source: bool = False,
+    components: bool = True,
     weighted: bool = True,
     max_rounds: int = 30,
     round_steps: int = 20,
@@ -272,6 +353,14 @@ def remesh(
       to the surface, which removes most of the balls' volume, but triangles where balls
       bridged nearby sheets can be crushed (a CSG scene with 1,160 balls: volume +13.3% to
       -1.0% of the exact boolean, minimum quality 0.55 to 0.035).
+    - `components`: give every separate piece of the sampled surface with at least one
+      seed's share of the area four seeds or more before optimising (fragments closer
+      than two grid spacings count as connected), moved from the largest piece.
+      Area-proportional seeding alone leaves a small island (a few seeds' worth of area)
+      with too few seeds to close, and the mesh then drops it (a CSG scene at 2,000 seeds:
+      an island 0.2% of the area, Hausdorff distance 7.25 mean edge lengths without, 0.69
+      with). Pieces smaller than one seed's share are not meshed. The report's
+      `"component_seeds"` says how many seeds were moved.
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
       has other than two triangles or some vertex more than one fan, the seeds first take
@@ -361,6 +450,7 @@ def remesh(
             )
     t1, c1 = time.perf_counter(), time.process_time()
     seeds0 = init_seeds(frag, n_seeds, key)
+    seeds0, covered = _cover_components(frag, seeds0, threads) if components else (seeds0, 0)
     res = optimize(frag, seeds0, method=method, steps=steps, weighted=weighted)
     seeds = res.seeds
     polish = polish if method == "lbfgs" else 0
@@ -399,7 +489,8 @@ def remesh(
     t3, c3 = time.perf_counter(), time.process_time()
     if project or relax > 0:
         verts = _project(verts, frag)
-    verts = _relax(verts, remap[faces], base if relax_on_source else frag, relax)
+    surface = base if relax_on_source else frag
+    verts = _relax(verts, remap[faces], surface, relax)
     times["relax"] = time.perf_counter() - t3
     cpu["relax"] = time.process_time() - c3
     out = Mesh(verts, remap[faces].astype(np.int32))
@@ -419,6 +510,7 @@ def remesh(
         "polish_steps": polish_steps,
         "relax": relax,
         "respawned": res.respawned,
+        "component_seeds": covered,
         "energy": energy,
         "rdt": rep,
         "rounds": rounds,
