@@ -105,7 +105,7 @@ def csg_scenes(
     rng_seed: int = 0,
     max_rounds: int = 10,
     relax: int = 2,
-    relax_on_source: bool = False,
+    relax_on_source: bool = True,
     components: bool = True,
     only=None,
     alpha: float = 50.0,
@@ -121,13 +121,13 @@ def csg_scenes(
     rows = []
     drawn = 0
     for i, ops, expr, solid in draw_scenes(rng_seed):
-        drawn = i + 1
         if only is not None and i not in only:
             if i > max(only):
                 break
             continue
         if only is None and len(rows) >= count:
             break
+        drawn = i + 1
         try:
             mesh, rep = cvt.remesh(
                 expr,
@@ -231,7 +231,9 @@ def main():
     ap.add_argument("--csg", type=int, default=0, metavar="N", help="only run N random CSG scenes at 2k seeds")
     ap.add_argument("--csg-rounds", type=int, default=30, help="manifold rounds per CSG scene")
     ap.add_argument(
-        "--relax-on-source", action="store_true", help="relax CSG meshes onto the source, not the union with the balls"
+        "--relax-on-union",
+        action="store_true",
+        help="relax CSG meshes onto the union of the source with the balls, not the source",
     )
     ap.add_argument(
         "--no-components", action="store_true", help="CSG meshes without seeds moved onto the surface's small pieces"
@@ -255,7 +257,7 @@ def main():
                     2000,
                     max_rounds=args.csg_rounds,
                     relax=args.relax,
-                    relax_on_source=args.relax_on_source,
+                    relax_on_source=not args.relax_on_union,
                     components=not args.no_components,
                     only=None if args.only is None else {int(x) for x in args.only.split(",")},
                     alpha=args.alpha,
