@@ -324,6 +324,43 @@ def test_selection_ray_registry_matches_direct_casts(small_problem):
     assert not np.any(hit & ~mb) and (~mb).sum() > 300
 
 
+def test_column_test_kernel_is_its_formula():
+    """The C++ column test against its formula evaluated per point (away from cell borders
+    and limits), the same for 1 and 2 threads; bad tables raise."""
+    rng = np.random.default_rng(3)
+    G, K = 8, 4
+    frames = np.zeros((K, 15))
+    for k in range(K):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        frames[k] = np.concatenate([q.ravel(), rng.uniform(-0.2, 0.2, 3), [rng.choice([-1.0, 1.0]), 1.1, 2.2 / G]])
+    lims = rng.uniform(-1, 1, (K, G * G))
+    lims[:, ::7] = -np.inf
+    pts = rng.uniform(-1.5, 1.5, (4000, 3))
+    pts[0] = np.nan
+    ks = rng.integers(K, size=len(pts))
+    got = esi._column_test(pts, ks, frames, G, lims, 2)
+    assert np.array_equal(got, esi._column_test(pts, ks, frames, G, lims, 1))
+    checked = 0
+    for j in range(len(pts)):
+        q = frames[ks[j]]
+        with np.errstate(invalid="ignore"):
+            loc = pts[j] @ q[:9].reshape(3, 3) - q[9:12]
+            fi, fj = (loc[:2] + q[13]) / q[14]
+        if not (np.all(np.isfinite(loc)) and 0 <= fi < G and 0 <= fj < G):
+            assert not got[j]
+            continue
+        lim = lims[ks[j], int(fi) * G + int(fj)]
+        if min(abs(fi - round(fi)), abs(fj - round(fj))) > 1e-9 and abs(q[12] * loc[2] - lim) > 1e-9:
+            assert bool(got[j]) == (q[12] * loc[2] < lim)
+            checked += 1
+    assert checked > 2000 and 0 < got.sum() < checked
+    with pytest.raises(ValueError, match=r"outside \[0, 4\)"):
+        esi._column_test(pts, np.full(len(pts), K), frames, G, lims, None)
+    with pytest.raises(ValueError, match="cell width"):
+        esi._column_test(pts[:3], np.zeros(3, np.int64), np.where(np.arange(15) == 14, 0.0, frames[0])[None], G,
+                         lims[:1], None)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_bnb_equals_exhaustive_up_to_three_hfs_on_a_knot(seed):
     """Every level m = 0..3 of the branch and bound against evaluating every leaf (E to the

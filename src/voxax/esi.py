@@ -25,13 +25,14 @@ All geometry is float64 and computed eagerly on NumPy arrays through `voxax.BVH`
 from __future__ import annotations
 
 import concurrent.futures
+import ctypes
 import math
 import weakref
 from typing import NamedTuple
 
 import numpy as np
 
-from . import _validate
+from . import _host, _validate
 from ._mesh import Mesh, face_normals
 from ._spatial import BVH
 
@@ -430,6 +431,60 @@ def _T(theta_deg):
 # ----------------------------------------------------------------------------- selection
 
 
+_COLUMN_SIGNATURES = {
+    "voxax_column_test": (
+        ctypes.c_int,
+        [
+            _host.D,
+            _host.I64,
+            ctypes.c_int64,
+            ctypes.c_int64,
+            _host.D,
+            ctypes.c_int64,
+            _host.D,
+            ctypes.c_int32,
+            ctypes.POINTER(ctypes.c_uint8),
+            ctypes.c_char_p,
+            ctypes.c_int64,
+        ],
+    ),
+}
+
+
+def _column_test(points, ks, params, G: int, lims, threads) -> np.ndarray:
+    """`(n,)` bool: whether point `i`, in the frame of direction `ks[i]` (`params[k]`: the
+    frame's axes as a row-major 3 x 3 matrix, its centre in frame coordinates, the
+    direction's sign on its line, the grid's half width and cell width), lies over the
+    `G x G` grid with `sign * depth < lims[k, cell]` (C++, see `csrc/spatial/columns_host.cc`)."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    ks = np.ascontiguousarray(ks, np.int64).reshape(-1)
+    if len(ks) != len(p):
+        raise ValueError(f"column test: {len(p)} points but {len(ks)} directions")
+    params = np.ascontiguousarray(params, np.float64)
+    lims = np.ascontiguousarray(lims, np.float64)
+    K = len(params)
+    if params.shape != (K, 15) or lims.shape != (K, G * G):
+        raise ValueError(f"column test: params {params.shape} and lims {lims.shape} for K = {K}, G = {G}")
+    out = np.zeros(len(p), np.uint8)
+    lib = _host.declare(_COLUMN_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_column_test(
+        _host.pointer(p, _host.D),
+        _host.pointer(ks, _host.I64),
+        len(p),
+        K,
+        _host.pointer(params, _host.D),
+        int(G),
+        _host.pointer(lims, _host.D),
+        _host.threads(threads),
+        out.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
+        err,
+        _host.ERRLEN,
+    )
+    _host.check(status, err)
+    return out.view(bool)
+
+
 class _Problem:
     """Everything precomputed for the energy of any combination of candidate axes.
 
@@ -537,7 +592,7 @@ class _Problem:
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
-        self._cols: dict = {}
+        self._ctab = None  # the column test's table (see `_column_table`)
         self._maybe: dict = {}
         self._terms: dict = {}
         self._reset_candidates()
@@ -548,7 +603,8 @@ class _Problem:
         # the candidate floaters of every DHF searched so far, numbered once across DHFs,
         # and whether their rays along each direction hit S (-1: not cast yet)
         self._gid = [np.full(len(b), -1, np.int64) for b in self.B]
-        self._gpts = np.zeros((0, 3))
+        self._gpts = np.zeros((0, 3))  # capacity; the first `_gn` rows are in use
+        self._gn = 0
         self._ghit = np.zeros((len(self.dirs), 0), np.int8)
 
     def register(self, k: int, idx: np.ndarray) -> np.ndarray:
@@ -556,14 +612,19 @@ class _Problem:
         g = self._gid[k]
         new = idx[g[idx] < 0]
         if len(new):
-            n0 = len(self._gpts)
-            g[new] = np.arange(n0, n0 + len(new))
-            self._gpts = np.concatenate([self._gpts, self.B[k][new]])
-            cap = self._ghit.shape[1]
-            if len(self._gpts) > cap:
-                grown = np.full((len(self.dirs), max(2 * cap, len(self._gpts))), -1, np.int8)
+            n0, n1 = self._gn, self._gn + len(new)
+            g[new] = np.arange(n0, n1)
+            cap = len(self._gpts)
+            if n1 > cap:  # grown geometrically: appending stays linear in all
+                size = max(2 * cap, n1)
+                pts = np.empty((size, 3))
+                pts[:n0] = self._gpts[:n0]
+                self._gpts = pts
+                grown = np.full((len(self.dirs), size), -1, np.int8)
                 grown[:, :cap] = self._ghit
                 self._ghit = grown
+            self._gpts[n0:n1] = self.B[k][new]
+            self._gn = n1
         return g[idx]
 
     def hits_of(self, ks: np.ndarray, gids: np.ndarray) -> np.ndarray:
@@ -587,20 +648,20 @@ class _Problem:
 
     def columns(self, li: int):
         """Conservative depth bounds of S per cell of a `G x G` grid in the frame of line
-        `li`: `(lo, hi)`, the least and largest depth of the triangles whose `(x, y)`
-        bounding box (widened by a margin) meets the cell (`+inf` / `-inf` where none
-        does). A ray along `+d` from a point above `hi` of its cell (or along `-d` from
-        below `lo`) cannot meet S: its hit would be a point of a triangle over that cell."""
-        col = self._cols.get(li)
-        if col is not None:
-            return col
+        `li`: `(fr, R, h, lo, hi)`, the least and largest depth of the triangles whose
+        `(x, y)` bounding box (widened by a margin) meets the cell (`+inf` / `-inf` where
+        none does), over `[-R, R]^2` in cells of width `h`. A ray along `+d` from a point
+        above `hi` of its cell (or along `-d` from below `lo`) cannot meet S: its hit would
+        be a point of a triangle over that cell."""
         fr = self.maps[li].frame
         G = fr.resolution
         R = fr.radius * (1 + 1e-6)
         h = 2.0 * R / G
         delta = 1e-6 * fr.radius
-        loc = fr.to_local(self.mesh.vertices)[self.mesh.faces]  # (F, 3, 3)
-        lo3, hi3 = loc.min(1), loc.max(1)
+        loc = fr.to_local(self.mesh.vertices)
+        a, b, c = (loc[self.mesh.faces[:, q]] for q in range(3))
+        lo3 = np.minimum(np.minimum(a, b), c)  # (a reduction over a middle axis of 3 is slow)
+        hi3 = np.maximum(np.maximum(a, b), c)
         i0 = np.clip(np.floor((lo3[:, 0] - delta + R) / h), 0, G - 1).astype(np.int64)
         i1 = np.clip(np.floor((hi3[:, 0] + delta + R) / h), 0, G - 1).astype(np.int64)
         j0 = np.clip(np.floor((lo3[:, 1] - delta + R) / h), 0, G - 1).astype(np.int64)
@@ -612,45 +673,54 @@ class _Problem:
         cell = (i0[t] + off // ny[t]) * G + j0[t] + off % ny[t]
         lo = np.full(G * G, np.inf)
         hi = np.full(G * G, -np.inf)
-        np.minimum.at(lo, cell, lo3[t, 2])
-        np.maximum.at(hi, cell, hi3[t, 2])
-        col = (fr, R, h, lo - delta, hi + delta)
-        self._cols[li] = col
-        return col
+        if len(cell):  # per-cell extremes by sorting the cells (`ufunc.at` is slow)
+            order = np.argsort(cell, kind="stable")
+            cs = cell[order]
+            first = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
+            lo[cs[first]] = np.minimum.reduceat(lo3[t, 2][order], first)
+            hi[cs[first]] = np.maximum.reduceat(hi3[t, 2][order], first)
+        return fr, R, h, lo - delta, hi + delta
 
-    def _frame_test(self, k2: int) -> tuple:
-        """The column test of direction k2: its frame's matrix and centre, and the depth
-        limits per cell as `sign * depth < limit` (the sign of k2 on its line)."""
-        key = ("frame", k2)
-        t = self._cols.get(key)
-        if t is None:
-            li, s = self.dirs[k2]
+    def _column_table(self, ks: np.ndarray) -> None:
+        """Fill the column test's rows of the signed directions `ks` (both signs of a line
+        at once): the frame (`params`, 15 per direction) and the depth limits per cell as
+        `sign * depth < limit` (`lims`, `G^2` per direction)."""
+        if self._ctab is None:
+            G = self.maps[0].frame.resolution
+            K = len(self.dirs)
+            self._ctab = (np.zeros((K, 15)), np.zeros((K, G * G)), np.zeros(K, bool), G)
+        params, lims, built, _ = self._ctab
+        if built[ks].all():
+            return
+        for k in np.unique(ks):
+            if built[k]:
+                continue
+            li = self.dirs[k][0]
             fr, R, h, lo, hi = self.columns(li)
             M = np.stack([fr.u, fr.v, fr.d], 1)
-            t = self._cols[key] = (M, fr.center @ M, hi if s > 0 else -lo, float(s), R, h, fr.resolution)
-        return t
+            for s in (1, -1):
+                k2 = self.key.get((li, s))
+                if k2 is None:
+                    continue
+                params[k2] = np.concatenate([M.ravel(), fr.center @ M, [float(s), R, h]])
+                lims[k2] = hi if s > 0 else -lo
+                built[k2] = True
 
     def may_hit(self, points: np.ndarray, k2: int) -> np.ndarray:
         """`(n,)` bool: False where the ray from a point along direction k2 certainly misses
         S (by `columns`), True where it may hit."""
-        return self.may_hit_many(points, np.full(len(points), k2))
+        self._column_table(np.array([k2]))
+        params, lims, _, G = self._ctab
+        return _column_test(points, np.full(len(points), k2), params, G, lims, self.threads)
 
     def may_hit_many(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
-        """`may_hit` of each point along its own direction `ks[i]`, one product per run of
-        equal directions (sort `ks` first)."""
-        mb = np.zeros(len(points), bool)
-        cut = np.concatenate([[0], np.flatnonzero(np.diff(ks)) + 1, [len(ks)]])
-        for a, b in zip(cut[:-1], cut[1:]):  # runs of one direction
-            if a == b:
-                continue
-            M, c0, lim, s, R, h, G = self._frame_test(int(ks[a]))
-            loc = points[a:b] @ M - c0
-            fi = (loc[:, 0] + R) / h
-            fj = (loc[:, 1] + R) / h
-            inside = (fi >= 0) & (fi < G) & (fj >= 0) & (fj < G)
-            cell = np.where(inside, fi, 0).astype(np.int64) * G + np.where(inside, fj, 0).astype(np.int64)
-            mb[a:b] = inside & (s * loc[:, 2] < lim[cell])
-        return mb
+        """`may_hit` of each point along its own direction `ks[i]` (C++)."""
+        ks = np.ascontiguousarray(ks, np.int64)
+        if not len(ks):
+            return np.zeros(0, bool)
+        self._column_table(ks)
+        params, lims, _, G = self._ctab
+        return _column_test(points, ks, params, G, lims, self.threads)
 
     def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
         """`maybe` of every boundary sample of HF k along k2, as packed bits (kept)."""

@@ -791,6 +791,42 @@ def run_spatial(rng, n_inputs):
             if not np.allclose(dk[:, : ref.shape[1]], ref, rtol=1e-12, atol=0):
                 fail(f"{label}: kNN distances differ from brute force")
             CALLS["spatial_knn"] += 2
+            # the ESI column test (random frames and depth limits, points off the grid, NaN)
+            # against its formula evaluated here, away from cell borders and limits
+            from voxax.esi import _column_test
+
+            sc = scale if scale > 0 else 1.0
+            G = 1 + i % 7
+            frames = np.zeros((3, 15))
+            for kk in range(3):
+                q_, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+                frames[kk, :9] = q_.ravel()
+                frames[kk, 9:12] = rng.uniform(-0.2, 0.2, 3) * sc
+                frames[kk, 12:15] = (rng.choice([-1.0, 1.0]), sc, 2 * sc / G)
+            lims = rng.uniform(-sc, sc, (3, G * G))
+            lims[:, ::3] = np.inf
+            lims[:, 1::5] = -np.inf
+            qp = np.concatenate([p, [[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0]]])
+            qk = rng.integers(3, size=len(qp))
+            got = _column_test(qp, qk, frames, G, lims, 1 + i % 2)
+            if not np.array_equal(got, _column_test(qp, qk, frames, G, lims, 1)):
+                fail(f"{label}: column test differs across thread counts")
+            for j in range(len(qp)):
+                q_ = frames[qk[j]]
+                with np.errstate(invalid="ignore"):
+                    loc = qp[j] @ q_[:9].reshape(3, 3) - q_[9:12]
+                    fi, fj = (loc[:2] + q_[13]) / q_[14]
+                if not (np.all(np.isfinite(loc)) and 0 <= fi < G and 0 <= fj < G):
+                    want = False
+                else:
+                    near = min(abs(fi - round(fi)), abs(fj - round(fj))) < 1e-9
+                    lim = lims[qk[j], int(fi) * G + int(fj)]
+                    if near or (np.isfinite(lim) and abs(q_[12] * loc[2] - lim) < 1e-9 * sc):
+                        continue
+                    want = q_[12] * loc[2] < lim
+                if bool(got[j]) != want:
+                    fail(f"{label}: column test of point {j} is {bool(got[j])}, its formula {want}")
+            CALLS["esi_column_test"] += 2
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
             from voxax._cvt_optimize import _assign_moments, assign_moments_host
 
@@ -809,8 +845,10 @@ def run_spatial(rng, n_inputs):
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
     from voxax._cvt_optimize import _assign_moments, assign_moments_host
+    from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
+    col_ok = np.array([1.0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1])  # identity frame, R = h = 1
     bad = {
         "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
         "Inf origin": (lambda: voxax.first_hits((v, f), [[np.inf, 0, 0]], [[1, 0, 0]]), "NaN or Inf"),
@@ -844,6 +882,20 @@ def run_spatial(rng, n_inputs):
             jax.ShapeDtypeStruct((5,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 3))), "outputs"),
+        # the ESI column test
+        "column test direction": (lambda: _column_test(v, np.full(30, 3), np.tile(col_ok, (3, 1)), 2,
+                                                       np.zeros((3, 4)), None), r"outside \[0, 3\)"),
+        "column test negative direction": (lambda: _column_test(v, np.full(30, -1), np.tile(col_ok, (3, 1)), 2,
+                                                                np.zeros((3, 4)), None), "outside"),
+        "column test zero width": (lambda: _column_test(v, np.zeros(30, np.int64),
+                                                        np.where(np.arange(15) == 14, 0.0, col_ok)[None], 2,
+                                                        np.zeros((1, 4)), None), "cell width"),
+        "column test NaN frame": (lambda: _column_test(v, np.zeros(30, np.int64), np.where(
+            np.arange(15) == 3, np.nan, col_ok)[None], 2, np.zeros((1, 4)), None), "finite"),
+        "column test resolution 0": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 0,
+                                                          np.zeros((1, 0)), None), "resolution"),
+        "column test short table": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 2,
+                                                         np.zeros((1, 3)), None), "lims"),
         # the CVT assignment kernel, host and FFI
         "CVT assign NaN seed": (lambda: assign_moments_host(np.where(v == v[0], np.nan, v), v, np.ones(30)), "NaN"),
         "CVT assign no seeds": (lambda: assign_moments_host(np.zeros((0, 3)), v, np.ones(30)), "seeds"),
