@@ -158,6 +158,7 @@ def csg_scenes(
                 "chi": rep["euler_characteristic"],
                 "rounds": rep["rounds"],
                 "balls": rep["balls"],
+                "component_seeds": rep["component_seeds"],
                 "volume_err": vol / solid.volume() - 1,
                 "hausdorff_edges": metrics.hausdorff(mesh, refm, n=50_000) / edge,
                 "q_min": rep["quality_min"],

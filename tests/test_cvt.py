@@ -403,6 +403,13 @@ def test_relax_evens_out_a_mesh_on_the_surface(small):
     assert np.abs(np.linalg.norm(out, axis=1) - 1).max() < 2e-3  # on the sphere (tangent planes)
     n1 = np.cross(out[f[:, 1]] - out[f[:, 0]], out[f[:, 2]] - out[f[:, 0]])
     assert np.all(np.sum(n0 * n1, axis=1) > 0)  # no triangle turned over
+    # the quality floor: no triangle ends a step below min(floor, its quality before it)
+    # (without the floor, some do: the step evens out the mesh as a whole)
+    one = _relax(v, f, fr, 1)
+    assert np.any(metrics.triangle_quality(voxax.Mesh(one, f)) < q0 - 1e-3)
+    guarded = _relax(v, f, fr, 1, floor=0.99)
+    qg = metrics.triangle_quality(voxax.Mesh(guarded, f))
+    assert np.all(qg >= np.minimum(0.99, q0)) and not np.array_equal(guarded, v)
     # an open mesh: the vertices of its boundary edges stay
     part = f[:-40]
     kept = _relax(v, part, fr, 2)

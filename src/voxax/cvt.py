@@ -95,8 +95,9 @@ def _components(frag: Fragments, threads=None) -> tuple[int, np.ndarray]:
 def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: int = 4) -> tuple[np.ndarray, int]:
     """Gives every piece of the surface with at least one seed's share of the area four
     seeds or more (the fewest that close a surface), taken from the pieces with the most
-    seeds; placed by farthest-point sampling from the fragment nearest the piece's
-    centroid. Deterministic. **Returns:** `(seeds, moved)`."""
+    seeds (their seeds closest to another seed first); placed by farthest-point sampling
+    from the fragment nearest the piece's centroid. Deterministic. **Returns:**
+    `(seeds, moved)`."""
     count, label = _components(frag, threads)
     if count < 2:
         return seeds, 0
@@ -110,11 +111,16 @@ def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: i
     if len(need) == 0:
         return seeds, 0
     s = np.array(seeds, np.float64)
+    # donors are taken where seeds crowd most: by their distance to the nearest other seed
+    from ._spatial import nearest_neighbors
+
+    crowd, _ = nearest_neighbors(s, s, k=2, threads=threads)
+    by_crowd = np.lexsort((np.arange(n), crowd[:, 1]))
     moved = 0
     for c in need[np.argsort(-area[need], kind="stable")]:
         pts = frag.points[label == c]
         want = least - int(have[c])
-        # donors: seeds of the piece with the most seeds to spare, the last ones first
+        # donors: seeds of the piece with the most seeds to spare, the most crowded first
         donors = []
         for _ in range(want):
             spare = have - least
@@ -122,9 +128,9 @@ def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: i
             d = int(np.argmax(spare))
             if spare[d] <= 0:
                 break
-            mine = np.nonzero(owner == d)[0]
+            mine = by_crowd[owner[by_crowd] == d]
             mine = mine[~np.isin(mine, donors)]
-            donors.append(int(mine[-1]))
+            donors.append(int(mine[0]))
             have[d] -= 1
         taken = s[owner == c]
         pick = []
