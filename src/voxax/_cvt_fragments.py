@@ -141,7 +141,7 @@ def _assemble(parts, grid: Grid) -> Fragments:
 # Meshes
 
 
-def _mesh_fragments(mesh: Mesh, grid: Grid, threads, empty_ok: bool = False) -> Fragments:
+def _mesh_fragments(mesh: Mesh, grid: Grid, threads) -> Fragments:
     from .raster import line_crossings
 
     v = np.asarray(mesh.vertices, np.float64)
@@ -155,8 +155,6 @@ def _mesh_fragments(mesh: Mesh, grid: Grid, threads, empty_ok: bool = False) -> 
     for axis in range(3):
         dx = line_crossings(mesh, grid=grid, axis=axis, lines="centers", threads=threads)
         parts.append((axis, dx.line_index(), dx.depth, fn[dx.face]))
-    if sum(len(p[1]) for p in parts) == 0 and not empty_ok:
-        raise ValueError("cvt.fragments: no grid line crosses the mesh (empty surface on this grid)")
     return _assemble(parts, grid)
 
 
@@ -385,9 +383,7 @@ def _starts_from_signs(frag: Fragments) -> tuple:
     return tuple(out)
 
 
-def _field_fragments(
-    fn: Callable, grid: Grid, iterations: int, starts: list | None = None, empty_ok: bool = False
-) -> Fragments:
+def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | None = None) -> Fragments:
     import jax
 
     if not jax.config.jax_enable_x64:
@@ -418,9 +414,7 @@ def _field_fragments(
         )
     total = sum(len(s[1]) for s in segs)
     if total == 0:
-        if empty_ok:
-            return _assemble([], grid)
-        raise ValueError("cvt.fragments: the field has no zero crossing on the grid (empty surface)")
+        return _assemble([], grid)
     f0 = np.concatenate([s[2] for s in segs])
     f1 = np.concatenate([s[3] for s in segs])
     chunk = 1 << 14  # one shape: one compilation per field
@@ -443,9 +437,7 @@ def _field_fragments(
     return _assemble(parts, grid)
 
 
-def _grid_fragments(
-    values, level: float, inside: str, grid: Grid, starts: list | None = None, empty_ok: bool = False
-) -> Fragments:
+def _grid_fragments(values, level: float, inside: str, grid: Grid, starts: list | None = None) -> Fragments:
     w = np.asarray(values, np.float64)
     if w.shape != tuple(grid.shape):
         raise ValueError(f"cvt.fragments: grid values have shape {w.shape}, the grid {grid.shape}")
@@ -477,8 +469,6 @@ def _grid_fragments(
         fallback[:, axis] = np.sign(s1 - s0)
         g = np.where((gn > 0)[:, None], g, fallback)
         parts.append((axis, iu.astype(np.int64) * grid.shape[v] + iv, depth, _unit(g, "grid"), s0 < 0))
-    if not parts and not empty_ok:
-        raise ValueError("cvt.fragments: the grid has no crossing of the level (empty surface)")
     return _assemble(parts, grid)
 
 
@@ -645,36 +635,45 @@ def fragments(
     if iterations < 1:
         raise ValueError(f"cvt.fragments: iterations must be >= 1, got {iterations}")
     frag, _ = _sample(source, grid, inside, iterations, threads)
-    if frag.size == 0:  # only a CSG expression gets here empty (its operands may be)
-        raise ValueError("cvt.fragments: the CSG expression has no surface on this grid (empty surface)")
+    if frag.size == 0 and not isinstance(source, Fragments):
+        # checked here, for the whole: the operands of a CSG node may have no surface on
+        # the grid (a solid that covers it, or one between its lines)
+        if isinstance(source, CSG):
+            what = "the CSG expression has no surface on this grid (empty surface)"
+        elif isinstance(source, tuple) and len(source) == 2 and np.ndim(source[1]) == 0:
+            what = "the grid has no crossing of the level (empty surface)"
+        elif callable(source) and not isinstance(source, Mesh):
+            what = "the field has no zero crossing on the grid (empty surface)"
+        else:
+            what = "no grid line crosses the mesh (empty surface on this grid)"
+        raise ValueError(f"cvt.fragments: {what}")
     return frag
 
 
-def _sample(source, grid, inside: str, iterations: int, threads, empty_ok: bool = False) -> tuple:
-    """`(Fragments, starts)`: the samples, and per axis which lines start inside. The
-    operands of a CSG node may have no surface on the grid (a solid that covers it, or
-    one between its lines); only the whole expression must have one."""
+def _sample(source, grid, inside: str, iterations: int, threads) -> tuple:
+    """`(Fragments, starts)`: the samples (possibly none), and per axis which lines start
+    inside."""
     if isinstance(source, CSG):
         grid = _check_grid(grid)
-        fa, sa = _sample(source.a, grid, inside, iterations, threads, True)
-        fb, sb = _sample(source.b, grid, inside, iterations, threads, True)
+        fa, sa = _sample(source.a, grid, inside, iterations, threads)
+        fb, sb = _sample(source.b, grid, inside, iterations, threads)
         return _csg(source.op, fa, fb, sa, sb)
     if isinstance(source, Fragments):
         return source, _starts_from_signs(source)
     starts: list = []
     if isinstance(source, tuple) and len(source) == 2 and np.ndim(source[1]) == 0:
         grid = _check_grid(grid)
-        return _grid_fragments(source[0], float(source[1]), inside, grid, starts, empty_ok), starts[0]
+        return _grid_fragments(source[0], float(source[1]), inside, grid, starts), starts[0]
     if callable(source) and not isinstance(source, Mesh):
         grid = _check_grid(grid)
-        return _field_fragments(source, grid, iterations, starts, empty_ok), starts[0]
+        return _field_fragments(source, grid, iterations, starts), starts[0]
     if isinstance(source, Mesh) or isinstance(source, tuple):
         mesh = source if isinstance(source, Mesh) else Mesh(*source)
         if mesh.vertices.shape[1:] != (3,):
             raise ValueError("cvt.fragments: the mesh must be a 3D triangle mesh")
         if grid is None:
             grid = Grid.around(mesh.vertices, 128)
-        frag = _mesh_fragments(mesh, _check_grid(grid), threads, empty_ok)
+        frag = _mesh_fragments(mesh, _check_grid(grid), threads)
         return frag, _starts_from_signs(frag)
     raise TypeError(
         "cvt.fragments: source must be a Mesh, a callable field, a (values, level) tuple or a CSG, "

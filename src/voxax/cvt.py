@@ -98,22 +98,22 @@ def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: i
     seeds (their seeds closest to another seed first); placed by farthest-point sampling
     from the fragment nearest the piece's centroid. Deterministic. **Returns:**
     `(seeds, moved)`."""
+    from ._spatial import nearest_neighbors
+
     count, label = _components(frag, threads)
     if count < 2:
         return seeds, 0
     n = len(seeds)
     area = np.bincount(label, frag.weights, minlength=count)
     share = area / area.sum() * n
-    _, idx = _spatial_nearest(frag.points, seeds, threads)
-    owner = label[idx]  # the piece of each seed's nearest fragment
+    _, idx = nearest_neighbors(frag.points, seeds, k=1, threads=threads)
+    owner = label[idx[:, 0]]  # the piece of each seed's nearest fragment
     have = np.bincount(owner, minlength=count)
     need = np.nonzero((share >= 1.0) & (have < least) & (np.bincount(label, minlength=count) >= 4))[0]
     if len(need) == 0:
         return seeds, 0
     s = np.array(seeds, np.float64)
     # donors are taken where seeds crowd most: by their distance to the nearest other seed
-    from ._spatial import nearest_neighbors
-
     crowd, _ = nearest_neighbors(s, s, k=2, threads=threads)
     by_crowd = np.lexsort((np.arange(n), crowd[:, 1]))
     moved = 0
@@ -150,13 +150,6 @@ def _cover_components(frag: Fragments, seeds: np.ndarray, threads=None, least: i
         have[c] += len(donors)
         moved += len(donors)
     return s, moved
-
-
-def _spatial_nearest(points, queries, threads):
-    from ._spatial import nearest_neighbors
-
-    d, idx = nearest_neighbors(points, queries, k=1, threads=threads)
-    return d[:, 0], idx[:, 0].astype(np.int64)
 
 
 def _problem_edges(faces: np.ndarray, n: int) -> np.ndarray:

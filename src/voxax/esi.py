@@ -633,7 +633,6 @@ class _Problem:
         h = self._ghit[ks, gids]
         todo = np.flatnonzero(h < 0)
         if len(todo):
-            todo = todo[np.argsort(ks[todo], kind="stable")]
             tk, tg = ks[todo], gids[todo]
             pts = self._gpts[tg]
             mb = self.may_hit_many(pts, tk)
@@ -709,9 +708,7 @@ class _Problem:
     def may_hit(self, points: np.ndarray, k2: int) -> np.ndarray:
         """`(n,)` bool: False where the ray from a point along direction k2 certainly misses
         S (by `columns`), True where it may hit."""
-        self._column_table(np.array([k2]))
-        params, lims, _, G = self._ctab
-        return _column_test(points, np.full(len(points), k2), params, G, lims, self.threads)
+        return self.may_hit_many(points, np.full(len(points), k2))
 
     def may_hit_many(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """`may_hit` of each point along its own direction `ks[i]` (C++)."""
