@@ -485,6 +485,165 @@ def _column_test(points, ks, params, G: int, lims, threads) -> np.ndarray:
     return out.view(bool)
 
 
+VP8 = ctypes.POINTER(ctypes.c_uint8)
+# the tables of a column ray cast (see `_Casts`)
+_CAST_ARGS = [ctypes.c_int64, _host.D, _host.D, _host.I64, ctypes.c_int64, ctypes.c_int64, _host.D, _host.I64, _host.I32,
+              ctypes.c_int64, _host.D, ctypes.c_int64, ctypes.c_double]  # fmt: skip
+_LIST_SIGNATURES = {
+    "voxax_column_lists": (
+        ctypes.c_int,
+        [_host.D, ctypes.c_int64, _host.I64, ctypes.c_int64, ctypes.c_int64, _host.D, ctypes.c_int64, ctypes.c_double,
+         ctypes.c_int32, _host.I64, _host.I32, ctypes.c_int64, _host.D, _host.D, ctypes.c_int32, ctypes.c_char_p,
+         ctypes.c_int64],
+    ),
+    "voxax_column_hits": (
+        ctypes.c_int,
+        [_host.D, _host.I64, ctypes.c_int64] + _CAST_ARGS + [ctypes.c_int32, VP8, ctypes.c_char_p, ctypes.c_int64],
+    ),
+    "voxax_column_known": (
+        ctypes.c_int,
+        [_host.I64, ctypes.c_int64, _host.I64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, VP8, _host.I64,
+         _host.I64, _host.I8, ctypes.c_int64, ctypes.c_int64, _host.D]
+        + _CAST_ARGS
+        + [ctypes.c_int32, _host.I64, ctypes.c_char_p, ctypes.c_int64],
+    ),
+}
+
+
+def _mesh_arrays(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    return np.ascontiguousarray(mesh.vertices, np.float64), np.ascontiguousarray(mesh.faces, np.int64)
+
+
+def _column_lists(mesh: Mesh, frames, G: int, delta: float, threads):
+    """For each line's frame (`frames[l]`, 15 numbers as in `_column_test`), the triangles
+    of `mesh` listed per cell of a `G x G` grid (`offsets`, `(L G^2 + 1,)` into `entries`)
+    and each cell's least and largest triangle depth (`lo`, `hi`, `(L, G^2)`), in two C++
+    calls (counts, then the lists; see `csrc/spatial/columns_host.cc`)."""
+    V, F = _mesh_arrays(mesh)
+    frames = np.ascontiguousarray(frames, np.float64).reshape(-1, 15)
+    L, GG = len(frames), int(G) * int(G)
+    lib = _host.declare(_LIST_SIGNATURES)
+    err = _host.error_buffer()
+
+    def call(fill, counts, entries, lo, hi):
+        status = lib.voxax_column_lists(
+            _host.pointer(V, _host.D), len(V), _host.pointer(F, _host.I64), len(F), L,
+            _host.pointer(frames, _host.D), int(G), float(delta), fill, _host.pointer(counts, _host.I64),
+            _host.pointer(entries, _host.I32), len(entries), _host.pointer(lo, _host.D), _host.pointer(hi, _host.D),
+            _host.threads(threads), err, _host.ERRLEN,
+        )  # fmt: skip
+        _host.check(status, err)
+
+    counts = np.zeros(L * GG + 1, np.int64)
+    none = np.zeros(1)
+    call(0, counts, np.zeros(1, np.int32), none, none)
+    offsets = np.zeros(L * GG + 1, np.int64)
+    np.cumsum(counts[:-1], out=offsets[1:])
+    entries = np.zeros(int(offsets[-1]), np.int32)
+    lo, hi = np.zeros((L, GG)), np.zeros((L, GG))
+    call(1, offsets, entries, lo, hi)
+    return offsets, entries, lo, hi
+
+
+class _Casts(NamedTuple):
+    """The tables of the column ray casts (C++, `csrc/spatial/columns_host.cc`): per signed
+    direction `k` its frame (`params[k]`, 15 numbers as in `_column_test`), its direction,
+    its line and its column test limits (`lims[k]`, `G^2`); per line the triangles listed
+    over each cell (`offsets`, `(L G^2 + 1,)` into `entries`); the corners of each
+    triangle (`tris`, `(F, 9)`); rays count hits beyond `t_min`."""
+
+    params: np.ndarray
+    dirs: np.ndarray
+    line_of: np.ndarray
+    G: int
+    lims: np.ndarray
+    offsets: np.ndarray
+    entries: np.ndarray
+    tris: np.ndarray
+    t_min: float
+
+    @classmethod
+    def make(cls, params, dirs, line_of, G, lims, offsets, entries, tris, t_min) -> "_Casts":
+        params = np.ascontiguousarray(params, np.float64)
+        K, G = len(params), int(G)
+        c = cls(
+            params,
+            np.ascontiguousarray(dirs, np.float64),
+            np.ascontiguousarray(line_of, np.int64),
+            G,
+            np.ascontiguousarray(lims, np.float64),
+            np.ascontiguousarray(offsets, np.int64),
+            np.ascontiguousarray(entries, np.int32),
+            np.ascontiguousarray(tris, np.float64).reshape(-1, 9),
+            float(t_min),
+        )
+        L = (len(c.offsets) - 1) // max(G * G, 1)
+        if (
+            params.shape != (K, 15)
+            or c.dirs.shape != (K, 3)
+            or c.line_of.shape != (K,)
+            or c.lims.shape != (K, G * G)
+            or len(c.offsets) != L * G * G + 1
+        ):
+            raise ValueError("column ray casts: inconsistent table shapes")
+        return c
+
+    def args(self) -> list:
+        L = (len(self.offsets) - 1) // (self.G * self.G)
+        return [
+            len(self.params), _host.pointer(self.params, _host.D), _host.pointer(self.dirs, _host.D),
+            _host.pointer(self.line_of, _host.I64), L, self.G, _host.pointer(self.lims, _host.D),
+            _host.pointer(self.offsets, _host.I64), _host.pointer(self.entries, _host.I32), len(self.entries),
+            _host.pointer(self.tris, _host.D), len(self.tris), self.t_min,
+        ]  # fmt: skip
+
+
+def _column_hits(points, ks, casts: _Casts, threads) -> np.ndarray:
+    """`(n,)` uint8: bit 0, whether the ray from point `i` along direction `ks[i]` meets the
+    mesh beyond `t_min`; bit 1, whether it passed the column test and so looked at the
+    triangles listed over its cell (C++, exact and watertight)."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    ks = np.ascontiguousarray(ks, np.int64).reshape(-1)
+    if len(ks) != len(p):
+        raise ValueError(f"column ray casts: {len(p)} points but {len(ks)} directions")
+    out = np.zeros(len(p), np.uint8)
+    lib = _host.declare(_LIST_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_column_hits(
+        _host.pointer(p, _host.D), _host.pointer(ks, _host.I64), len(p), *casts.args(), _host.threads(threads),
+        _host.pointer(out, VP8), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return out
+
+
+def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads) -> int:
+    """For every `(b, c)` of `pairs`, fill `IN[c, r]` for the rows `r` of block `b`
+    (`off[b] <= r < off[b + 1]`) from the registry `ghit[hk[c], gid[r]]`, or by a cast
+    recorded there (C++, in place); the number of casts that looked at triangles."""
+    pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
+    off = np.ascontiguousarray(off, np.int64)
+    nh, R = IN.shape
+    if IN.dtype != np.bool_ or not IN.flags.c_contiguous or ghit.dtype != np.int8 or not ghit.flags.c_contiguous:
+        raise ValueError("known ray casts: IN must be C-contiguous bool (nh, R), ghit int8")
+    gid = np.ascontiguousarray(gid, np.int64)
+    hk = np.ascontiguousarray(hk, np.int64)
+    if gid.shape != (R,) or hk.shape != (nh,) or ghit.shape[0] != len(casts.params) or len(gpts) < gn or off.ndim != 1:
+        raise ValueError("known ray casts: inconsistent shapes")
+    gpts = np.ascontiguousarray(gpts, np.float64)
+    n_cast = np.zeros(1, np.int64)
+    lib = _host.declare(_LIST_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_column_known(
+        _host.pointer(pairs, _host.I64), len(pairs), _host.pointer(off, _host.I64), len(off) - 1, R, nh,
+        _host.pointer(IN, VP8), _host.pointer(gid, _host.I64), _host.pointer(hk, _host.I64),
+        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *casts.args(),
+        _host.threads(threads), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return int(n_cast[0])
+
+
 class _Problem:
     """Everything precomputed for the energy of any combination of candidate axes.
 
@@ -592,7 +751,7 @@ class _Problem:
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
-        self._ctab = None  # the column test's table (see `_column_table`)
+        self._ctab = self._casts = None  # the column test's and casts' tables (see `_column_table`)
         self._maybe: dict = {}
         self._terms: dict = {}
         self._reset_candidates()
@@ -627,83 +786,50 @@ class _Problem:
             self._gn = n1
         return g[idx]
 
-    def hits_of(self, ks: np.ndarray, gids: np.ndarray) -> np.ndarray:
-        """Whether the rays of registered candidates `gids` along directions `ks` (paired)
-        hit S, cast (in one call) where not known yet."""
-        h = self._ghit[ks, gids]
-        todo = np.flatnonzero(h < 0)
-        if len(todo):
-            tk, tg = ks[todo], gids[todo]
-            pts = self._gpts[tg]
-            mb = self.may_hit_many(pts, tk)
-            sel = np.flatnonzero(mb)
-            res = np.zeros(len(todo), np.int8)
-            if len(sel):
-                res[sel] = self.bvh.any_hits(pts[sel], self.vec[tk[sel]], t_min=self.eps, threads=self.threads)
-                self.n_rays += len(sel)
-            self._ghit[tk, tg] = res
-            h[todo] = res
-        return h == 1
-
-    def columns(self, li: int):
-        """Conservative depth bounds of S per cell of a `G x G` grid in the frame of line
-        `li`: `(fr, R, h, lo, hi)`, the least and largest depth of the triangles whose
-        `(x, y)` bounding box (widened by a margin) meets the cell (`+inf` / `-inf` where
-        none does), over `[-R, R]^2` in cells of width `h`. A ray along `+d` from a point
-        above `hi` of its cell (or along `-d` from below `lo`) cannot meet S: its hit would
-        be a point of a triangle over that cell."""
-        fr = self.maps[li].frame
-        G = fr.resolution
-        R = fr.radius * (1 + 1e-6)
-        h = 2.0 * R / G
-        delta = 1e-6 * fr.radius
-        loc = fr.to_local(self.mesh.vertices)
-        a, b, c = (loc[self.mesh.faces[:, q]] for q in range(3))
-        lo3 = np.minimum(np.minimum(a, b), c)  # (a reduction over a middle axis of 3 is slow)
-        hi3 = np.maximum(np.maximum(a, b), c)
-        i0 = np.clip(np.floor((lo3[:, 0] - delta + R) / h), 0, G - 1).astype(np.int64)
-        i1 = np.clip(np.floor((hi3[:, 0] + delta + R) / h), 0, G - 1).astype(np.int64)
-        j0 = np.clip(np.floor((lo3[:, 1] - delta + R) / h), 0, G - 1).astype(np.int64)
-        j1 = np.clip(np.floor((hi3[:, 1] + delta + R) / h), 0, G - 1).astype(np.int64)
-        nx, ny = i1 - i0 + 1, j1 - j0 + 1
-        cnt = nx * ny
-        t = np.repeat(np.arange(len(cnt)), cnt)
-        off = np.arange(len(t)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        cell = (i0[t] + off // ny[t]) * G + j0[t] + off % ny[t]
-        lo = np.full(G * G, np.inf)
-        hi = np.full(G * G, -np.inf)
-        if len(cell):  # per-cell extremes by sorting the cells (`ufunc.at` is slow)
-            order = np.argsort(cell, kind="stable")
-            cs = cell[order]
-            first = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
-            lo[cs[first]] = np.minimum.reduceat(lo3[t, 2][order], first)
-            hi[cs[first]] = np.maximum.reduceat(hi3[t, 2][order], first)
-        return fr, R, h, lo - delta, hi + delta
-
-    def _column_table(self, ks: np.ndarray) -> None:
-        """Fill the column test's rows of the signed directions `ks` (both signs of a line
-        at once): the frame (`params`, 15 per direction) and the depth limits per cell as
-        `sign * depth < limit` (`lims`, `G^2` per direction)."""
-        if self._ctab is None:
-            G = self.maps[0].frame.resolution
-            K = len(self.dirs)
-            self._ctab = (np.zeros((K, 15)), np.zeros((K, G * G)), np.zeros(K, bool), G)
-        params, lims, built, _ = self._ctab
-        if built[ks].all():
+    def _column_table(self, ks=None) -> None:
+        """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
+        of the triangles over each cell of a `G x G` grid of the line's frame (`G` its
+        depth map's resolution) and the column test's table: per signed direction the
+        frame (`params`, 15 numbers) and the depth limits per cell as `sign * depth <
+        limit` (`lims`, `G^2`), from the least and largest depth of the triangles whose
+        `(x, y)` bounding box (widened by a margin) meets the cell. A ray along `+d` from a
+        point above its cell's largest depth (or along `-d` below the least) cannot meet S:
+        its hit would be a point of a triangle over that cell."""
+        if self._ctab is not None:
             return
-        for k in np.unique(ks):
-            if built[k]:
-                continue
-            li = self.dirs[k][0]
-            fr, R, h, lo, hi = self.columns(li)
+        nl = len(self.maps)
+        G = self.maps[0].frame.resolution
+        K = len(self.dirs)
+        frames = np.zeros((nl, 15))
+        for li in range(nl):
+            fr = self.maps[li].frame
+            R = fr.radius * (1 + 1e-6)
             M = np.stack([fr.u, fr.v, fr.d], 1)
-            for s in (1, -1):
-                k2 = self.key.get((li, s))
-                if k2 is None:
-                    continue
-                params[k2] = np.concatenate([M.ravel(), fr.center @ M, [float(s), R, h]])
-                lims[k2] = hi if s > 0 else -lo
-                built[k2] = True
+            frames[li] = np.concatenate([M.ravel(), fr.center @ M, [1.0, R, 2.0 * R / G]])
+        delta = 1e-6 * self.maps[0].frame.radius
+        offsets, entries, lo, hi = _column_lists(self.mesh, frames, G, delta, self.threads)
+        params = np.zeros((K, 15))
+        lims = np.zeros((K, G * G))
+        line_of = np.zeros(K, np.int64)
+        for k, (li, s) in enumerate(self.dirs):
+            params[k] = frames[li]
+            params[k, 12] = float(s)
+            lims[k] = hi[li] if s > 0 else -lo[li]
+            line_of[k] = li
+        tris = self.mesh.vertices[self.mesh.faces].reshape(-1, 9)
+        self._ctab = (params, lims, G)
+        self._casts = _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
+
+    def cast(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
+        """Whether the ray from each point along its direction `ks[i]` meets S (exact, C++:
+        the triangles listed over the point's cell, after the column test)."""
+        ks = np.ascontiguousarray(ks, np.int64)
+        if not len(ks):
+            return np.zeros(0, bool)
+        self._column_table()
+        out = _column_hits(points, ks, self._casts, self.threads)
+        self.n_rays += int(np.count_nonzero(out & 2))
+        return (out & 1).astype(bool)
 
     def may_hit(self, points: np.ndarray, k2: int) -> np.ndarray:
         """`(n,)` bool: False where the ray from a point along direction k2 certainly misses
@@ -715,8 +841,8 @@ class _Problem:
         ks = np.ascontiguousarray(ks, np.int64)
         if not len(ks):
             return np.zeros(0, bool)
-        self._column_table(ks)
-        params, lims, _, G = self._ctab
+        self._column_table()
+        params, lims, G = self._ctab
         return _column_test(points, ks, params, G, lims, self.threads)
 
     def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
@@ -773,9 +899,8 @@ class _Problem:
         keys = list(todo)
         sel = [todo[key] for key in keys]
         origins = np.concatenate([self.B[k][i] for (k, _), i in zip(keys, sel)])
-        dirs = np.repeat(np.array([self.vec[k2] for _, k2 in keys]), [len(i) for i in sel], axis=0)
-        res = self.bvh.any_hits(origins, dirs, t_min=self.eps, threads=self.threads)
-        self.n_rays += len(res)
+        ks = np.repeat(np.array([k2 for _, k2 in keys], np.int64), [len(i) for i in sel])
+        res = self.cast(origins, ks)
         at = 0
         for key, i in zip(keys, sel):
             self._hit[key][i] = res[at : at + len(i)]
@@ -997,7 +1122,7 @@ class _Dhf:
       of HFs: for each HF candidate `j` those of `HF(j)` inside both sides of the DHF
       (block `j`), and those of each side of the DHF inside the other (the last two
       blocks). `IN[j, row]` says whether a row's ray along HF candidate `j` hits S (cast
-      as needed, `KN` says which are known). The floaters of a choice of HFs are the rows
+      as needed a block at a time, `BK` says which blocks are known along which candidates). The floaters of a choice of HFs are the rows
       of its blocks that lie inside all of its other HFs.
     """
 
@@ -1038,35 +1163,37 @@ class _Dhf:
         self.wd = np.concatenate([prob.Bd[k][i] for k, i in zip(bk, bidx)])
         self.wt = np.concatenate([prob.T(k, k, self.angle)[i] for k, i in zip(bk, bidx)])
         self.IN = np.zeros((nh, R), bool)
-        self.KN = np.zeros((nh, R), bool)
-        # a height field along the DHF's own line changes nothing; a block is not
-        # filtered by its own height field
-        self.IN[self.same] = self.KN[self.same] = True
+        # which blocks' rows are known along which HF candidates (BK[b, j]): a height field
+        # along the DHF's own line changes nothing; a block is not filtered by its own
+        # height field
+        self.BK = np.zeros((nh + 2, nh), bool)
+        self.IN[self.same] = True
+        self.BK[:, self.same] = True
         for j in range(nh):
-            self.IN[j, self.off[j] : self.off[j + 1]] = self.KN[j, self.off[j] : self.off[j + 1]] = True
+            self.IN[j, self.off[j] : self.off[j + 1]] = True
+            self.BK[j, j] = True
         self.brows = [np.arange(self.off[b], self.off[b + 1]) for b in range(nh + 2)]
         self.built = True
 
-    def ensure(self, rows: np.ndarray, cols) -> None:
-        """Know `IN` of `rows` along the HF candidates `cols`, casting the rays not cast yet
-        through the problem's registry (a boundary sample's ray along a direction is the
-        same ray for every DHF), in one call."""
+    def ensure(self, blocks, cols) -> None:
+        """Know `IN` of the rows of `blocks` along the HF candidates `cols`, a whole block
+        along a candidate at a time, casting the rays not cast yet through the problem's
+        registry (a boundary sample's ray along a direction is the same ray for every
+        DHF), in one C++ call."""
+        blocks = np.asarray(blocks, np.int64)
         cols = np.asarray(cols, np.int64)
-        if not len(rows) or not len(cols):
+        if not len(blocks) or not len(cols):
             return
-        if len(cols) == 1:
-            Rw = rows[~self.KN[cols[0], rows]]
-            if not len(Rw):
-                return
-            J = np.full(len(Rw), cols[0])
-        else:
-            kn = self.KN[np.ix_(cols, rows)]
-            if kn.all():
-                return
-            ci, ri = np.nonzero(~kn)
-            J, Rw = cols[ci], rows[ri]
-        self.IN[J, Rw] = self.prob.hits_of(self.hkarr[J], self.gid[Rw])
-        self.KN[J, Rw] = True
+        bi, ci = np.nonzero(~self.BK[np.ix_(blocks, cols)])
+        if not len(bi):
+            return
+        prob = self.prob
+        prob._column_table()
+        pairs = np.stack([blocks[bi], cols[ci]], 1)
+        prob.n_rays += _column_known(
+            pairs, self.off, self.IN, self.gid, self.hkarr, prob._ghit, prob._gn, prob._gpts, prob._casts, prob.threads
+        )
+        self.BK[pairs[:, 0], pairs[:, 1]] = True
 
     def root_cd(self) -> float:
         """The `CD(S, S~)` bound of the DHF with the best of every HF."""
@@ -1116,7 +1243,7 @@ class _Dhf:
         Vn = self.Vr[np.ix_(rr, H)]
         nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
         nr = nr[node.alive[nr]]
-        self.ensure(nr, np.arange(H[0], nh) if r > 1 else H)
+        self.ensure(self._blocks(hs), np.arange(H[0], nh) if r > 1 else H)
         INA = self.IN[H][:, nr].astype(np.float64)
         wd, wt = self.wd[nr], self.wt[nr]
         td, tt, nd = (INA @ np.stack([wd, wt, np.ones(len(nr))], 1)).T
@@ -1191,7 +1318,7 @@ class _Dhf:
         for h in H:
             mine[self.off[h] : self.off[h + 1]] = True
         rc = np.flatnonzero(mine & node.alive)
-        self.ensure(rc, np.arange(H[0] + 1, nh))
+        self.ensure(H, np.arange(H[0] + 1, nh))
         seg = np.searchsorted(rc, self.off[H])
         nonempty = seg < np.searchsorted(rc, self.off[H + 1])
         outc = ~self.IN[:, rc]
@@ -1215,12 +1342,12 @@ class _Dhf:
         node, H, C, Vn = state
         prob, h, nh = self.prob, int(H[o]), self.nh
         k = self.hk[h]
+        blocks = self._blocks(node.hs + (h,)) + list(range(h + 1, nh))
         mine = np.zeros(len(self.owner), bool)
-        for b in self._blocks(node.hs + (h,)):
+        for b in blocks:
             mine[self.off[b] : self.off[b + 1]] = True
-        mine[self.off[h + 1] : self.off[nh]] = True
         rows = np.flatnonzero(node.alive & mine)
-        self.ensure(rows, [h])
+        self.ensure(blocks, [h])
         alive = np.zeros(len(self.owner), bool)
         alive[rows] = self.IN[h, rows]
         keep = ~Vn[:, o]
