@@ -563,7 +563,7 @@ class _Casts(NamedTuple):
     t_min: float
 
     @classmethod
-    def make(cls, params, dirs, line_of, G, lims, offsets, entries, tris, t_min) -> "_Casts":
+    def make(cls, params, dirs, line_of, G, lims, offsets, entries, tris, t_min) -> _Casts:
         params = np.ascontiguousarray(params, np.float64)
         K, G = len(params), int(G)
         c = cls(
