@@ -117,9 +117,9 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
 // line_of[k] (T: each triangle's three corners). The test is watertight: the edge weight of edge
 // (a, b) is d . ((a - p) x (b - p)), computed from the same differences in both triangles of the
 // edge, so that they see exactly opposite values; a ray meets a triangle when its three
-// weights have one sign (zero included), at the parameter interpolated from the corners'
-// parameters d . (v - p) with the weights (the largest corner's parameter when the weights
-// sum to zero: the ray lies in the triangle's plane). Every access to the lists is
+// weights have one sign (zero included) and a nonzero sum, at the parameter interpolated
+// from the corners' parameters d . (v - p) with the weights (a triangle seen edge-on is
+// never met, as in the BVH's test; a closed mesh's rays meet its neighbours). Every access to the lists is
 // checked, and each result depends on its point alone.
 
 namespace {
@@ -185,7 +185,7 @@ bool ray_meets(const double* p, const double* d, const double* a, const double* 
   const bool neg = wab <= 0.0 && wbc <= 0.0 && wca <= 0.0;
   if (!pos && !neg) return false;
   const double w = wab + wbc + wca;
-  if (w == 0.0) return true;  // in the triangle's plane, with a corner beyond t_min
+  if (w == 0.0) return false;  // seen edge-on (its neighbours of a closed mesh are not)
   return (wbc * ta + wca * tb + wab * tc) / w > t_min;
 }
 

@@ -589,6 +589,8 @@ class _Casts(NamedTuple):
         return c
 
     def args(self) -> list:
+        """The tables as arguments of the C++ entry points (valid while `self` lives; ctypes
+        pointers are slow to make, so callers keep them)."""
         L = (len(self.offsets) - 1) // (self.G * self.G)
         return [
             len(self.params), _host.pointer(self.params, _host.D), _host.pointer(self.dirs, _host.D),
@@ -598,10 +600,11 @@ class _Casts(NamedTuple):
         ]  # fmt: skip
 
 
-def _column_hits(points, ks, casts: _Casts, threads) -> np.ndarray:
+def _column_hits(points, ks, casts: _Casts, threads, args=None) -> np.ndarray:
     """`(n,)` uint8: bit 0, whether the ray from point `i` along direction `ks[i]` meets the
     mesh beyond `t_min`; bit 1, whether it passed the column test and so looked at the
-    triangles listed over its cell (C++, exact and watertight)."""
+    triangles listed over its cell (C++, exact and watertight). `args`: `casts.args()`, if
+    kept."""
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
     ks = np.ascontiguousarray(ks, np.int64).reshape(-1)
     if len(ks) != len(p):
@@ -610,17 +613,18 @@ def _column_hits(points, ks, casts: _Casts, threads) -> np.ndarray:
     lib = _host.declare(_LIST_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_column_hits(
-        _host.pointer(p, _host.D), _host.pointer(ks, _host.I64), len(p), *casts.args(), _host.threads(threads),
+        _host.pointer(p, _host.D), _host.pointer(ks, _host.I64), len(p), *(args or casts.args()), _host.threads(threads),
         _host.pointer(out, VP8), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return out
 
 
-def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads) -> int:
+def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads, args=None) -> int:
     """For every `(b, c)` of `pairs`, fill `IN[c, r]` for the rows `r` of block `b`
     (`off[b] <= r < off[b + 1]`) from the registry `ghit[hk[c], gid[r]]`, or by a cast
-    recorded there (C++, in place); the number of casts that looked at triangles."""
+    recorded there (C++, in place); the number of casts that looked at triangles. `args`:
+    `casts.args()`, if kept."""
     pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
     off = np.ascontiguousarray(off, np.int64)
     nh, R = IN.shape
@@ -637,7 +641,7 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
     status = lib.voxax_column_known(
         _host.pointer(pairs, _host.I64), len(pairs), _host.pointer(off, _host.I64), len(off) - 1, R, nh,
         _host.pointer(IN, VP8), _host.pointer(gid, _host.I64), _host.pointer(hk, _host.I64),
-        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *casts.args(),
+        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *(args or casts.args()),
         _host.threads(threads), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
@@ -819,6 +823,7 @@ class _Problem:
         tris = self.mesh.vertices[self.mesh.faces].reshape(-1, 9)
         self._ctab = (params, lims, G)
         self._casts = _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
+        self._cast_args = self._casts.args()
 
     def cast(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """Whether the ray from each point along its direction `ks[i]` meets S (exact, C++:
@@ -827,7 +832,7 @@ class _Problem:
         if not len(ks):
             return np.zeros(0, bool)
         self._column_table()
-        out = _column_hits(points, ks, self._casts, self.threads)
+        out = _column_hits(points, ks, self._casts, self.threads, self._cast_args)
         self.n_rays += int(np.count_nonzero(out & 2))
         return (out & 1).astype(bool)
 
@@ -1191,8 +1196,9 @@ class _Dhf:
         prob._column_table()
         pairs = np.stack([blocks[bi], cols[ci]], 1)
         prob.n_rays += _column_known(
-            pairs, self.off, self.IN, self.gid, self.hkarr, prob._ghit, prob._gn, prob._gpts, prob._casts, prob.threads
-        )
+            pairs, self.off, self.IN, self.gid, self.hkarr, prob._ghit, prob._gn, prob._gpts, prob._casts, prob.threads,
+            prob._cast_args,
+        )  # fmt: skip
         self.BK[pairs[:, 0], pairs[:, 1]] = True
 
     def root_cd(self) -> float:

@@ -39,6 +39,7 @@ import re
 import sys
 import time
 import traceback
+import types
 
 import jax
 
@@ -827,6 +828,45 @@ def run_spatial(rng, n_inputs):
                 if bool(got[j]) != want:
                     fail(f"{label}: column test of point {j} is {bool(got[j])}, its formula {want}")
             CALLS["esi_column_test"] += 2
+            # the ESI column lists and exact column casts over this soup (two random lines,
+            # both signs): the same bits for 1 and 2 threads, hits only where the column test
+            # passes; on random soups the BVH's hits; the block-wise known casts equal them
+            if len(f):
+                from voxax.esi import Mesh as _Mesh
+                from voxax.esi import _Casts, _column_hits, _column_known, _column_lists
+
+                R = 1.8 * sc
+                Gl = 1 + i % 9
+                lf = np.zeros((2, 15))
+                for li in range(2):
+                    q_, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+                    lf[li, :9] = q_.ravel()
+                    lf[li, 12:15] = (1.0, R, 2 * R / Gl)
+                offs, ents, lo_, hi_ = _column_lists(_Mesh(v, f), lf, Gl, 1e-6 * sc, 1 + i % 2)
+                prm = np.repeat(lf, 2, axis=0)
+                prm[1::2, 12] = -1.0
+                dirs_ = lf[:, [2, 5, 8]].repeat(2, axis=0) * prm[:, 12:13]
+                lims_ = np.stack([hi_[0], -lo_[0], hi_[1], -lo_[1]])
+                casts = _Casts.make(prm, dirs_, [0, 0, 1, 1], Gl, lims_, offs, ents,
+                                    np.asarray(v, np.float64)[np.asarray(f)].reshape(-1, 9), 1e-9 * sc)
+                qp = np.concatenate([o, [[np.nan, 0.0, 0.0]]])
+                qk = rng.integers(4, size=len(qp))
+                got = _column_hits(qp, qk, casts, 2)
+                if not np.array_equal(got, _column_hits(qp, qk, casts, 1)) or np.any((got & 1) > (got >> 1)):
+                    fail(f"{label}: column casts differ across thread counts or hit without a look")
+                if kind == "random":
+                    want = bvh.any_hits(o[k:], dirs_[qk[k:-1]], t_min=1e-9 * sc)
+                    if not np.array_equal((got[k:-1] & 1) == 1, want):
+                        fail(f"{label}: column casts differ from the BVH's any hits")
+                IN = np.zeros((4, len(o)), bool)
+                ghit = np.full((4, len(o)), -1, np.int8)
+                pairs = np.array([(b, c) for b in range(2) for c in range(4)])
+                _column_known(pairs, [0, len(o) // 3, len(o)], IN, np.arange(len(o)), np.arange(4), ghit,
+                              len(o), o, casts, 1 + i % 2)
+                direct = np.stack([_column_hits(o, np.full(len(o), c), casts, 1) & 1 for c in range(4)])
+                if not (np.array_equal(IN, direct == 1) and np.array_equal(ghit, direct.astype(np.int8))):
+                    fail(f"{label}: known column casts differ from the direct casts")
+                CALLS["esi_column_casts"] += 3
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
             from voxax._cvt_optimize import _assign_moments, assign_moments_host
 
@@ -848,6 +888,18 @@ def run_spatial(rng, n_inputs):
     from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
+    from voxax.esi import Mesh as _Mesh
+    from voxax.esi import _Casts, _column_hits, _column_known, _column_lists
+
+    def good_casts(entries=None, bad=False):
+        offs, ents, lo_, hi_ = _column_lists(_Mesh(v, f), col_ok[None], 2, 1e-9, None)
+        if entries is not None:
+            ents = ents[:entries]
+        if bad:
+            ents = np.where(np.arange(len(ents)) == 0, 99, ents)
+        return _Casts.make(col_ok[None], [col_ok[[2, 5, 8]]], [0], 2, np.full((1, 4), np.inf), offs, ents,
+                           v[f].reshape(-1, 9), 1e-9)
+
     col_ok = np.array([1.0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1])  # identity frame, R = h = 1
     bad = {
         "NaN point": (lambda: voxax.closest_points((v, f), [[np.nan, 0, 0]]), "NaN"),
@@ -896,6 +948,30 @@ def run_spatial(rng, n_inputs):
                                                           np.zeros((1, 0)), None), "resolution"),
         "column test short table": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 2,
                                                          np.zeros((1, 3)), None), "lims"),
+        # the ESI column lists and casts
+        "column lists face index": (lambda: _column_lists(types.SimpleNamespace(vertices=v, faces=f + 1), col_ok[None],
+                                                          2, 0.0, None),
+                                    "vertex index"),
+        "column lists NaN vertex": (lambda: _column_lists(types.SimpleNamespace(vertices=np.where(v == v[0], np.nan, v),
+                                                                                faces=f), col_ok[None], 2, 0.0, None),
+                                    "finite"),
+        "column lists negative margin": (lambda: _column_lists(_Mesh(v, f), col_ok[None], 2, -1.0, None), "margin"),
+        "column casts direction": (lambda: _column_hits(v, np.full(30, 1), good_casts(), None), "outside"),
+        "column casts short entries": (lambda: _column_hits(v, np.zeros(30, np.int64), good_casts(entries=3),
+                                                            None), "out of range"),
+        "column casts bad entry": (lambda: _column_hits(v, np.zeros(30, np.int64), good_casts(bad=True), None),
+                                   "out of range"),
+        "column casts table shapes": (lambda: _Casts.make(col_ok[None], np.zeros((2, 3)), [0], 2, np.zeros((1, 4)),
+                                                          np.zeros(5, np.int64), [], np.zeros((0, 9)), 0.0), "shapes"),
+        "column known pair": (lambda: _column_known([[2, 0]], [0, 10, 30], np.zeros((1, 30), bool), np.arange(30),
+                                                    [0], np.full((1, 30), -1, np.int8), 30, v, good_casts(), None),
+                              "pair"),
+        "column known unregistered": (lambda: _column_known([[0, 0]], [0, 10, 30], np.zeros((1, 30), bool),
+                                                            np.full(30, -1), [0], np.full((1, 30), -1, np.int8), 30, v,
+                                                            good_casts(), None), "not registered"),
+        "column known blocks": (lambda: _column_known([[0, 0]], [0, 40], np.zeros((1, 30), bool), np.arange(30),
+                                                      [0], np.full((1, 30), -1, np.int8), 30, v, good_casts(), None),
+                                "blocks"),
         # the CVT assignment kernel, host and FFI
         "CVT assign NaN seed": (lambda: assign_moments_host(np.where(v == v[0], np.nan, v), v, np.ones(30)), "NaN"),
         "CVT assign no seeds": (lambda: assign_moments_host(np.zeros((0, 3)), v, np.ones(30)), "seeds"),
