@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import _host, _validate
+from . import _blas, _host, _validate
 from ._mesh import Mesh, face_normals
 from ._spatial import BVH
 
@@ -1404,6 +1404,13 @@ class _Dhf:
 
 
 def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=math.inf, first=None):
+    """`_search_level` with one BLAS thread (its many mid-sized products run faster so, next
+    to the casts' thread pools; see `voxax._blas`)."""
+    with _blas.single_threaded():
+        return _search_level(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap, first=first)
+
+
+def _search_level(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=math.inf, first=None):
     """The least `(E, i, hfs)` over DHF candidates `dk` (pairs of signed indices) and `m`
     HFs from `hk`, by branch and bound on the lower bounds of `_Dhf` (best first),
     counting leaves and full evaluations. With `cap`, only combinations with E <= cap are
