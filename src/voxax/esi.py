@@ -1250,7 +1250,8 @@ class _Dhf:
         nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
         nr = nr[node.alive[nr]]
         self.ensure(self._blocks(hs), np.arange(H[0], nh) if r > 1 else H)
-        INA = self.IN[H][:, nr].astype(np.float64)
+        INr = self.IN[:, nr]
+        INA = INr[H].astype(np.float64)
         wd, wt = self.wd[nr], self.wt[nr]
         td, tt, nd = (INA @ np.stack([wd, wt, np.ones(len(nr))], 1)).T
         # the rows of the children's own blocks inside the node's HFs
@@ -1287,18 +1288,21 @@ class _Dhf:
         # the next r - 1 HFs can remove at most the floaters of their r - 1 best: `Md[h3, h]`
         # (`Mt`) sums the distances (On values) of the rows child `h` keeps that HF `h3`
         # would remove
-        lat = np.arange(nh)[:, None] > H[None, :]
+        # (only the HFs after the first child, h3 > H[0], can follow a child)
+        s3 = int(H[0]) + 1
+        lat = np.arange(s3, nh)[:, None] > H[None, :]
         if len(nr):
-            out = (~self.IN[:, nr]).astype(np.float64)
+            out = (~INr[s3:]).astype(np.float64)
             Md, Mt = np.split(out @ np.concatenate([INA * wd[None, :], INA * wt[None, :]]).T, 2, axis=1)
         else:
-            Md = Mt = np.zeros((nh, len(H)))
+            Md = Mt = np.zeros((nh - s3, len(H)))
         vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
         topc = _top_sums(cnt, r - 1)[r - 1]
 
         def bound(td, tt, nd, Md, Mt, lat, vmax, cd, xm):
-            td = np.maximum(td - np.sort(np.where(lat, Md, 0.0), axis=0)[nh - (r - 1) :].sum(0), 0.0)
-            tt = np.maximum(tt - np.sort(np.where(lat, Mt, 0.0), axis=0)[nh - (r - 1) :].sum(0), 0.0)
+            top = max(len(Md) - (r - 1), 0)
+            td = np.maximum(td - np.sort(np.where(lat, Md, 0.0), axis=0)[top:].sum(0), 0.0)
+            tt = np.maximum(tt - np.sort(np.where(lat, Mt, 0.0), axis=0)[top:].sum(0), 0.0)
             n0 = vmax + nd
             with np.errstate(divide="ignore", invalid="ignore"):
                 r1 = np.where(n0 > 0, td / np.maximum(n0, 1), np.inf)
@@ -1327,11 +1331,11 @@ class _Dhf:
         self.ensure(H, np.arange(H[0] + 1, nh))
         seg = np.searchsorted(rc, self.off[H])
         nonempty = seg < np.searchsorted(rc, self.off[H + 1])
-        outc = ~self.IN[:, rc]
+        outc = ~self.IN[s3:, rc]
         own = []
         for w in (self.wd[rc], self.wt[rc]):
             tot = np.zeros(len(H))
-            rem = np.zeros((nh, len(H)))
+            rem = np.zeros((nh - s3, len(H)))
             if len(rc) and nonempty.any():
                 st = seg[nonempty]
                 tot[nonempty] = np.add.reduceat(w, st)
