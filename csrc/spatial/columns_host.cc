@@ -119,8 +119,8 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
 // edge, so that they see exactly opposite values; a ray meets a triangle when its three
 // weights have one sign (zero included) and a nonzero sum, at the parameter interpolated
 // from the corners' parameters d . (v - p) with the weights (a triangle seen edge-on is
-// never met, as in the BVH's test; a closed mesh's rays meet its neighbours). Every access to the lists is
-// checked, and each result depends on its point alone.
+// never met, as in the BVH's test; a closed mesh's rays meet its neighbours). Every access to the
+// lists is checked, and each result depends on its point alone.
 
 namespace {
 
@@ -331,33 +331,45 @@ struct Casts {
     return true;
   }
 
-  // 0: a miss by the column test; 2: a miss after a look at the triangles; 3: a hit.
-  uint8_t cast(const double* p, int64_t k) const {
+  // The cell of point p in direction k's grid when the ray may meet the surface by the
+  // column test, else -1.
+  int64_t column(const double* p, int64_t k) const {
     const double* q = params + kParams * k;
     double loc[3];
     for (int c = 0; c < 3; ++c) loc[c] = p[0] * q[c] + p[1] * q[3 + c] + p[2] * q[6 + c] - q[9 + c];
     const double g = static_cast<double>(G);
     const double fi = (loc[0] + q[13]) / q[14];
     const double fj = (loc[1] + q[13]) / q[14];
-    if (!(fi >= 0.0 && fi < g && fj >= 0.0 && fj < g)) return 0;
-    const int64_t GG = G * G;
+    if (!(fi >= 0.0 && fi < g && fj >= 0.0 && fj < g)) return -1;
     const int64_t cell = static_cast<int64_t>(fi) * G + static_cast<int64_t>(fj);
-    if (!(q[12] * loc[2] < lims[k * GG + cell])) return 0;
-    const int64_t c = line_of[k] * GG + cell;
+    if (!(q[12] * loc[2] < lims[k * G * G + cell])) return -1;
+    return cell;
+  }
+
+  // Whether the ray from p along direction k meets a triangle listed over `cell`.
+  bool scan(const double* p, int64_t k, int64_t cell) const {
+    const int64_t c = line_of[k] * G * G + cell;
     const int64_t e0 = offsets[c], e1 = offsets[c + 1];
     if (e0 < 0 || e1 > ne || e0 > e1)
       throw voxax::InvalidInput("voxax: the column ray casts' offsets are out of range");
     const double* d = dirs + 3 * k;
     // along +d from the highest triangles, along -d from the lowest
-    const bool up = q[12] > 0.0;
+    const bool up = params[kParams * k + 12] > 0.0;
     for (int64_t x = 0; x < e1 - e0; ++x) {
       const int64_t t = entries[up ? e0 + x : e1 - 1 - x];
       if (t < 0 || t >= nf)
         throw voxax::InvalidInput("voxax: the column ray casts' entries are out of range");
       const double* v = T + 9 * t;
-      if (ray_meets(p, d, v, v + 3, v + 6, t_min)) return 3;
+      if (ray_meets(p, d, v, v + 3, v + 6, t_min)) return true;
     }
-    return 2;
+    return false;
+  }
+
+  // 0: a miss by the column test; 2: a miss after a look at the triangles; 3: a hit.
+  uint8_t cast(const double* p, int64_t k) const {
+    const int64_t cell = column(p, k);
+    if (cell < 0) return 0;
+    return scan(p, k, cell) ? 3 : 2;
   }
 };
 
@@ -468,6 +480,80 @@ VOXAX_EXPORT int voxax_column_known(const int64_t* pairs, int64_t npairs, const 
           ghit[k * cap + g] = h;
         }
         IN[c * R + r] = static_cast<uint8_t>(h == 1);
+      }
+      counts[w] = cast;
+    });
+    int64_t total = 0;
+    for (int64_t x : counts) total += x;
+    *n_cast = total;
+    return true;
+  });
+}
+
+// Which points lie inside height fields: the selection's filter of candidate floaters.
+//
+//   voxax_column_inside(P (n, 3) f64, n, blocks (nb, 4) i64, nb, <the tables of
+//                       voxax_column_hits>, threads, out (n,) u8, n_cast (1,) i64, err, errlen)
+//
+// Block b = (start, end, k1, k2) asks, for the points start <= i < end, whether the rays
+// along directions k1 and k2 (k2 = -1: k1 alone) both meet the surface: out[i] = 1 where
+// they do (both column tests first, then k1's triangles, then k2's where k1 hits), 0
+// elsewhere; points outside every block keep their
+// value. n_cast counts the casts that looked at triangles. Work items are (block, chunk of
+// its points); blocks must not overlap, so the results do not depend on the thread count.
+VOXAX_EXPORT int voxax_column_inside(const double* P, int64_t n, const int64_t* blocks, int64_t nb,
+                                     VOXAX_CAST_ARGS, int32_t threads, uint8_t* out,
+                                     int64_t* n_cast, char* err, int64_t errlen) {
+  return voxax::host_guarded("the height-field filter", err, errlen, [&](std::string* msg) {
+    const Casts casts = VOXAX_CASTS;
+    if (n < 0 || nb < 0) {
+      *msg = "voxax: the height-field filter needs n, nb >= 0";
+      return false;
+    }
+    if (!casts.check(msg)) return false;
+    std::vector<std::pair<int64_t, int64_t>> spans;
+    for (int64_t b = 0; b < nb; ++b) {
+      const int64_t* q = blocks + 4 * b;
+      if (q[0] < 0 || q[1] > n || q[0] > q[1] || q[2] < 0 || q[2] >= K || q[3] < -1 || q[3] >= K) {
+        *msg = "voxax: the height-field filter's block " + std::to_string(b) +
+               " needs 0 <= start <= end <= n and directions in [0, K) (the second may be -1)";
+        return false;
+      }
+      if (!casts.check_direction(q[2], msg) || (q[3] >= 0 && !casts.check_direction(q[3], msg)))
+        return false;
+      if (q[1] > q[0]) spans.emplace_back(q[0], q[1]);
+    }
+    std::sort(spans.begin(), spans.end());
+    for (size_t j = 1; j < spans.size(); ++j)
+      if (spans[j].first < spans[j - 1].second) {
+        *msg = "voxax: the height-field filter's blocks must not overlap";
+        return false;
+      }
+    std::vector<int64_t> first(static_cast<size_t>(nb + 1), 0);
+    for (int64_t b = 0; b < nb; ++b)
+      first[b + 1] = first[b] + (blocks[4 * b + 1] - blocks[4 * b] + kChunk - 1) / kChunk;
+    const int64_t items = first[nb];
+    std::vector<int64_t> counts(static_cast<size_t>(items), 0);
+    voxax::spatial::parallel_chunks(items, 1, threads, [&](int64_t w, int64_t, int64_t) {
+      const int64_t b = std::upper_bound(first.begin(), first.end(), w) - first.begin() - 1;
+      const int64_t* q = blocks + 4 * b;
+      const int64_t i0 = q[0] + (w - first[b]) * kChunk, i1 = std::min(q[1], i0 + kChunk);
+      int64_t cast = 0;
+      for (int64_t i = i0; i < i1; ++i) {
+        // both column tests before any look at the triangles
+        const double* p = P + 3 * i;
+        const int64_t c1 = casts.column(p, q[2]);
+        const int64_t c2 = q[3] >= 0 ? casts.column(p, q[3]) : 0;
+        bool in = c1 >= 0 && c2 >= 0;
+        if (in) {
+          ++cast;
+          in = casts.scan(p, q[2], c1);
+        }
+        if (in && q[3] >= 0) {
+          ++cast;
+          in = casts.scan(p, q[3], c2);
+        }
+        out[i] = in ? 1 : 0;
       }
       counts[w] = cast;
     });

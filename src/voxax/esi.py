@@ -500,6 +500,12 @@ _LIST_SIGNATURES = {
         ctypes.c_int,
         [_host.D, _host.I64, ctypes.c_int64] + _CAST_ARGS + [ctypes.c_int32, VP8, ctypes.c_char_p, ctypes.c_int64],
     ),
+    "voxax_column_inside": (
+        ctypes.c_int,
+        [_host.D, ctypes.c_int64, _host.I64, ctypes.c_int64]
+        + _CAST_ARGS
+        + [ctypes.c_int32, VP8, _host.I64, ctypes.c_char_p, ctypes.c_int64],
+    ),
     "voxax_column_known": (
         ctypes.c_int,
         [_host.I64, ctypes.c_int64, _host.I64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, VP8, _host.I64,
@@ -618,6 +624,25 @@ def _column_hits(points, ks, casts: _Casts, threads, args=None) -> np.ndarray:
     )  # fmt: skip
     _host.check(status, err)
     return out
+
+
+def _column_inside(points, blocks, casts: _Casts, threads, args=None) -> tuple[np.ndarray, int]:
+    """For each block `(start, end, k1, k2)` of `blocks`: whether the rays of the points
+    `start <= i < end` along directions `k1` and `k2` (`-1`: `k1` alone) both meet the mesh
+    (`(n,)` bool, False outside the blocks), and the number of casts that looked at
+    triangles (C++)."""
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    blocks = np.ascontiguousarray(blocks, np.int64).reshape(-1, 4)
+    out = np.zeros(len(p), np.uint8)
+    n_cast = np.zeros(1, np.int64)
+    lib = _host.declare(_LIST_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_column_inside(
+        _host.pointer(p, _host.D), len(p), _host.pointer(blocks, _host.I64), len(blocks), *(args or casts.args()),
+        _host.threads(threads), _host.pointer(out, VP8), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return out.view(bool), int(n_cast[0])
 
 
 def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads, args=None) -> int:
@@ -824,6 +849,12 @@ class _Problem:
         self._ctab = (params, lims, G)
         self._casts = _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
         self._cast_args = self._casts.args()
+
+    def samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every height field's boundary samples stacked (`B[k]` is rows `off[k]:off[k + 1]`)."""
+        if getattr(self, "_ball", None) is None:
+            self._ball = (np.concatenate(self.B), np.concatenate([[0], np.cumsum([len(b) for b in self.B])]))
+        return self._ball
 
     def cast(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """Whether the ray from each point along its direction `ks[i]` meets S (exact, C++:
@@ -1152,12 +1183,21 @@ class _Dhf:
         self.built = False
 
     def _build(self) -> None:
-        """The candidate floaters (two batched casts along the DHF's sides)."""
+        """The candidate floaters: the boundary samples of every HF candidate inside both
+        sides of the DHF, and those of each side inside the other (one C++ call)."""
         prob, kp, km, nh = self.prob, self.kp, self.km, self.nh
-        items = [(k, [kp, km]) for k in self.hk] + [(kp, [km]), (km, [kp])]
-        found = prob.filter_many(items)
         bk = list(self.hk) + [kp, km]
-        bidx = [np.zeros(0, np.int64) if j < nh and self.same[j] else found[j] for j in range(nh + 2)]
+        pts, soff = prob.samples()
+        blocks = [(soff[k], soff[k + 1], kp, km) for j, k in enumerate(self.hk) if not self.same[j]]
+        blocks += [(soff[kp], soff[kp + 1], km, -1), (soff[km], soff[km + 1], kp, -1)]
+        prob._column_table()
+        inside, n_cast = _column_inside(pts, blocks, prob._casts, prob.threads, prob._cast_args)
+        prob.n_rays += n_cast
+        empty = np.zeros(0, np.int64)
+        bidx = [
+            empty if j < nh and self.same[j] else np.flatnonzero(inside[soff[k] : soff[k + 1]])
+            for j, k in enumerate(bk)
+        ]
         self.bk = bk
         sizes = np.array([len(i) for i in bidx])
         self.off = np.concatenate([[0], np.cumsum(sizes)])
