@@ -27,6 +27,7 @@ from __future__ import annotations
 import concurrent.futures
 import ctypes
 import math
+import os
 import weakref
 from typing import NamedTuple
 
@@ -738,17 +739,23 @@ class _Problem:
         for li, ld in enumerate(line_dirs):
             fr = frame_for(ld / np.linalg.norm(ld), c, rad, resolution)
             self.maps[li] = _depth_map(self.bvh, fr, normals, threads)
+        self._ctab = self._casts = None  # the column test's and casts' tables (see `_column_table`)
+        self._column_table()
         rng = np.random.default_rng(seed + 7)
         seeds = [int(rng.integers(2**31)) for _ in self.dirs]
 
         def terms(k):
             li, s = self.dirs[k]
             solid, n_tw = height_field_solid(self.maps[li], s)
-            hit = self.bvh.any_hits(self.P, self.vec[k], t_min=self.eps, threads=threads)
-            # distances to the height field's boundary, needed only where S is hidden
-            dist = np.zeros(n_samples)
-            dist[hit] = BVH(solid).closest_points(self.P[hit], threads=threads).distance
+            hit = (_column_hits(self.P, np.full(n_samples, k), self._casts, inner, self._cast_args) & 1) == 1
+            # distances to the height field's boundary, needed only where S is hidden: to its
+            # top and walls, or straight down to its bottom (a point of S projects inside it)
             tw = Mesh(solid.vertices, solid.faces[:n_tw])
+            dist = np.zeros(n_samples)
+            if hit.any():
+                fr = self.maps[li].frame
+                below = (self.P[hit] - fr.center) @ fr.d * s + _BOTTOM * fr.radius
+                dist[hit] = np.minimum(BVH(tw).closest_points(self.P[hit], threads=inner).distance, below)
             a_tw = (
                 0.5
                 * np.linalg.norm(
@@ -763,14 +770,16 @@ class _Problem:
             bs = sample_surface(tw, nb, seeds[k])
             inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
             pts, nrm = bs.points[inside], bs.normals[inside]
-            bd = self.bvh.closest_points(pts, threads=threads).distance
+            bd = self.bvh.closest_points(pts, threads=inner).distance
             off = bd > self.on_surface
             return dist, hit, pts[off], nrm[off], bd[off]
 
-        # two directions at a time: the BVH builds of the height-field solids are
-        # single-threaded (the results do not depend on the order)
-        workers = 1 if threads == 1 else 2
-        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        # one direction per thread, each single-threaded (the BVH builds of the
+        # height-field solids are; the results do not depend on the order), and one BLAS
+        # thread (see `voxax._blas`)
+        workers = max(1, min(_host.threads(threads) or (os.cpu_count() or 1), K))
+        inner = 1 if workers > 1 else threads
+        with _blas.single_threaded(), concurrent.futures.ThreadPoolExecutor(workers) as pool:
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
                 self.D[:, k] = dist
                 self.visP[:, k] = ~hit
@@ -780,7 +789,6 @@ class _Problem:
         self._hit: dict = {}
         self._T: dict = {}
         self._TP: dict = {}
-        self._ctab = self._casts = None  # the column test's and casts' tables (see `_column_table`)
         self._maybe: dict = {}
         self._terms: dict = {}
         self._reset_candidates()
