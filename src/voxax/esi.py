@@ -735,10 +735,15 @@ class _Problem:
         #: between pixels); the surface samples stand for them
         self.on_surface = max(5e-4, ON_SURFACE_PIXELS * pixel)
         self.B, self.Bn, self.Bd = [], [], []
-        self.maps = {}
-        for li, ld in enumerate(line_dirs):
-            fr = frame_for(ld / np.linalg.norm(ld), c, rad, resolution)
-            self.maps[li] = _depth_map(self.bvh, fr, normals, threads)
+        # one line (then one direction) per thread, each single-threaded (the BVH builds of
+        # the height-field solids are; the results do not depend on the order), and one
+        # BLAS thread (see `voxax._blas`)
+        workers = max(1, min(_host.threads(threads) or (os.cpu_count() or 1), K))
+        inner = 1 if workers > 1 else threads
+        pool = concurrent.futures.ThreadPoolExecutor(workers)
+        frames = [frame_for(ld / np.linalg.norm(ld), c, rad, resolution) for ld in line_dirs]
+        with _blas.single_threaded():
+            self.maps = dict(enumerate(pool.map(lambda fr: _depth_map(self.bvh, fr, normals, inner), frames)))
         self._ctab = self._casts = None  # the column test's and casts' tables (see `_column_table`)
         self._column_table()
         rng = np.random.default_rng(seed + 7)
@@ -774,12 +779,7 @@ class _Problem:
             off = bd > self.on_surface
             return dist, hit, pts[off], nrm[off], bd[off]
 
-        # one direction per thread, each single-threaded (the BVH builds of the
-        # height-field solids are; the results do not depend on the order), and one BLAS
-        # thread (see `voxax._blas`)
-        workers = max(1, min(_host.threads(threads) or (os.cpu_count() or 1), K))
-        inner = 1 if workers > 1 else threads
-        with _blas.single_threaded(), concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        with _blas.single_threaded(), pool:
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
                 self.D[:, k] = dist
                 self.visP[:, k] = ~hit
