@@ -397,3 +397,16 @@ def test_bnb_equals_exhaustive_up_to_three_hfs_on_a_knot(seed):
     np.testing.assert_array_equal(r.by_m, ex.by_m)
     assert len(r.hf_axes) == 3 and np.all(np.diff(r.by_m) < 0)
     assert r.evaluations[1:].sum() < 0.1 * r.leaves[1:].sum()
+
+
+def test_top_sums_are_the_sums_of_the_largest():
+    """`_top_sums` (suffix maxima for one, a running sort for more) against sorting each
+    suffix."""
+    rng = np.random.default_rng(2)
+    for n in (0, 1, 5, 40):
+        c = rng.integers(0, 50, n).astype(np.float64)
+        for r in (1, 2, 3):
+            got = esi._top_sums(c, r)
+            for s in range(1, r + 1):
+                want = [np.sort(c[j:])[::-1][:s].sum() for j in range(n)] + [0.0]
+                assert np.array_equal(got[s], want)

@@ -1134,6 +1134,9 @@ def _top_sums(c: np.ndarray, r: int) -> list:
     """`out[s][j]` = the sum of the `s` largest of `c[j:]` (`s <= r`), with `out[s][len(c)] = 0`."""
     n = len(c)
     out = [np.zeros(n + 1) for _ in range(r + 1)]
+    if r == 1 and n:  # the suffix maxima (of values >= 0 and the 0 past the end)
+        out[1][:n] = np.maximum.accumulate(np.asarray(c, np.float64)[::-1])[::-1]
+        return out
     top: list = []
     for j in range(n - 1, -1, -1):
         top = sorted(top + [float(c[j])], reverse=True)[:r]
