@@ -106,6 +106,29 @@ def test_closest_points_random_soup():
     np.testing.assert_array_equal(res2.distance.ravel(), res.distance[:12])
 
 
+def test_closest_points_within_a_distance():
+    """`max_distance`: the brute-force distances where they are within it (the same bits as
+    an unbounded query), `inf` and face -1 beyond, for 1 and 2 threads; a bad bound raises."""
+    rng = np.random.default_rng(4)
+    V, F = random_soup(rng)
+    P = rng.uniform(-1.5, 1.5, (600, 3))
+    bvh = voxax.BVH(V, F)
+    full = bvh.closest_points(P)
+    want = brute_distance(P, V, F)
+    for cap in (0.0, 0.05, float(np.median(want)), 10.0):
+        for threads in (1, 2):
+            got = bvh.closest_points(P, max_distance=cap, threads=threads)
+            near = full.distance <= cap
+            assert np.array_equal(got.distance[near], full.distance[near])
+            assert np.array_equal(got.face[near], full.face[near])
+            assert np.all(np.isinf(got.distance[~near])) and np.all(got.face[~near] == -1)
+            assert np.array_equal(near, want <= cap) or abs(cap - want).min() < 1e-12
+        if cap == float(np.median(want)):
+            assert 0 < near.sum() < len(P)
+    with pytest.raises(ValueError, match="max_distance"):
+        bvh.closest_points(P, max_distance=-1.0)
+
+
 @pytest.mark.parametrize("shift", [0.0, 1e3])
 def test_closest_points_on_a_smooth_mesh_far_and_near(shift):
     # a smooth surface is where the nodes' flat-cylinder bounds prune: points far from it

@@ -440,19 +440,30 @@ class Bvh {
 
   // The closest point to p. `hint` (a slot from an earlier result, or -1) seeds the
   // search with that triangle's distance; the answer does not depend on it: it is
-  // always the smallest (distance, face index).
-  ClosestResult closest(const double* p, int32_t hint = -1) const {
+  // always the smallest (distance, face index). With `cap2` finite, only triangles at
+  // squared distance <= cap2 count: where there is none the result is the default one
+  // (face -1, infinite distance), found after a search pruned at that distance.
+  ClosestResult closest(const double* p, int32_t hint = -1,
+                        double cap2 = std::numeric_limits<double>::infinity()) const {
     ClosestResult best;
     if (nodes_.empty()) return best;
+    const bool capped = cap2 < std::numeric_limits<double>::infinity();
+    if (capped) {
+      best.dist2 = cap2;
+      best.face = std::numeric_limits<int32_t>::max();  // above every face: ties at cap2 win
+    }
     double bary[3], q[3];
     if (hint >= 0 && hint < static_cast<int32_t>(ids_.size())) {
       const double* t = &tris_[9 * static_cast<size_t>(hint)];
-      best.dist2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[hint] != 0);
-      best.face = ids_[hint];
-      best.slot = hint;
-      for (int a = 0; a < 3; ++a) {
-        best.bary[a] = bary[a];
-        best.point[a] = q[a];
+      const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[hint] != 0);
+      if (!capped || d2 <= cap2) {
+        best.dist2 = d2;
+        best.face = ids_[hint];
+        best.slot = hint;
+        for (int a = 0; a < 3; ++a) {
+          best.bary[a] = bary[a];
+          best.point[a] = q[a];
+        }
       }
     }
     // Entries: (ref, count, lower bound); count > 0 marks a leaf.
@@ -491,7 +502,8 @@ class Bvh {
       const double dl = lower[0], dr = lower[1];
       // Push the farther child first so that the nearer one is visited first.
       if (sp + 2 > 128) {  // cannot happen for trees of depth < 128; stay safe
-        return brute_closest(p);
+        const ClosestResult all = brute_closest(p);
+        return capped && !(all.dist2 <= cap2) ? ClosestResult() : all;
       }
       const Entry el{pr.ref[0], pr.count[0], dl}, er{pr.ref[1], pr.count[1], dr};
       if (dl <= dr) {
@@ -502,6 +514,7 @@ class Bvh {
         if (dr <= best.dist2) stack[sp++] = er;
       }
     }
+    if (capped && best.face == std::numeric_limits<int32_t>::max()) return ClosestResult();
     return best;
   }
 

@@ -5,8 +5,9 @@
 //   voxax_bvh_build(V (nv, 3) f64, nv, F (nf, 3) i32, nf, &handle, err, errlen)
 //   voxax_bvh_free(handle)
 //   voxax_bvh_stats(handle, out[2]): node count, face count
-//   voxax_bvh_closest(handle, P (n, 3), n, threads, dist, face, bary (n, 3), point (n, 3), err,
-//   errlen) voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
+//   voxax_bvh_closest(handle, P (n, 3), n, max_dist, threads, dist, face, bary (n, 3),
+//   point (n, 3), err, errlen)  (max_dist: inf, or no farther; see Bvh::closest)
+//   voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
 //                       t, face, bary (n, 3), sign, err, errlen)
 //   voxax_bvh_all_hits(handle, O, D, n, tmin, tmax, threads, counts (n,), &hits, err, errlen)
 //   voxax_hits_copy(hits, t, face, bary, sign); voxax_hits_free(hits)
@@ -148,9 +149,9 @@ VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
   out[1] = bvh ? bvh->face_count() : 0;
 }
 
-VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int32_t threads,
-                                   double* dist, int32_t* face, double* bary, double* point,
-                                   char* err, int64_t errlen) {
+VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, double max_dist,
+                                   int32_t threads, double* dist, int32_t* face, double* bary,
+                                   double* point, char* err, int64_t errlen) {
   return voxax::host_guarded("the BVH", err, errlen, [&](std::string* msg) {
     const Bvh* bvh = static_cast<const Bvh*>(handle);
     if (!bvh) {
@@ -158,13 +159,20 @@ VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, int
       return false;
     }
     if (!voxax::check_host_coordinates(P, 3 * n, "points", msg)) return false;
+    if (!(max_dist >= 0.0)) {
+      *msg = "voxax: the closest points' max_distance must be >= 0";
+      return false;
+    }
+    // the squared bound, rounded up so that no point within max_dist is lost
+    const double cap2 =
+        std::isinf(max_dist) ? max_dist : std::nextafter(max_dist * max_dist, HUGE_VAL);
     const std::vector<int64_t> order = spatial_order(P, n);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
       int32_t hint = -1;
       for (int64_t j = b; j < e; ++j) {
         const int64_t i = order[j];
-        const auto r = bvh->closest(P + 3 * i, hint);
-        hint = r.slot;
+        const auto r = bvh->closest(P + 3 * i, hint, cap2);
+        if (r.slot >= 0) hint = r.slot;
         dist[i] = std::sqrt(r.dist2);
         face[i] = r.face;
         for (int a = 0; a < 3; ++a) {

@@ -58,7 +58,7 @@ def _lib():
         "voxax_bvh_stats": (None, [_VP, _I64]),
         "voxax_bvh_closest": (
             ctypes.c_int,
-            [_VP, _D, i64, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
+            [_VP, _D, i64, ctypes.c_double, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
         ),
         "voxax_bvh_first_hit": (
             ctypes.c_int,
@@ -243,13 +243,18 @@ class BVH:
     def __repr__(self) -> str:
         return f"BVH(n_faces={self.n_faces}, n_nodes={self.n_nodes})"
 
-    def closest_points(self, points, *, threads: int | None = None) -> ClosestPoints:
+    def closest_points(
+        self, points, *, threads: int | None = None, max_distance: float | None = None
+    ) -> ClosestPoints:
         """The closest point on the mesh to every query point, with exact distances.
 
         **Arguments:**
 
         - `points`: `(..., 3)` float.
         - `threads`: number of threads (default: all cores, or `VOXAX_NUM_THREADS`).
+        - `max_distance`: look no farther: a point whose closest point lies farther away
+          gets distance `inf`, face `-1` and zeros (the search prunes at that distance, so
+          far points cost little). The others get the same answer as without it.
 
         **Returns:** [`ClosestPoints`][voxax.ClosestPoints] with leading shape `(...)`.
         """
@@ -257,6 +262,9 @@ class BVH:
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
         n = len(p)
+        cap = np.inf if max_distance is None else float(max_distance)
+        if not cap >= 0.0:
+            raise ValueError(f"closest_points: max_distance must be >= 0, got {max_distance}")
         dist = np.empty(n, np.float64)
         face = np.empty(n, np.int32)
         bary = np.empty((n, 3), np.float64)
@@ -266,6 +274,7 @@ class BVH:
             self._handle,
             _ptr(p, _D),
             n,
+            cap,
             _threads(threads),
             _ptr(dist, _D),
             _ptr(face, _I32),

@@ -775,9 +775,11 @@ class _Problem:
             bs = sample_surface(tw, nb, seeds[k])
             inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
             pts, nrm = bs.points[inside], bs.normals[inside]
-            bd = self.bvh.closest_points(pts, threads=inner).distance
+            # which samples lie off S: a search pruned just beyond the on-surface distance
+            # (most samples lie farther: their distances are taken when needed, `distances`)
+            bd = self.bvh.closest_points(pts, threads=inner, max_distance=self.on_surface * (1 + 1e-9)).distance
             off = bd > self.on_surface
-            return dist, hit, pts[off], nrm[off], bd[off]
+            return dist, hit, pts[off], nrm[off], np.full(int(off.sum()), np.nan)
 
         with _blas.single_threaded(), pool:
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
@@ -857,6 +859,23 @@ class _Problem:
         self._ctab = (params, lims, G)
         self._casts = _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
         self._cast_args = self._casts.args()
+
+    def distances(self, k: int, idx: np.ndarray) -> np.ndarray:
+        """The distances to S of the boundary samples `idx` of HF k (exact closest points,
+        taken once, when first asked for)."""
+        return self.distances_many([(k, idx)])[0]
+
+    def distances_many(self, items) -> list:
+        """`distances(k, idx)` of every `(k, idx)` of `items`, in one call."""
+        need = [(k, idx[np.isnan(self.Bd[k][idx])]) for k, idx in items]
+        need = [(k, i) for k, i in need if len(i)]
+        if need:
+            d = self.bvh.closest_points(np.concatenate([self.B[k][i] for k, i in need]), threads=self.threads).distance
+            at = 0
+            for k, i in need:
+                self.Bd[k][i] = d[at : at + len(i)]
+                at += len(i)
+        return [self.Bd[k][idx] for k, idx in items]
 
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
         """Every height field's boundary samples stacked (`B[k]` is rows `off[k]:off[k + 1]`)."""
@@ -1067,7 +1086,7 @@ class _Problem:
             # hit S (v = 0, On = 1 there): only its own axis can cover it
             on = self.T(k, k, angle)[keep]
             tot_on += float(on.sum())
-            tot_d += float(self.Bd[k][keep].sum())
+            tot_d += float(self.distances(k, keep).sum())
             n += len(keep)
         cd_st = self.cd_st(ks)
         if n == 0:
@@ -1216,7 +1235,7 @@ class _Dhf:
         self.owner = np.repeat(np.arange(nh + 2), sizes)
         self.gid = np.concatenate([prob.register(k, i) for k, i in zip(bk, bidx)]).astype(np.int64)
         self.hkarr = np.asarray(self.hk, np.int64)
-        self.wd = np.concatenate([prob.Bd[k][i] for k, i in zip(bk, bidx)])
+        self.wd = np.concatenate(prob.distances_many(list(zip(bk, bidx))))
         self.wt = np.concatenate([prob.T(k, k, self.angle)[i] for k, i in zip(bk, bidx)])
         self.IN = np.zeros((nh, R), bool)
         # which blocks' rows are known along which HF candidates (BK[b, j]): a height field

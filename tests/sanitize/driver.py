@@ -782,6 +782,15 @@ def run_spatial(rng, n_inputs):
                 if not np.array_equal(np.asarray(jr.t), first.t):
                     fail(f"{label}: FFI first hits differ from the host path")
                 CALLS["spatial_ffi"] += 2
+                # closest points within a distance: the unbounded answer where it is within
+                # the bound, none beyond (bounds 0, a quantile and inf)
+                for cap in (0.0, float(np.quantile(cp.distance, 0.3)), np.inf):
+                    cc = bvh.closest_points(p, threads=1 + i % 2, max_distance=cap)
+                    near = cp.distance <= cap
+                    if not (np.array_equal(cc.distance[near], cp.distance[near])
+                            and np.all(np.isinf(cc.distance[~near])) and np.all(cc.face[~near] == -1)):
+                        fail(f"{label}: closest points within {cap} differ from the unbounded ones")
+                CALLS["spatial_host"] += 3
             # k nearest neighbours of the vertices, host and FFI, against brute force
             kn = 1 + i % 8
             dk, ik = voxax.nearest_neighbors(v, p, kn, threads=1 + i % 2)
@@ -948,6 +957,8 @@ def run_spatial(rng, n_inputs):
                                                           np.zeros((1, 0)), None), "resolution"),
         "column test short table": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 2,
                                                          np.zeros((1, 3)), None), "lims"),
+        "closest points negative bound": (lambda: voxax.BVH(v, f).closest_points(v, max_distance=-1.0), "max_distance"),
+        "closest points NaN bound": (lambda: voxax.BVH(v, f).closest_points(v, max_distance=np.nan), "max_distance"),
         # the ESI column lists and casts
         "column lists face index": (lambda: _column_lists(types.SimpleNamespace(vertices=v, faces=f + 1), col_ok[None],
                                                           2, 0.0, None),
