@@ -311,11 +311,12 @@ def test_selection_ray_registry_matches_direct_casts(small_problem):
     rejects rays that miss S."""
     prob, dk, hk = small_problem
     esi._search(prob, dk, hk, 2, 1e-4, 1e-3, 85.0, False)
-    known = np.argwhere(prob._ghit >= 0)
+    reg = prob.registry(hk)
+    known = np.argwhere(reg >= 0)
     assert len(known) > 1000
-    k, g = known[:, 0], known[:, 1]
-    direct = voxax.any_hits(prob.mesh, prob._gpts[g], prob.vec[k], t_min=prob.eps)
-    assert np.array_equal(prob._ghit[k, g] == 1, direct)
+    c, g = known[:, 0], known[:, 1]
+    direct = voxax.any_hits(prob.mesh, prob.samples()[0][g], prob.vec[np.asarray(hk)[c]], t_min=prob.eps)
+    assert np.array_equal(reg[c, g] == 1, direct)
     rng = np.random.default_rng(5)
     pts = rng.uniform(-1.0, 1.0, (3000, 3))
     ks = np.sort(rng.integers(len(prob.vec), size=3000))

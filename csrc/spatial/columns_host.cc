@@ -412,13 +412,13 @@ VOXAX_EXPORT int voxax_column_hits(const double* P, const int64_t* ks, int64_t n
 // The ray casts of the selection's candidate floaters, a block at a time.
 //
 //   voxax_column_known(pairs (np, 2) i64, np, off (nb + 1,) i64, nb, R, nh, IN (nh, R) u8,
-//                      gid (R,) i64, hk (nh,) i64, ghit (K, cap) i8, cap, gn, gpts (gn, 3) f64,
+//                      gid (R,) i64, hk (nh,) i64, ghit (nh, cap) i8, cap, gn, gpts (gn, 3) f64,
 //                      <the tables of voxax_column_hits>, threads, n_cast (1,) i64, err,
 //                      errlen)
 //
 // For every pair (b, c): the rows r of block b (off[b] <= r < off[b + 1]) get in IN[c, r]
 // the hit of the ray of registered point g = gid[r] along direction hk[c], from the registry
-// ghit[hk[c], g] (0 or 1), cast (and recorded there) when it holds -1. n_cast counts the
+// ghit[c, g] (0 or 1), cast (and recorded there) when it holds -1. n_cast counts the
 // casts that looked at triangles. Work items are (pair, block of rows): each writes only its
 // own entries of IN, and of ghit as long as no two rows share a registered point (the
 // caller's blocks are disjoint sets of samples), so the results do not depend on the thread
@@ -472,12 +472,12 @@ VOXAX_EXPORT int voxax_column_known(const int64_t* pairs, int64_t npairs, const 
         if (g < 0 || g >= gn)
           throw voxax::InvalidInput("voxax: the known ray casts' row " + std::to_string(r) +
                                     " is not registered");
-        int8_t h = ghit[k * cap + g];
+        int8_t h = ghit[c * cap + g];
         if (h < 0) {
           const uint8_t o = casts.cast(gpts + 3 * g, k);
           cast += o >> 1;
           h = static_cast<int8_t>(o & 1);
-          ghit[k * cap + g] = h;
+          ghit[c * cap + g] = h;
         }
         IN[c * R + r] = static_cast<uint8_t>(h == 1);
       }

@@ -648,8 +648,8 @@ def _column_inside(points, blocks, casts: _Casts, threads, args=None) -> tuple[n
 
 def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads, args=None) -> int:
     """For every `(b, c)` of `pairs`, fill `IN[c, r]` for the rows `r` of block `b`
-    (`off[b] <= r < off[b + 1]`) from the registry `ghit[hk[c], gid[r]]`, or by a cast
-    recorded there (C++, in place); the number of casts that looked at triangles. `args`:
+    (`off[b] <= r < off[b + 1]`) from the registry `ghit[c, gid[r]]` (the ray of point
+    `gpts[gid[r]]` along direction `hk[c]`), or by a cast recorded there (C++, in place); the number of casts that looked at triangles. `args`:
     `casts.args()`, if kept."""
     pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
     off = np.ascontiguousarray(off, np.int64)
@@ -658,7 +658,7 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
         raise ValueError("known ray casts: IN must be C-contiguous bool (nh, R), ghit int8")
     gid = np.ascontiguousarray(gid, np.int64)
     hk = np.ascontiguousarray(hk, np.int64)
-    if gid.shape != (R,) or hk.shape != (nh,) or ghit.shape[0] != len(casts.params) or len(gpts) < gn or off.ndim != 1:
+    if gid.shape != (R,) or hk.shape != (nh,) or ghit.shape[0] != nh or len(gpts) < gn or off.ndim != 1:
         raise ValueError("known ray casts: inconsistent shapes")
     gpts = np.ascontiguousarray(gpts, np.float64)
     n_cast = np.zeros(1, np.int64)
@@ -793,37 +793,19 @@ class _Problem:
         self._TP: dict = {}
         self._maybe: dict = {}
         self._terms: dict = {}
-        self._reset_candidates()
+        self._registries: dict = {}
         self.n_full = 0
         self.n_rays = 0
 
-    def _reset_candidates(self) -> None:
-        # the candidate floaters of every DHF searched so far, numbered once across DHFs,
-        # and whether their rays along each direction hit S (-1: not cast yet)
-        self._gid = [np.full(len(b), -1, np.int64) for b in self.B]
-        self._gpts = np.zeros((0, 3))  # capacity; the first `_gn` rows are in use
-        self._gn = 0
-        self._ghit = np.zeros((len(self.dirs), 0), np.int8)
-
-    def register(self, k: int, idx: np.ndarray) -> np.ndarray:
-        """Numbers for the boundary samples `idx` of HF k in the candidate registry."""
-        g = self._gid[k]
-        new = idx[g[idx] < 0]
-        if len(new):
-            n0, n1 = self._gn, self._gn + len(new)
-            g[new] = np.arange(n0, n1)
-            cap = len(self._gpts)
-            if n1 > cap:  # grown geometrically: appending stays linear in all
-                size = max(2 * cap, n1)
-                pts = np.empty((size, 3))
-                pts[:n0] = self._gpts[:n0]
-                self._gpts = pts
-                grown = np.full((len(self.dirs), size), -1, np.int8)
-                grown[:, :cap] = self._ghit
-                self._ghit = grown
-            self._gpts[n0:n1] = self.B[k][new]
-            self._gn = n1
-        return g[idx]
+    def registry(self, hk) -> np.ndarray:
+        """`(len(hk), n)` int8: whether the ray of boundary sample `g` (of `samples()`)
+        along HF candidate `hk[c]` meets S (-1: not cast yet); one per list of candidates,
+        shared by all DHFs (a sample's ray along a direction is the same ray for each)."""
+        key = tuple(int(k) for k in hk)
+        reg = self._registries.get(key)
+        if reg is None:
+            reg = self._registries[key] = np.full((len(key), len(self.samples()[0])), -1, np.int8)
+        return reg
 
     def _column_table(self, ks=None) -> None:
         """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
@@ -1233,7 +1215,7 @@ class _Dhf:
         self.off = np.concatenate([[0], np.cumsum(sizes)])
         R = int(self.off[-1])
         self.owner = np.repeat(np.arange(nh + 2), sizes)
-        self.gid = np.concatenate([prob.register(k, i) for k, i in zip(bk, bidx)]).astype(np.int64)
+        self.gid = np.concatenate([soff[k] + i for k, i in zip(bk, bidx)]).astype(np.int64)
         self.hkarr = np.asarray(self.hk, np.int64)
         self.wd = np.concatenate(prob.distances_many(list(zip(bk, bidx))))
         self.wt = np.concatenate([prob.T(k, k, self.angle)[i] for k, i in zip(bk, bidx)])
@@ -1265,8 +1247,9 @@ class _Dhf:
         prob = self.prob
         prob._column_table()
         pairs = np.stack([blocks[bi], cols[ci]], 1)
+        reg, pts = prob.registry(self.hk), prob.samples()[0]
         prob.n_rays += _column_known(
-            pairs, self.off, self.IN, self.gid, self.hkarr, prob._ghit, prob._gn, prob._gpts, prob._casts, prob.threads,
+            pairs, self.off, self.IN, self.gid, self.hkarr, reg, reg.shape[1], pts, prob._casts, prob.threads,
             prob._cast_args,
         )  # fmt: skip
         self.BK[pairs[:, 0], pairs[:, 1]] = True
