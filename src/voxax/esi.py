@@ -1407,12 +1407,12 @@ class _Dhf:
         k = self.hk[h]
         blocks = self._blocks(node.hs + (h,)) + list(range(h + 1, nh))
         mine = np.zeros(len(self.owner), bool)
-        for b in blocks:
-            mine[self.off[b] : self.off[b + 1]] = True
-        rows = np.flatnonzero(node.alive & mine)
+        mine[self.off[h + 1] :] = True  # the blocks after h, then the DHF's two
+        for j in node.hs + (h,):
+            if not self.same[j]:
+                mine[self.off[j] : self.off[j + 1]] = True
         self.ensure(blocks, [h])
-        alive = np.zeros(len(self.owner), bool)
-        alive[rows] = self.IN[h, rows]
+        alive = node.alive & mine & self.IN[h]
         keep = ~Vn[:, o]
         return _Node(
             node.hs + (h,),
