@@ -101,7 +101,7 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
 // widened by `delta`, meets. With fill = 0 the call writes each cell's count into
 // counts[l * G * G + cell]; with fill = 1 it takes their exclusive prefix sums (offsets,
 // L * G * G + 1 of them, offsets[L * G * G] = ne) and writes the triangles of each cell in
-// order of decreasing middle depth (ties: ascending index) into
+// order of decreasing top depth (ties: ascending index) into
 // entries[offsets[c]:offsets[c + 1]], and the least and largest
 // depth of the listed triangles' corners (-+ delta; +inf / -inf for an empty cell) into
 // lo and hi.
@@ -171,14 +171,16 @@ inline double weight(const double* d, const double* a, const double* b) {
          d[2] * (a[0] * b[1] - a[1] * b[0]);
 }
 
+// `*tmax`: the largest parameter of the triangle's corners along the ray.
 bool ray_meets(const double* p, const double* d, const double* a, const double* b, const double* c,
-               double t_min) {
+               double t_min, double* tmax_out) {
   double pa[3], pb[3], pc[3];
   sub3(a, p, pa);
   sub3(b, p, pb);
   sub3(c, p, pc);
   const double ta = dot3(d, pa), tb = dot3(d, pb), tc = dot3(d, pc);
   const double tmax = std::max(ta, std::max(tb, tc));
+  *tmax_out = tmax;
   if (!(tmax > t_min)) return false;
   const double wab = weight(d, pa, pb), wbc = weight(d, pb, pc), wca = weight(d, pc, pa);
   const bool pos = wab >= 0.0 && wbc >= 0.0 && wca >= 0.0;
@@ -269,14 +271,15 @@ VOXAX_EXPORT int voxax_column_lists(const double* V, int64_t nv, const int64_t* 
           }
       }
       if (!fill) return;
-      // each cell's triangles from the highest middle depth down (ties: ascending index),
-      // so that rays along +d meet the likeliest first (and rays along -d from the end)
+      // each cell's triangles from the highest top depth down (ties: ascending index): rays
+      // along +d meet the likeliest first and stop at the first triangle wholly behind
+      // them (rays along -d start from the end)
       std::vector<double> mid(static_cast<size_t>(nf));
       for (int64_t t = 0; t < nf; ++t) {
         int64_t r[4];
         double zlo, zhi;
         tri_cells(V, F, t, q, G, delta, r, &zlo, &zhi);
-        mid[t] = 0.5 * (zlo + zhi);
+        mid[t] = zhi;
       }
       for (int64_t c = 0; c < GG; ++c)
         std::sort(entries + base[c], entries + base[c + 1], [&](int32_t a, int32_t b) {
@@ -353,14 +356,18 @@ struct Casts {
     if (e0 < 0 || e1 > ne || e0 > e1)
       throw voxax::InvalidInput("voxax: the column ray casts' offsets are out of range");
     const double* d = dirs + 3 * k;
-    // along +d from the highest triangles, along -d from the lowest
+    // along +d from the highest triangles (all after one wholly behind the ray, by a margin
+    // far above rounding, are behind it too), along -d from the lowest
     const bool up = params[kParams * k + 12] > 0.0;
+    const double behind = t_min - 1e-3 * std::fabs(t_min) - 1e-300;
     for (int64_t x = 0; x < e1 - e0; ++x) {
       const int64_t t = entries[up ? e0 + x : e1 - 1 - x];
       if (t < 0 || t >= nf)
         throw voxax::InvalidInput("voxax: the column ray casts' entries are out of range");
       const double* v = T + 9 * t;
-      if (ray_meets(p, d, v, v + 3, v + 6, t_min)) return true;
+      double tmax;
+      if (ray_meets(p, d, v, v + 3, v + 6, t_min, &tmax)) return true;
+      if (up && tmax < behind) return false;
     }
     return false;
   }

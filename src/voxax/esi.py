@@ -593,6 +593,10 @@ class _Casts(NamedTuple):
             or len(c.offsets) != L * G * G + 1
         ):
             raise ValueError("column ray casts: inconsistent table shapes")
+        # the lists are ordered by depth along each frame's third axis: a ray must run along it
+        axis = params[:, [2, 5, 8]] * params[:, 12:13]
+        if K and not np.allclose(c.dirs, axis, rtol=0.0, atol=1e-12):
+            raise ValueError("column ray casts: each direction must be its frame's third axis times its sign")
         return c
 
     def args(self) -> list:
