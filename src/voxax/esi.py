@@ -813,8 +813,8 @@ class _Problem:
 
     def _column_table(self, ks=None) -> None:
         """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
-        of the triangles over each cell of a `G x G` grid of the line's frame (`G` its
-        depth map's resolution) and the column test's table: per signed direction the
+        of the triangles over each cell of a `G x G` grid of the line's frame (cells about
+        a third of the mesh's mean edge wide, `16 <= G <= 512`) and the column test's table: per signed direction the
         frame (`params`, 15 numbers) and the depth limits per cell as `sign * depth <
         limit` (`lims`, `G^2`), from the least and largest depth of the triangles whose
         `(x, y)` bounding box (widened by a margin) meets the cell. A ray along `+d` from a
@@ -823,7 +823,10 @@ class _Problem:
         if self._ctab is not None:
             return
         nl = len(self.maps)
-        G = self.maps[0].frame.resolution
+        # cells about a third of a mean edge wide: a few triangles per cell
+        V, F = self.mesh.vertices, self.mesh.faces
+        edge = float(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1).mean()) if len(F) else 1.0
+        G = int(np.clip(np.ceil(3.0 * self.maps[0].frame.radius / max(edge, 1e-12)), 16, 512))
         K = len(self.dirs)
         frames = np.zeros((nl, 15))
         for li in range(nl):
