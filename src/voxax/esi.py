@@ -1310,8 +1310,9 @@ class _Dhf:
         nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
         nr = nr[node.alive[nr]]
         self.ensure(self._blocks(hs), np.arange(H[0], nh) if r > 1 else H)
-        INr = self.IN[:, nr]
-        INA = INr[H].astype(np.float64)
+        h0 = int(H[0])  # (the rows of the candidates from the first child on)
+        INr = self.IN[h0:, nr]
+        INA = INr[H - h0].astype(np.float64)
         wd, wt = self.wd[nr], self.wt[nr]
         td, tt, nd = (INA @ np.stack([wd, wt, np.ones(len(nr))], 1)).T
         # the rows of the children's own blocks inside the node's HFs
@@ -1352,7 +1353,7 @@ class _Dhf:
         s3 = int(H[0]) + 1
         lat = np.arange(s3, nh)[:, None] > H[None, :]
         if len(nr):
-            out = (~INr[s3:]).astype(np.float64)
+            out = (~INr[s3 - h0 :]).astype(np.float64)
             Md, Mt = np.split(out @ np.concatenate([INA * wd[None, :], INA * wt[None, :]]).T, 2, axis=1)
         else:
             Md = Mt = np.zeros((nh - s3, len(H)))
