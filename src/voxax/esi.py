@@ -811,15 +811,16 @@ class _Problem:
             reg = self._registries[key] = np.full((len(key), len(self.samples()[0])), -1, np.int8)
         return reg
 
-    def _column_table(self, ks=None) -> None:
+    def _column_table(self) -> None:
         """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
         of the triangles over each cell of a `G x G` grid of the line's frame (cells about
-        a third of the mesh's mean edge wide, `16 <= G <= 512`) and the column test's table: per signed direction the
-        frame (`params`, 15 numbers) and the depth limits per cell as `sign * depth <
-        limit` (`lims`, `G^2`), from the least and largest depth of the triangles whose
-        `(x, y)` bounding box (widened by a margin) meets the cell. A ray along `+d` from a
-        point above its cell's largest depth (or along `-d` below the least) cannot meet S:
-        its hit would be a point of a triangle over that cell."""
+        a third of the mesh's mean edge wide, `16 <= G <= 512`), ordered by their top depth,
+        and the column test's table: per signed direction the frame (`params`, 15 numbers)
+        and the depth limits per cell as `sign * depth < limit` (`lims`, `G^2`), from the
+        least and largest depth of the triangles whose `(x, y)` bounding box (widened by a
+        margin) meets the cell. A ray along `+d` from a point above its cell's largest
+        depth (or along `-d` below the least) cannot meet S: its hit would be a point of a
+        triangle over that cell. The others look at the cell's triangles (`cast`)."""
         if self._ctab is not None:
             return
         nl = len(self.maps)
@@ -1615,10 +1616,10 @@ def select(
     HFs' floaters, each farther from S than the on-surface distance. The children of the
     last inner level are leaves: their energies are computed together, and only those
     within the bound are evaluated one by one (with `energy`'s own arithmetic, so to the
-    bit). The candidate floaters (the boundary samples inside the DHF) are numbered once
-    for all DHFs, so a ray is cast at most once per sample and direction, and rays that
-    cannot hit S (from a point above every triangle over its cell of the ray's depth-map
-    frame) are never cast. Most leaves are never evaluated
+    bit). Every ray is cast exactly (a watertight test) against the triangles listed over
+    its cell of a grid in its direction's frame, after a test of the cell's depth range
+    that rejects most rays that cannot meet S; a ray of a boundary sample along an HF
+    candidate is cast at most once for all DHFs. Most leaves are never evaluated
     (`ESI.prune_rate`), and the result is the exhaustive optimum. The search stops
     at the first `m` whose best E is not lower than that of `m - 1` by more than `tol`
     (default `eps1`: an extra height field must be worth more than the noise of the
