@@ -814,7 +814,8 @@ class _Problem:
     def _column_table(self) -> None:
         """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
         of the triangles over each cell of a `G x G` grid of the line's frame (cells about
-        a third of the mesh's mean edge wide, `16 <= G <= 512`), ordered by their top depth,
+        a third of the mesh's mean edge wide or a depth-map pixel, the smaller, `G <= 512`),
+        ordered by their top depth,
         and the column test's table: per signed direction the frame (`params`, 15 numbers)
         and the depth limits per cell as `sign * depth < limit` (`lims`, `G^2`), from the
         least and largest depth of the triangles whose `(x, y)` bounding box (widened by a
@@ -824,10 +825,12 @@ class _Problem:
         if self._ctab is not None:
             return
         nl = len(self.maps)
-        # cells about a third of a mean edge wide: a few triangles per cell
+        # cells about a third of a mean edge wide (a few triangles per cell), and no coarser
+        # than the depth maps' pixels
         V, F = self.mesh.vertices, self.mesh.faces
         edge = float(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1).mean()) if len(F) else 1.0
-        G = int(np.clip(np.ceil(3.0 * self.maps[0].frame.radius / max(edge, 1e-12)), 16, 512))
+        fine = np.ceil(3.0 * self.maps[0].frame.radius / max(edge, 1e-12))
+        G = int(np.clip(max(fine, self.maps[0].frame.resolution), 16, 512))
         K = len(self.dirs)
         frames = np.zeros((nl, 15))
         for li in range(nl):
