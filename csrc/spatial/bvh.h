@@ -453,18 +453,20 @@ class Bvh {
       best.face = std::numeric_limits<int32_t>::max();  // above every face: ties at cap2 win
     }
     double bary[3], q[3];
+    // the closest point of slot i (just computed into bary and q) becomes the answer
+    auto take = [&](int32_t i, double d2) {
+      best.dist2 = d2;
+      best.face = ids_[i];
+      best.slot = i;
+      for (int a = 0; a < 3; ++a) {
+        best.bary[a] = bary[a];
+        best.point[a] = q[a];
+      }
+    };
     if (hint >= 0 && hint < static_cast<int32_t>(ids_.size())) {
       const double* t = &tris_[9 * static_cast<size_t>(hint)];
       const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[hint] != 0);
-      if (!capped || d2 <= cap2) {
-        best.dist2 = d2;
-        best.face = ids_[hint];
-        best.slot = hint;
-        for (int a = 0; a < 3; ++a) {
-          best.bary[a] = bary[a];
-          best.point[a] = q[a];
-        }
-      }
+      if (!capped || d2 <= cap2) take(hint, d2);
     }
     // Entries: (ref, count, lower bound); count > 0 marks a leaf.
     struct Entry {
@@ -485,15 +487,7 @@ class Bvh {
           if (slab_dist2(ts.c, ts.n, ts.r, ts.h, p, 1, mq) > best.dist2) continue;
           const double* t = &tris_[9 * static_cast<size_t>(i)];
           const double d2 = closest_on_triangle(p, t, t + 3, t + 6, bary, q, degenerate_[i] != 0);
-          if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) {
-            best.dist2 = d2;
-            best.face = ids_[i];
-            best.slot = i;
-            for (int a = 0; a < 3; ++a) {
-              best.bary[a] = bary[a];
-              best.point[a] = q[a];
-            }
-          }
+          if (d2 < best.dist2 || (d2 == best.dist2 && ids_[i] < best.face)) take(i, d2);
         }
         continue;
       }
