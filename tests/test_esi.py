@@ -344,7 +344,6 @@ def test_column_casts_are_the_bvh_casts(small_problem):
     want = voxax.any_hits(prob.mesh, pts, prob.vec[ks], t_min=prob.eps)
     assert np.array_equal(got, want)
     assert 0.2 < got.mean() < 0.8
-    prob._column_table()
     raw = esi._column_hits(pts, ks, prob._casts, 1)
     assert np.array_equal(raw, esi._column_hits(pts, ks, prob._casts, 2))
     assert np.array_equal(raw & 1 == 1, got) and not np.any((raw & 1) > (raw >> 1))

@@ -28,6 +28,19 @@
 namespace {
 constexpr int kParams = 15;
 constexpr int64_t kChunk = 4096;
+
+// The cell of point p in the G x G grid of frame q when it lies over the grid and
+// `s * z < lims[cell]` (s = q[12]), else -1. Written so that NaN fails every comparison.
+int64_t column_cell(const double* p, const double* q, int64_t G, const double* lims) {
+  double loc[3];
+  for (int c = 0; c < 3; ++c) loc[c] = p[0] * q[c] + p[1] * q[3 + c] + p[2] * q[6 + c] - q[9 + c];
+  const double g = static_cast<double>(G);
+  const double fi = (loc[0] + q[13]) / q[14];
+  const double fj = (loc[1] + q[13]) / q[14];
+  if (!(fi >= 0.0 && fi < g && fj >= 0.0 && fj < g)) return -1;
+  const int64_t cell = static_cast<int64_t>(fi) * G + static_cast<int64_t>(fj);
+  return q[12] * loc[2] < lims[cell] ? cell : -1;
+}
 }  // namespace
 
 VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n, int64_t K,
@@ -67,24 +80,9 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
         return false;
       }
     }
-    const double g = static_cast<double>(G);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i) {
-        const double* q = params + kParams * ks[i];
-        const double* p = P + 3 * i;
-        double loc[3];
-        for (int c = 0; c < 3; ++c)
-          loc[c] = p[0] * q[c] + p[1] * q[3 + c] + p[2] * q[6 + c] - q[9 + c];
-        const double fi = (loc[0] + q[13]) / q[14];
-        const double fj = (loc[1] + q[13]) / q[14];
-        // written so that NaN fails every comparison
-        if (!(fi >= 0.0 && fi < g && fj >= 0.0 && fj < g)) {
-          out[i] = 0;
-          continue;
-        }
-        const int64_t cell = static_cast<int64_t>(fi) * G + static_cast<int64_t>(fj);
-        out[i] = q[12] * loc[2] < lims[ks[i] * G * G + cell] ? 1 : 0;
-      }
+      for (int64_t i = b; i < e; ++i)
+        out[i] = column_cell(P + 3 * i, params + kParams * ks[i], G, lims + ks[i] * G * G) >= 0;
     });
     return true;
   });
@@ -101,10 +99,9 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
 // widened by `delta`, meets. With fill = 0 the call writes each cell's count into
 // counts[l * G * G + cell]; with fill = 1 it takes their exclusive prefix sums (offsets,
 // L * G * G + 1 of them, offsets[L * G * G] = ne) and writes the triangles of each cell in
-// order of decreasing top depth (ties: ascending index) into
-// entries[offsets[c]:offsets[c + 1]], and the least and largest
-// depth of the listed triangles' corners (-+ delta; +inf / -inf for an empty cell) into
-// lo and hi.
+// order of decreasing top depth (ties: ascending index) into entries[offsets[c]:offsets[c +
+// 1]], and the least and largest depth of the listed triangles' corners (-+ delta; +inf /
+// -inf for an empty cell) into lo and hi.
 //
 //   voxax_column_hits(P (n, 3) f64, ks (n,) i64, n, K, params (K, 15) f64, dirs (K, 3) f64,
 //                     line_of (K,) i64, L, G, lims (K, G*G) f64, offsets (L*G*G+1) i64,
@@ -114,13 +111,14 @@ VOXAX_EXPORT int voxax_column_test(const double* P, const int64_t* ks, int64_t n
 // Whether the ray P[i] + t dirs[k] (k = ks[i]), t > t_min, meets a triangle: bit 0 of
 // out[i]. A point that fails the column test (see above) is a miss without a look at a
 // triangle; the others (bit 1 set) test the triangles listed in their cell of line
-// line_of[k] (T: each triangle's three corners). The test is watertight: the edge weight of edge
-// (a, b) is d . ((a - p) x (b - p)), computed from the same differences in both triangles of the
+// line_of[k] (T: each triangle's three corners; dirs[k] must be the frame's third axis times
+// its sign, the order of the lists). The test is watertight: the edge weight of edge (a, b)
+// is d . ((a - p) x (b - p)), computed from the same differences in both triangles of the
 // edge, so that they see exactly opposite values; a ray meets a triangle when its three
 // weights have one sign (zero included) and a nonzero sum, at the parameter interpolated
 // from the corners' parameters d . (v - p) with the weights (a triangle seen edge-on is
-// never met, as in the BVH's test; a closed mesh's rays meet its neighbours). Every access to the
-// lists is checked, and each result depends on its point alone.
+// never met, as in the BVH's test; a closed mesh's rays meet its neighbours). Every access
+// to the lists is checked, and each result depends on its point alone.
 
 namespace {
 
@@ -245,7 +243,9 @@ VOXAX_EXPORT int voxax_column_lists(const double* V, int64_t nv, const int64_t* 
       const double* q = frames + kParams * l;
       int64_t* base = counts + l * GG;
       std::vector<int64_t> at;
+      std::vector<double> top;  // each triangle's top depth (fill)
       if (fill) {
+        top.resize(static_cast<size_t>(nf));
         at.assign(base, base + GG);
         std::fill(lo + l * GG, lo + (l + 1) * GG, HUGE_VAL);
         std::fill(hi + l * GG, hi + (l + 1) * GG, -HUGE_VAL);
@@ -256,6 +256,7 @@ VOXAX_EXPORT int voxax_column_lists(const double* V, int64_t nv, const int64_t* 
         int64_t r[4];
         double zlo, zhi;
         tri_cells(V, F, t, q, G, delta, r, &zlo, &zhi);
+        if (fill) top[t] = zhi;
         for (int64_t i = r[0]; i <= r[1]; ++i)
           for (int64_t j = r[2]; j <= r[3]; ++j) {
             const int64_t c = i * G + j;
@@ -274,16 +275,9 @@ VOXAX_EXPORT int voxax_column_lists(const double* V, int64_t nv, const int64_t* 
       // each cell's triangles from the highest top depth down (ties: ascending index): rays
       // along +d meet the likeliest first and stop at the first triangle wholly behind
       // them (rays along -d start from the end)
-      std::vector<double> mid(static_cast<size_t>(nf));
-      for (int64_t t = 0; t < nf; ++t) {
-        int64_t r[4];
-        double zlo, zhi;
-        tri_cells(V, F, t, q, G, delta, r, &zlo, &zhi);
-        mid[t] = zhi;
-      }
       for (int64_t c = 0; c < GG; ++c)
         std::sort(entries + base[c], entries + base[c + 1], [&](int32_t a, int32_t b) {
-          return mid[a] > mid[b] || (mid[a] == mid[b] && a < b);
+          return top[a] > top[b] || (top[a] == top[b] && a < b);
         });
     });
     return true;
@@ -337,16 +331,7 @@ struct Casts {
   // The cell of point p in direction k's grid when the ray may meet the surface by the
   // column test, else -1.
   int64_t column(const double* p, int64_t k) const {
-    const double* q = params + kParams * k;
-    double loc[3];
-    for (int c = 0; c < 3; ++c) loc[c] = p[0] * q[c] + p[1] * q[3 + c] + p[2] * q[6 + c] - q[9 + c];
-    const double g = static_cast<double>(G);
-    const double fi = (loc[0] + q[13]) / q[14];
-    const double fj = (loc[1] + q[13]) / q[14];
-    if (!(fi >= 0.0 && fi < g && fj >= 0.0 && fj < g)) return -1;
-    const int64_t cell = static_cast<int64_t>(fi) * G + static_cast<int64_t>(fj);
-    if (!(q[12] * loc[2] < lims[k * G * G + cell])) return -1;
-    return cell;
+    return column_cell(p, params + kParams * k, G, lims + k * G * G);
   }
 
   // Whether the ray from p along direction k meets a triangle listed over `cell`.

@@ -517,16 +517,13 @@ _LIST_SIGNATURES = {
 }
 
 
-def _mesh_arrays(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
-    return np.ascontiguousarray(mesh.vertices, np.float64), np.ascontiguousarray(mesh.faces, np.int64)
-
-
 def _column_lists(mesh: Mesh, frames, G: int, delta: float, threads):
     """For each line's frame (`frames[l]`, 15 numbers as in `_column_test`), the triangles
     of `mesh` listed per cell of a `G x G` grid (`offsets`, `(L G^2 + 1,)` into `entries`)
     and each cell's least and largest triangle depth (`lo`, `hi`, `(L, G^2)`), in two C++
     calls (counts, then the lists; see `csrc/spatial/columns_host.cc`)."""
-    V, F = _mesh_arrays(mesh)
+    V = np.ascontiguousarray(mesh.vertices, np.float64)
+    F = np.ascontiguousarray(mesh.faces, np.int64)
     frames = np.ascontiguousarray(frames, np.float64).reshape(-1, 15)
     L, GG = len(frames), int(G) * int(G)
     lib = _host.declare(_LIST_SIGNATURES)
@@ -568,6 +565,9 @@ class _Casts(NamedTuple):
     entries: np.ndarray
     tris: np.ndarray
     t_min: float
+    #: the tables as arguments of the C++ entry points (made once: ctypes pointers are slow
+    #: to make)
+    args: list
 
     @classmethod
     def make(cls, params, dirs, line_of, G, lims, offsets, entries, tris, t_min) -> _Casts:
@@ -583,6 +583,7 @@ class _Casts(NamedTuple):
             np.ascontiguousarray(entries, np.int32),
             np.ascontiguousarray(tris, np.float64).reshape(-1, 9),
             float(t_min),
+            [],
         )
         L = (len(c.offsets) - 1) // max(G * G, 1)
         if (
@@ -597,25 +598,18 @@ class _Casts(NamedTuple):
         axis = params[:, [2, 5, 8]] * params[:, 12:13]
         if K and not np.allclose(c.dirs, axis, rtol=0.0, atol=1e-12):
             raise ValueError("column ray casts: each direction must be its frame's third axis times its sign")
+        c.args.extend([
+            K, _host.pointer(c.params, _host.D), _host.pointer(c.dirs, _host.D), _host.pointer(c.line_of, _host.I64),
+            L, G, _host.pointer(c.lims, _host.D), _host.pointer(c.offsets, _host.I64),
+            _host.pointer(c.entries, _host.I32), len(c.entries), _host.pointer(c.tris, _host.D), len(c.tris), c.t_min,
+        ])  # fmt: skip
         return c
 
-    def args(self) -> list:
-        """The tables as arguments of the C++ entry points (valid while `self` lives; ctypes
-        pointers are slow to make, so callers keep them)."""
-        L = (len(self.offsets) - 1) // (self.G * self.G)
-        return [
-            len(self.params), _host.pointer(self.params, _host.D), _host.pointer(self.dirs, _host.D),
-            _host.pointer(self.line_of, _host.I64), L, self.G, _host.pointer(self.lims, _host.D),
-            _host.pointer(self.offsets, _host.I64), _host.pointer(self.entries, _host.I32), len(self.entries),
-            _host.pointer(self.tris, _host.D), len(self.tris), self.t_min,
-        ]  # fmt: skip
 
-
-def _column_hits(points, ks, casts: _Casts, threads, args=None) -> np.ndarray:
+def _column_hits(points, ks, casts: _Casts, threads) -> np.ndarray:
     """`(n,)` uint8: bit 0, whether the ray from point `i` along direction `ks[i]` meets the
     mesh beyond `t_min`; bit 1, whether it passed the column test and so looked at the
-    triangles listed over its cell (C++, exact and watertight). `args`: `casts.args()`, if
-    kept."""
+    triangles listed over its cell (C++, exact and watertight)."""
     p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
     ks = np.ascontiguousarray(ks, np.int64).reshape(-1)
     if len(ks) != len(p):
@@ -624,14 +618,14 @@ def _column_hits(points, ks, casts: _Casts, threads, args=None) -> np.ndarray:
     lib = _host.declare(_LIST_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_column_hits(
-        _host.pointer(p, _host.D), _host.pointer(ks, _host.I64), len(p), *(args or casts.args()), _host.threads(threads),
+        _host.pointer(p, _host.D), _host.pointer(ks, _host.I64), len(p), *casts.args, _host.threads(threads),
         _host.pointer(out, VP8), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return out
 
 
-def _column_inside(points, blocks, casts: _Casts, threads, args=None) -> tuple[np.ndarray, int]:
+def _column_inside(points, blocks, casts: _Casts, threads) -> tuple[np.ndarray, int]:
     """For each block `(start, end, k1, k2)` of `blocks`: whether the rays of the points
     `start <= i < end` along directions `k1` and `k2` (`-1`: `k1` alone) both meet the mesh
     (`(n,)` bool, False outside the blocks), and the number of casts that looked at
@@ -643,18 +637,18 @@ def _column_inside(points, blocks, casts: _Casts, threads, args=None) -> tuple[n
     lib = _host.declare(_LIST_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_column_inside(
-        _host.pointer(p, _host.D), len(p), _host.pointer(blocks, _host.I64), len(blocks), *(args or casts.args()),
+        _host.pointer(p, _host.D), len(p), _host.pointer(blocks, _host.I64), len(blocks), *casts.args,
         _host.threads(threads), _host.pointer(out, VP8), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return out.view(bool), int(n_cast[0])
 
 
-def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads, args=None) -> int:
+def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, threads) -> int:
     """For every `(b, c)` of `pairs`, fill `IN[c, r]` for the rows `r` of block `b`
     (`off[b] <= r < off[b + 1]`) from the registry `ghit[c, gid[r]]` (the ray of point
-    `gpts[gid[r]]` along direction `hk[c]`), or by a cast recorded there (C++, in place); the number of casts that looked at triangles. `args`:
-    `casts.args()`, if kept."""
+    `gpts[gid[r]]` along direction `hk[c]`), or by a cast recorded there (C++, in place);
+    the number of casts that looked at triangles."""
     pairs = np.ascontiguousarray(pairs, np.int64).reshape(-1, 2)
     off = np.ascontiguousarray(off, np.int64)
     nh, R = IN.shape
@@ -671,7 +665,7 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
     status = lib.voxax_column_known(
         _host.pointer(pairs, _host.I64), len(pairs), _host.pointer(off, _host.I64), len(off) - 1, R, nh,
         _host.pointer(IN, VP8), _host.pointer(gid, _host.I64), _host.pointer(hk, _host.I64),
-        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *(args or casts.args()),
+        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *casts.args,
         _host.threads(threads), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
@@ -744,19 +738,14 @@ class _Problem:
         # BLAS thread (see `voxax._blas`)
         workers = max(1, min(_host.threads(threads) or (os.cpu_count() or 1), K))
         inner = 1 if workers > 1 else threads
-        pool = concurrent.futures.ThreadPoolExecutor(workers)
         frames = [frame_for(ld / np.linalg.norm(ld), c, rad, resolution) for ld in line_dirs]
-        with _blas.single_threaded():
-            self.maps = dict(enumerate(pool.map(lambda fr: _depth_map(self.bvh, fr, normals, inner), frames)))
-        self._ctab = self._casts = None  # the column test's and casts' tables (see `_column_table`)
-        self._column_table()
         rng = np.random.default_rng(seed + 7)
         seeds = [int(rng.integers(2**31)) for _ in self.dirs]
 
         def terms(k):
             li, s = self.dirs[k]
             solid, n_tw = height_field_solid(self.maps[li], s)
-            hit = (_column_hits(self.P, np.full(n_samples, k), self._casts, inner, self._cast_args) & 1) == 1
+            hit = (_column_hits(self.P, np.full(n_samples, k), self._casts, inner) & 1) == 1
             # distances to the height field's boundary, needed only where S is hidden: to its
             # top and walls, or straight down to its bottom (a point of S projects inside it)
             tw = Mesh(solid.vertices, solid.faces[:n_tw])
@@ -785,7 +774,9 @@ class _Problem:
             off = bd > self.on_surface
             return dist, hit, pts[off], nrm[off], np.full(int(off.sum()), np.nan)
 
-        with _blas.single_threaded(), pool:
+        with concurrent.futures.ThreadPoolExecutor(workers) as pool, _blas.single_threaded():
+            self.maps = dict(enumerate(pool.map(lambda fr: _depth_map(self.bvh, fr, normals, inner), frames)))
+            self._casts = self._column_casts()
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
                 self.D[:, k] = dist
                 self.visP[:, k] = ~hit
@@ -798,6 +789,7 @@ class _Problem:
         self._maybe: dict = {}
         self._terms: dict = {}
         self._registries: dict = {}
+        self._samples = None  # see `samples`
         self.n_full = 0
         self.n_rays = 0
 
@@ -811,19 +803,17 @@ class _Problem:
             reg = self._registries[key] = np.full((len(key), len(self.samples()[0])), -1, np.int8)
         return reg
 
-    def _column_table(self) -> None:
-        """Build, for every line at once (C++, `csrc/spatial/columns_host.cc`), the lists
-        of the triangles over each cell of a `G x G` grid of the line's frame (cells about
-        a third of the mesh's mean edge wide or a depth-map pixel, the smaller, `G <= 512`),
-        ordered by their top depth,
-        and the column test's table: per signed direction the frame (`params`, 15 numbers)
-        and the depth limits per cell as `sign * depth < limit` (`lims`, `G^2`), from the
-        least and largest depth of the triangles whose `(x, y)` bounding box (widened by a
-        margin) meets the cell. A ray along `+d` from a point above its cell's largest
-        depth (or along `-d` below the least) cannot meet S: its hit would be a point of a
-        triangle over that cell. The others look at the cell's triangles (`cast`)."""
-        if self._ctab is not None:
-            return
+    def _column_casts(self) -> _Casts:
+        """The tables of the selection's exact ray casts (C++, `csrc/spatial/columns_host.cc`),
+        for every line at once: the lists of the triangles over each cell of a `G x G` grid
+        of the line's frame, ordered by their top depth (cells about a third of the mesh's
+        mean edge wide or a depth-map pixel, the smaller, `G <= 512`), and the column test's
+        table: per signed direction the frame (`params`, 15 numbers) and the depth limits per
+        cell as `sign * depth < limit` (`lims`, `G^2`), from the least and largest depth of
+        the triangles whose `(x, y)` bounding box (widened by a margin) meets the cell. A ray
+        along `+d` from a point above its cell's largest depth (or along `-d` below the
+        least) cannot meet S: its hit would be a point of a triangle over that cell. The
+        others look at the cell's triangles (`cast`)."""
         nl = len(self.maps)
         # cells about a third of a mean edge wide (a few triangles per cell), and no coarser
         # than the depth maps' pixels
@@ -849,9 +839,7 @@ class _Problem:
             lims[k] = hi[li] if s > 0 else -lo[li]
             line_of[k] = li
         tris = self.mesh.vertices[self.mesh.faces].reshape(-1, 9)
-        self._ctab = (params, lims, G)
-        self._casts = _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
-        self._cast_args = self._casts.args()
+        return _Casts.make(params, self.vec, line_of, G, lims, offsets, entries, tris, self.eps)
 
     def distances(self, k: int, idx: np.ndarray) -> np.ndarray:
         """The distances to S of the boundary samples `idx` of HF k (exact closest points,
@@ -872,9 +860,9 @@ class _Problem:
 
     def samples(self) -> tuple[np.ndarray, np.ndarray]:
         """Every height field's boundary samples stacked (`B[k]` is rows `off[k]:off[k + 1]`)."""
-        if getattr(self, "_ball", None) is None:
-            self._ball = (np.concatenate(self.B), np.concatenate([[0], np.cumsum([len(b) for b in self.B])]))
-        return self._ball
+        if self._samples is None:
+            self._samples = (np.concatenate(self.B), np.concatenate([[0], np.cumsum([len(b) for b in self.B])]))
+        return self._samples
 
     def cast(self, points: np.ndarray, ks: np.ndarray) -> np.ndarray:
         """Whether the ray from each point along its direction `ks[i]` meets S (exact, C++:
@@ -882,8 +870,7 @@ class _Problem:
         ks = np.ascontiguousarray(ks, np.int64)
         if not len(ks):
             return np.zeros(0, bool)
-        self._column_table()
-        out = _column_hits(points, ks, self._casts, self.threads, self._cast_args)
+        out = _column_hits(points, ks, self._casts, self.threads)
         self.n_rays += int(np.count_nonzero(out & 2))
         return (out & 1).astype(bool)
 
@@ -897,9 +884,8 @@ class _Problem:
         ks = np.ascontiguousarray(ks, np.int64)
         if not len(ks):
             return np.zeros(0, bool)
-        self._column_table()
-        params, lims, G = self._ctab
-        return _column_test(points, ks, params, G, lims, self.threads)
+        c = self._casts
+        return _column_test(points, ks, c.params, c.G, c.lims, self.threads)
 
     def _maybe_bits(self, k: int, k2: int) -> np.ndarray:
         """`maybe` of every boundary sample of HF k along k2, as packed bits (kept)."""
@@ -1181,8 +1167,9 @@ class _Dhf:
       of HFs: for each HF candidate `j` those of `HF(j)` inside both sides of the DHF
       (block `j`), and those of each side of the DHF inside the other (the last two
       blocks). `IN[j, row]` says whether a row's ray along HF candidate `j` hits S (cast
-      as needed a block at a time, `BK` says which blocks are known along which candidates). The floaters of a choice of HFs are the rows
-      of its blocks that lie inside all of its other HFs.
+      as needed, a block at a time; `BK` says which blocks are known along which
+      candidates). The floaters of a choice of HFs are the rows of its blocks that lie
+      inside all of its other HFs.
     """
 
     def __init__(self, prob: _Problem, kp: int, km: int, hk, angle: float):
@@ -1213,8 +1200,7 @@ class _Dhf:
         pts, soff = prob.samples()
         blocks = [(soff[k], soff[k + 1], kp, km) for j, k in enumerate(self.hk) if not self.same[j]]
         blocks += [(soff[kp], soff[kp + 1], km, -1), (soff[km], soff[km + 1], kp, -1)]
-        prob._column_table()
-        inside, n_cast = _column_inside(pts, blocks, prob._casts, prob.threads, prob._cast_args)
+        inside, n_cast = _column_inside(pts, blocks, prob._casts, prob.threads)
         prob.n_rays += n_cast
         empty = np.zeros(0, np.int64)
         bidx = [
@@ -1256,13 +1242,11 @@ class _Dhf:
         if not len(bi):
             return
         prob = self.prob
-        prob._column_table()
         pairs = np.stack([blocks[bi], cols[ci]], 1)
         reg, pts = prob.registry(self.hk), prob.samples()[0]
         prob.n_rays += _column_known(
-            pairs, self.off, self.IN, self.gid, self.hkarr, reg, reg.shape[1], pts, prob._casts, prob.threads,
-            prob._cast_args,
-        )  # fmt: skip
+            pairs, self.off, self.IN, self.gid, self.hkarr, reg, reg.shape[1], pts, prob._casts, prob.threads
+        )
         self.BK[pairs[:, 0], pairs[:, 1]] = True
 
     def root_cd(self) -> float:
@@ -1311,9 +1295,10 @@ class _Dhf:
         if not len(H):
             return H, cd, None
         Vn = self.Vr[np.ix_(rr, H)]
-        nr = np.concatenate([self.brows[b] for b in self._blocks(hs)])
+        blocks = self._blocks(hs)
+        nr = np.concatenate([self.brows[b] for b in blocks])
         nr = nr[node.alive[nr]]
-        self.ensure(self._blocks(hs), np.arange(H[0], nh) if r > 1 else H)
+        self.ensure(blocks, np.arange(H[0], nh) if r > 1 else H)
         h0 = int(H[0])  # (the rows of the candidates from the first child on)
         INr = self.IN[h0:, nr]
         INA = INr[H - h0].astype(np.float64)
