@@ -842,7 +842,7 @@ def run_spatial(rng, n_inputs):
             # passes; on random soups the BVH's hits; the block-wise known casts equal them
             if len(f):
                 from voxax.esi import Mesh as _Mesh
-                from voxax.esi import _Casts, _column_hits, _column_known, _column_lists
+                from voxax.esi import _Casts, _column_hits, _column_inside, _column_known, _column_lists
 
                 R = 1.8 * sc
                 Gl = 1 + i % 9
@@ -875,7 +875,17 @@ def run_spatial(rng, n_inputs):
                 direct = np.stack([_column_hits(o, np.full(len(o), c), casts, 1) & 1 for c in range(4)])
                 if not (np.array_equal(IN, direct == 1) and np.array_equal(ghit, direct.astype(np.int8))):
                     fail(f"{label}: known column casts differ from the direct casts")
-                CALLS["esi_column_casts"] += 3
+                # inside two height fields, a block at a time (one with a single direction,
+                # points outside every block untouched): the direct casts' AND
+                third = len(o) // 3
+                blocks = [(0, third, 0, 3), (third, 2 * third, 2, -1)]
+                inside, _ = _column_inside(o, blocks, casts, 1 + i % 2)
+                want = np.zeros(len(o), bool)
+                want[:third] = (direct[0] & direct[3])[:third] == 1
+                want[third : 2 * third] = direct[2][third : 2 * third] == 1
+                if not np.array_equal(inside, want):
+                    fail(f"{label}: column inside-tests differ from the direct casts")
+                CALLS["esi_column_casts"] += 4
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
             from voxax._cvt_optimize import _assign_moments, assign_moments_host
 
@@ -898,7 +908,7 @@ def run_spatial(rng, n_inputs):
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     from voxax.esi import Mesh as _Mesh
-    from voxax.esi import _Casts, _column_hits, _column_known, _column_lists
+    from voxax.esi import _Casts, _column_hits, _column_inside, _column_known, _column_lists
 
     def good_casts(entries=None, bad=False):
         offs, ents, lo_, hi_ = _column_lists(_Mesh(v, f), col_ok[None], 2, 1e-9, None)
@@ -983,6 +993,10 @@ def run_spatial(rng, n_inputs):
         "column known blocks": (lambda: _column_known([[0, 0]], [0, 40], np.zeros((1, 30), bool), np.arange(30),
                                                       [0], np.full((1, 30), -1, np.int8), 30, v, good_casts(), None),
                                 "blocks"),
+        "column inside direction": (lambda: _column_inside(v, [(0, 30, 1, -1)], good_casts(), None), "directions"),
+        "column inside range": (lambda: _column_inside(v, [(0, 31, 0, -1)], good_casts(), None), "start <= end"),
+        "column inside overlap": (lambda: _column_inside(v, [(0, 20, 0, -1), (10, 30, 0, -1)], good_casts(), None),
+                                  "overlap"),
         # the CVT assignment kernel, host and FFI
         "CVT assign NaN seed": (lambda: assign_moments_host(np.where(v == v[0], np.nan, v), v, np.ones(30)), "NaN"),
         "CVT assign no seeds": (lambda: assign_moments_host(np.zeros((0, 3)), v, np.ones(30)), "seeds"),
