@@ -4,7 +4,15 @@ import math
 
 import numpy as np
 import pytest
-from _esi_shapes import brute_force_depths, mug, rotation
+from _esi_shapes import (
+    bound_blocks_reference,
+    bound_removals_reference,
+    bound_samples_reference,
+    brute_force_depths,
+    mug,
+    random_bound_case,
+    rotation,
+)
 
 import voxax
 from voxax import data, esi, metrics
@@ -410,3 +418,66 @@ def test_top_sums_are_the_sums_of_the_largest():
             for s in range(1, r + 1):
                 want = [np.sort(c[j:])[::-1][:s].sum() for j in range(n)] + [0.0]
                 assert np.array_equal(got[s], want)
+
+
+def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
+    """The C++ sums of the selection's bounds against their definitions, one entry at a
+    time, on random inputs (sizes from empty up, rows in and out of order), and bit for
+    bit the same with 1, 2 and all threads."""
+    rng = np.random.default_rng(3)
+    cases = [random_bound_case(rng) for _ in range(40)] + [random_bound_case(rng, nh=90, R=3000)]
+    for IN, rows, cols, col_of, s3, wd, wt in cases:
+        modes = [None] + ([col_of] if len(cols) or not len(rows) else [])
+        for co in modes:
+            runs = [esi._bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, None)]
+            for run in runs[1:]:
+                for a, b in zip(runs[0], run):
+                    np.testing.assert_array_equal(a, b)
+            for got, want in zip(runs[0], bound_removals_reference(IN, rows, cols, co, s3, wd, wt)):
+                np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+        # the sample sums, on tables of the same sizes
+        nh, nrow = IN.shape[0], int(rng.integers(1, 60))
+        Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
+        Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5
+        rr = rng.integers(0, nrow, int(rng.integers(0, 50)))
+        cur = rng.random(len(rr))
+        c0 = int(rng.integers(0, nh + 1))
+        nc = int(rng.integers(0, nh - c0 + 1))
+        for with_suf in (False, True):
+            got = esi._bound_samples(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf)
+            want = bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf)
+            for g, w in zip(got, want):
+                np.testing.assert_allclose(g, w, rtol=1e-12, atol=0)
+        # the block sums
+        R = IN.shape[1]
+        off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 8))))
+        alive = rng.random(R) < 0.5
+        np.testing.assert_allclose(
+            esi._bound_blocks(alive, off, wd, wt), bound_blocks_reference(alive, off, wd, wt), rtol=1e-12
+        )
+
+
+def test_bound_kernels_reject_bad_input():
+    IN = np.zeros((4, 10), bool)
+    w = np.ones(10)
+    bad = {
+        "row": lambda: esi._bound_removals(IN, [10], [0], None, 0, w, w, 1),
+        "column": lambda: esi._bound_removals(IN, [1], [4], None, 0, w, w, 1),
+        "ascending": lambda: esi._bound_removals(IN, [1], [2, 1], None, 0, w, w, 1),
+        "column of a row": lambda: esi._bound_removals(IN, [1], [0], [1], 0, w, w, 1),
+        "columns of the rows": lambda: esi._bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 1),
+        "s3": lambda: esi._bound_removals(IN, [1], [0], None, 5, w, w, 1),
+        "finite": lambda: esi._bound_removals(IN, [1], [0], None, 0, np.full(10, np.nan), w, 1),
+        "offsets": lambda: esi._bound_blocks(np.ones(10, bool), [0, 5, 3], w, w),
+        "beyond": lambda: esi._bound_blocks(np.ones(10, bool), [0, 11], w, w),
+        "sample row": lambda: esi._bound_samples([7], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
+                                                 np.zeros((5, 4), bool), np.zeros((5, 5), bool), 0, 2, True),
+        "c0 + nc": lambda: esi._bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
+                                              np.zeros((5, 4), bool), np.zeros((5, 5), bool), 3, 2, True),
+        "shape": lambda: esi._bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 4)),
+                                            np.zeros((5, 4), bool), np.zeros((5, 5), bool), 0, 2, True),
+    }  # fmt: skip
+    for name, call in bad.items():
+        with pytest.raises(ValueError):
+            call()
+        assert name

@@ -672,6 +672,120 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
     return int(n_cast[0])
 
 
+
+_BOUND_SIGNATURES = {
+    "voxax_bound_samples": (
+        ctypes.c_int,
+        [_host.I64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, _host.D, _host.D, _host.D, VP8, VP8,
+         ctypes.c_int64, ctypes.c_int64, ctypes.c_int32, _host.D, VP8, _host.D, _host.I64, _host.I64,
+         ctypes.c_char_p, ctypes.c_int64],
+    ),
+    "voxax_bound_removals": (
+        ctypes.c_int,
+        [VP8, ctypes.c_int64, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.I64,
+         ctypes.c_int64, _host.D, _host.D, ctypes.c_int32, _host.D, _host.D, _host.D, ctypes.c_char_p,
+         ctypes.c_int64],
+    ),
+    "voxax_bound_blocks": (
+        ctypes.c_int,
+        [VP8, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.D, _host.D, _host.D, ctypes.c_char_p, ctypes.c_int64],
+    ),
+}  # fmt: skip
+
+
+def _c_table(x: np.ndarray, dtype, shape, what: str) -> np.ndarray:
+    """`x` as a C-contiguous array of `dtype` and `shape` (bools as uint8), or a ValueError."""
+    x = np.asarray(x)
+    if x.shape != tuple(shape):
+        raise ValueError(f"{what}: shape {x.shape}, expected {tuple(shape)}")
+    if x.dtype == np.bool_:
+        x = x.view(np.uint8)
+    return np.ascontiguousarray(x, dtype)
+
+
+def _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0: int, nc: int, with_suf: bool):
+    """The sums of the bounds over a node's hidden surface samples `rr` for the HF columns
+    `c0 <= j < c0 + nc` (C++, `csrc/spatial/bounds_host.cc`): `C[i, c] = min(cur[i],
+    Dr[rr[i], j])` and `Vn[i, c] = Vr[rr[i], j]`, `(n, nc)`; `cd[c]`, the sum of
+    `C[:, c]` (with `with_suf`, of `min(C[:, c], suf[rr, j + 1])`); `vn[c]`, the visible
+    ones; `vmax[c]`, those visible or visible along a later column (`sufv[rr, j + 1]`)."""
+    rr = np.ascontiguousarray(rr, np.int64)
+    rows, nh = Dr.shape
+    n = len(rr)
+    cur = _c_table(cur, np.float64, (n,), "bound sums")
+    Dr = _c_table(Dr, np.float64, (rows, nh), "bound sums")
+    suf = _c_table(suf, np.float64, (rows, nh + 1), "bound sums")
+    Vr = _c_table(Vr, np.uint8, (rows, nh), "bound sums")
+    sufv = _c_table(sufv, np.uint8, (rows, nh + 1), "bound sums")
+    C = np.empty((n, nc))
+    Vn = np.empty((n, nc), np.uint8)
+    cd = np.empty(nc)
+    vn = np.empty(nc, np.int64)
+    vmax = np.empty(nc, np.int64)
+    lib = _host.declare(_BOUND_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_bound_samples(
+        _host.pointer(rr, _host.I64), n, rows, nh, _host.pointer(cur, _host.D), _host.pointer(Dr, _host.D),
+        _host.pointer(suf, _host.D), _host.pointer(Vr, VP8), _host.pointer(sufv, VP8), int(c0), int(nc),
+        int(bool(with_suf)), _host.pointer(C, _host.D), _host.pointer(Vn, VP8), _host.pointer(cd, _host.D),
+        _host.pointer(vn, _host.I64), _host.pointer(vmax, _host.I64), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return C, Vn.view(bool), cd, vn, vmax
+
+
+def _bound_removals(IN, rows, cols, col_of, s3: int, wd, wt, threads):
+    """The floater sums of the bounds (C++): row `i` counts in column `c` where
+    `IN[cols[c], rows[i]]` (`col_of` None) or where `col_of[i] == c`. Returns `sums`
+    `(3, nc)` (the sums of `wd`, `wt` and 1 over the rows counting in each column) and `Md`,
+    `Mt` `(nh - s3, nc)`: the sums of `wd`, `wt` over the rows counting in column `c` that
+    HF `h = s3 + j` removes (`IN[h, row]` False), for `h > cols[c]` (0 elsewhere)."""
+    nh, R = IN.shape
+    if IN.dtype != np.bool_ or not IN.flags.c_contiguous:
+        raise ValueError("bound sums: IN must be C-contiguous bool (nh, R)")
+    rows = np.ascontiguousarray(rows, np.int64)
+    cols = np.ascontiguousarray(cols, np.int64)
+    n, nc = len(rows), len(cols)
+    wd = _c_table(wd, np.float64, (R,), "bound sums")
+    wt = _c_table(wt, np.float64, (R,), "bound sums")
+    if col_of is not None:
+        col_of = _c_table(col_of, np.int64, (n,), "bound sums")
+    sums = np.empty((3, nc))
+    Md = np.empty((nh - s3, nc)) if 0 <= s3 <= nh else np.empty(0)
+    Mt = np.empty_like(Md)
+    lib = _host.declare(_BOUND_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_bound_removals(
+        _host.pointer(IN.view(np.uint8), VP8), nh, R, _host.pointer(rows, _host.I64), n,
+        _host.pointer(cols, _host.I64), nc, None if col_of is None else _host.pointer(col_of, _host.I64), int(s3),
+        _host.pointer(wd, _host.D), _host.pointer(wt, _host.D), _host.threads(threads), _host.pointer(sums, _host.D),
+        _host.pointer(Md, _host.D), _host.pointer(Mt, _host.D), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return sums, Md, Mt
+
+
+def _bound_blocks(alive, off, wd, wt) -> np.ndarray:
+    """`(3, nb)`: the sums of `alive`, `alive * wd` and `alive * wt` over each block
+    `off[b] <= row < off[b + 1]` (C++)."""
+    R = len(alive)
+    alive = _c_table(alive, np.uint8, (R,), "bound sums")
+    off = np.ascontiguousarray(off, np.int64)
+    wd = _c_table(wd, np.float64, (R,), "bound sums")
+    wt = _c_table(wt, np.float64, (R,), "bound sums")
+    nb = len(off) - 1
+    if nb < 0:
+        raise ValueError("bound sums: the block offsets need at least one entry")
+    out = np.empty((3, nb))
+    lib = _host.declare(_BOUND_SIGNATURES)
+    err = _host.error_buffer()
+    status = lib.voxax_bound_blocks(
+        _host.pointer(alive, VP8), R, _host.pointer(off, _host.I64), nb, _host.pointer(wd, _host.D),
+        _host.pointer(wt, _host.D), _host.pointer(out, _host.D), err, _host.ERRLEN,
+    )  # fmt: skip
+    _host.check(status, err)
+    return out
+
 class _Problem:
     """Everything precomputed for the energy of any combination of candidate axes.
 
@@ -1259,12 +1373,6 @@ class _Dhf:
         n_vis = self.prob.n_samples - len(self.rows)
         return _Node((), np.arange(len(self.rows)), self.cur, n_vis, self.visd, self.base, np.ones(len(self.owner), bool))
 
-    def _block_sums(self, x: np.ndarray) -> np.ndarray:
-        """`(nh + 2,)` the sums of `x` (per row) over each block."""
-        out = np.add.reduceat(np.append(x.astype(np.float64), 0.0), self.off[:-1])
-        out[self.off[:-1] == self.off[1:]] = 0.0
-        return out
-
     def _blocks(self, hs) -> list:
         """The blocks of the DHF and of the HFs `hs`."""
         return [self.nh, self.nh + 1] + [j for j in hs if not self.same[j]]
@@ -1279,11 +1387,11 @@ class _Dhf:
         r = m - len(hs)
         start = hs[-1] + 1 if hs else 0
         H = np.arange(start, nh - r + 1)
-        C = np.minimum(cur[:, None], self.Dr[rr, start : nh - r + 1])
-        if r > 1:
-            cd = np.minimum(C, self.suf[rr, start + 1 : nh - r + 2]).sum(0) / N
-        else:
-            cd = C.sum(0) / N
+        # the hidden surface samples' sums (C++): `C`, their distances with child `h`;
+        # `cd`, `CD(S, S~)` with the best of the HFs after it too; `vn` and `vmax`, how many
+        # turn visible with child `h`, and with it or an HF after it
+        C, Vn, cd, vn, vmax = _bound_samples(rr, cur, self.Dr, self.suf, self.Vr, self.sufv, start, len(H), r > 1)
+        cd = cd / N
 
         def prune(E, *arrays):
             keep = E <= best
@@ -1291,30 +1399,32 @@ class _Dhf:
                 return (E,) + arrays
             return (E[keep],) + tuple(a[..., keep] for a in arrays)
 
-        cd, H, C = prune(cd * (1 - 1e-9), cd, H, C)[1:]  # the cheap part of the bound first
+        cd, H, C, Vn, vn, vmax = prune(cd * (1 - 1e-9), cd, H, C, Vn, vn, vmax)[1:]  # the cheap part first
         if not len(H):
             return H, cd, None
-        Vn = self.Vr[np.ix_(rr, H)]
         blocks = self._blocks(hs)
         nr = np.concatenate([self.brows[b] for b in blocks])
         nr = nr[node.alive[nr]]
         self.ensure(blocks, np.arange(H[0], nh) if r > 1 else H)
-        h0 = int(H[0])  # (the rows of the candidates from the first child on)
-        INr = self.IN[h0:, nr]
-        INA = INr[H - h0].astype(np.float64)
-        wd, wt = self.wd[nr], self.wt[nr]
-        td, tt, nd = (INA @ np.stack([wd, wt, np.ones(len(nr))], 1)).T
-        # the rows of the children's own blocks inside the node's HFs
-        cnt = self._block_sums(node.alive)[:nh]
+        # the node's candidate floaters that child `h` keeps (C++): the sums of their
+        # distances `td`, On values `tt` and count `nd`; below, with more HFs to come,
+        # `Md[h3 - s3, h]` (`Mt`) sums the distances (On values) of those that HF `h3`
+        # would remove (only the HFs after the first child, h3 > H[0], can follow a child)
+        s3 = int(H[0]) + 1
+        (td, tt, nd), Md, Mt = _bound_removals(self.IN, nr, H, None, s3 if r > 1 else nh, self.wd, self.wt, prob.threads)
+        # each block's rows inside the node's HFs: count, distances, On values
+        # (the blocks before `start` play no part)
+        cnt, bwd, bwt = np.zeros((3, nh))
+        cnt[start:], bwd[start:], bwt[start:] = _bound_blocks(node.alive, self.off[start : nh + 1], self.wd, self.wt)
         a = prob.on_surface
         on_vis = float(np.minimum(node.base, self.tpmin)[node.vis].sum())
         if r == 1:
             # exact: every term of E; first with the On of the visible surface samples
             # bounded below, then exactly for the children still within the bound
-            td = td + self._block_sums(np.where(node.alive, self.wd, 0.0))[H]
-            tt = tt + self._block_sums(np.where(node.alive, self.wt, 0.0))[H]
+            td = td + bwd[H]
+            tt = tt + bwt[H]
             nd = nd + cnt[H]
-            n = n_vis + Vn.sum(0) + nd
+            n = n_vis + vn + nd
 
             def energy(on):
                 with np.errstate(divide="ignore", invalid="ignore"):
@@ -1335,18 +1445,9 @@ class _Dhf:
             on = np.minimum(node.base[z][None, :], TP[np.ix_(hkH, z)]).sum(1)
             on = on + (Vn * TP[np.ix_(hkH, self.rows[rr])].T).sum(0)
             return H, energy(on), (node, H, C, Vn)
-        # the next r - 1 HFs can remove at most the floaters of their r - 1 best: `Md[h3, h]`
-        # (`Mt`) sums the distances (On values) of the rows child `h` keeps that HF `h3`
-        # would remove
-        # (only the HFs after the first child, h3 > H[0], can follow a child)
-        s3 = int(H[0]) + 1
+        # the next r - 1 HFs can remove at most the floaters of their r - 1 best
         lat = np.arange(s3, nh)[:, None] > H[None, :]
-        if len(nr):
-            out = (~INr[s3 - h0 :]).astype(np.float64)
-            Md, Mt = np.split(out @ np.concatenate([INA * wd[None, :], INA * wt[None, :]]).T, 2, axis=1)
-        else:
-            Md = Mt = np.zeros((nh - s3, len(H)))
-        vmax = n_vis + (Vn | self.sufv[np.ix_(rr, H + 1)]).sum(0)
+        vmax = n_vis + vmax
         topc = _top_sums(cnt, r - 1)[r - 1]
 
         def bound(td, tt, nd, Md, Mt, lat, vmax, cd, xm):
@@ -1374,24 +1475,12 @@ class _Dhf:
             return H, E, (node, H, C, Vn)
         # then, below the root, with the child's own rows inside the node's HFs known, less what the HFs
         # after it can remove (their rays are cast for the children still within the bound)
-        mine = np.zeros(len(self.owner), bool)
-        for h in H:
-            mine[self.off[h] : self.off[h + 1]] = True
-        rc = np.flatnonzero(mine & node.alive)
+        rc = np.concatenate([self.brows[h] for h in H])
+        col = np.repeat(np.arange(len(H)), self.off[H + 1] - self.off[H])
+        keep = node.alive[rc]
+        rc, col = rc[keep], col[keep]
         self.ensure(H, np.arange(H[0] + 1, nh))
-        seg = np.searchsorted(rc, self.off[H])
-        nonempty = seg < np.searchsorted(rc, self.off[H + 1])
-        outc = ~self.IN[s3:, rc]
-        own = []
-        for w in (self.wd[rc], self.wt[rc]):
-            tot = np.zeros(len(H))
-            rem = np.zeros((nh - s3, len(H)))
-            if len(rc) and nonempty.any():
-                st = seg[nonempty]
-                tot[nonempty] = np.add.reduceat(w, st)
-                rem[:, nonempty] = np.add.reduceat(outc * w[None, :], st, axis=1)
-            own.append((tot, rem))
-        (od, rd), (ot, rt) = own
+        (od, ot, _), rd, rt = _bound_removals(self.IN, rc, H, col, s3, self.wd, self.wt, prob.threads)
         E2 = bound(td + od, tt + ot, nd + cnt[H], Md + rd, Mt + rt, lat, vmax, cd, topc[H + 1])
         return H, np.maximum(E, E2), (node, H, C, Vn)
 

@@ -1026,6 +1026,81 @@ def run_spatial(rng, n_inputs):
         else:
             fail(f"spatial '{name}': no error raised")
         COUNTS["spatial_invalid"] += 1
+def run_bounds(rng, n_inputs):
+    """The sums of the selection's bounds (`csrc/spatial/bounds_host.cc`): random inputs
+    from empty up, against their definitions and across thread counts, then hostile ones."""
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    from _esi_shapes import (
+        bound_blocks_reference,
+        bound_removals_reference,
+        bound_samples_reference,
+        random_bound_case,
+    )
+
+    from voxax.esi import _bound_blocks, _bound_removals, _bound_samples
+
+    def close(label, got, want):
+        for g, w in zip(got, want):
+            if np.shape(g) != np.shape(w) or not np.allclose(g, w, rtol=1e-12, atol=1e-12):
+                fail(f"bounds {label}: differs from its definition")
+
+    for t in range(n_inputs):
+        IN, rows, cols, col_of, s3, wd, wt = random_bound_case(rng, nh=60 if t % 7 == 0 else None)
+        for co in [None] + ([col_of] if len(cols) or not len(rows) else []):
+            runs = [_bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, 3)]
+            if any(not all(np.array_equal(a, b) for a, b in zip(runs[0], r)) for r in runs[1:]):
+                fail("bounds removals: results depend on the thread count")
+            close("removals", runs[0], bound_removals_reference(IN, rows, cols, co, s3, wd, wt))
+            COUNTS["bounds"] += 3
+            CALLS["esi_bounds"] += 3
+        nh, nrow = IN.shape[0], int(rng.integers(1, 40))
+        Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
+        Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5
+        rr = rng.integers(0, nrow, int(rng.integers(0, 40)))
+        cur = rng.random(len(rr))
+        c0 = int(rng.integers(0, nh + 1))
+        nc = int(rng.integers(0, nh - c0 + 1))
+        ws = bool(t % 2)
+        close("samples", _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0, nc, ws),
+              bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, ws))  # fmt: skip
+        R = IN.shape[1]
+        off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 6))))
+        alive = rng.random(R) < 0.5
+        close("blocks", [_bound_blocks(alive, off, wd, wt)], [bound_blocks_reference(alive, off, wd, wt)])
+        COUNTS["bounds"] += 2
+        CALLS["esi_bounds"] += 2
+    IN = np.zeros((4, 10), bool)
+    w = np.ones(10)
+    D5, B5 = np.zeros((5, 4)), np.zeros((5, 4), bool)
+    D6, B6 = np.zeros((5, 5)), np.zeros((5, 5), bool)
+    bad = {
+        "row": (lambda: _bound_removals(IN, [10], [0], None, 0, w, w, 2), "outside"),
+        "negative row": (lambda: _bound_removals(IN, [-1], [0], None, 0, w, w, 2), "outside"),
+        "column": (lambda: _bound_removals(IN, [1], [4], None, 0, w, w, 2), "outside"),
+        "columns order": (lambda: _bound_removals(IN, [1], [2, 1], None, 0, w, w, 2), "ascending"),
+        "column of a row": (lambda: _bound_removals(IN, [1], [0], [1], 0, w, w, 2), "outside"),
+        "columns of rows order": (lambda: _bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 2), "ascending"),
+        "s3": (lambda: _bound_removals(IN, [1], [0], None, 5, w, w, 2), "s3"),
+        "weights": (lambda: _bound_removals(IN, [1], [0], None, 0, w, np.full(10, np.inf), 2), "finite"),
+        "offsets order": (lambda: _bound_blocks(np.ones(10, bool), [0, 5, 3], w, w), "ascending"),
+        "offsets beyond": (lambda: _bound_blocks(np.ones(10, bool), [-1, 11], w, w), "ascending"),
+        "sample row": (lambda: _bound_samples([7], [0.0], D5, D6, B5, B6, 0, 2, True), "outside"),
+        "sample columns": (lambda: _bound_samples([1], [0.0], D5, D6, B5, B6, 3, 2, True), "c0"),
+        "sample shape": (lambda: _bound_samples([1], [0.0], D5, D5, B5, B6, 0, 2, True), "shape"),
+    }
+    for name, (call, match) in bad.items():
+        try:
+            call()
+        except ValueError as err:
+            if not re.search(match, str(err)):
+                fail(f"bounds '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"bounds '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"bounds '{name}': no error raised")
+        COUNTS["bounds_invalid"] += 1
+
+
 def run_rdt(rng, n_inputs):
     """Restricted Delaunay extraction on random, duplicated, coplanar and clustered seeds:
     valid indices, every directed edge used once, thread-count determinism, hostile inputs."""
@@ -1649,6 +1724,7 @@ def main(argv=None):
         run_line_crossings(rng, max(40, args.spatial_inputs // 2))
         run_fc(rng, max(28, args.spatial_inputs // 4))
         run_rdt(rng, max(20, args.spatial_inputs // 4))
+        run_bounds(rng, max(20, args.spatial_inputs // 4))
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
         run_intersections(rng)
@@ -1682,6 +1758,7 @@ def main(argv=None):
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
     print(f"line crossings inputs: {COUNTS['line_crossings']}, invalid: {COUNTS['line_crossings_invalid']}")
+    print(f"selection bound sums: {COUNTS['bounds']} calls, invalid: {COUNTS['bounds_invalid']}")
     print("exact intersection test: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("intersections", "intersections_invalid", "intersections_raw")))
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")
     print("kernel invocations: " + ", ".join(f"{k} {v}" for k, v in sorted(CALLS.items())) + f" (total {sum(CALLS.values())})")
