@@ -452,9 +452,11 @@ def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
         R = IN.shape[1]
         off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 8))))
         alive = rng.random(R) < 0.5
-        np.testing.assert_allclose(
-            esi._bound_blocks(alive, off, wd, wt), bound_blocks_reference(alive, off, wd, wt), rtol=1e-12
-        )
+        want = bound_blocks_reference(alive, off, wd, wt)
+        np.testing.assert_allclose(esi._bound_blocks(alive, off, wd, wt), want, rtol=1e-12)
+        counts = esi._bound_blocks(alive, off, wd, wt, sums=False)
+        np.testing.assert_array_equal(counts[0], want[0])
+        assert not counts[1:].any()
 
 
 def test_bound_kernels_reject_bad_input():

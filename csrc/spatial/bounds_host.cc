@@ -25,10 +25,10 @@
 // ascending.
 //
 //   voxax_bound_blocks(alive (R,) u8, R, off (nb + 1,) i64, nb, wd (R,) f64, wt (R,) f64,
-//                      out (3, nb) f64, err, errlen)
+//                      with_sums, out (3, nb) f64, err, errlen)
 //
 // out[0 / 1 / 2][b] = the sums of alive, alive * wd and alive * wt over the rows
-// off[b] <= row < off[b + 1] of block b.
+// off[b] <= row < off[b + 1] of block b (the last two 0 without with_sums).
 
 #include <algorithm>
 #include <cmath>
@@ -320,8 +320,8 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
 }
 
 VOXAX_EXPORT int voxax_bound_blocks(const uint8_t* alive, int64_t R, const int64_t* off, int64_t nb,
-                                    const double* wd, const double* wt, double* out, char* err,
-                                    int64_t errlen) {
+                                    const double* wd, const double* wt, int32_t with_sums,
+                                    double* out, char* err, int64_t errlen) {
   return voxax::host_guarded("the bounds' block sums", err, errlen, [&](std::string* msg) {
     if (R < 0 || nb < 0) {
       *msg = "voxax: the bounds' block sums need R, nb >= 0";
@@ -333,14 +333,16 @@ VOXAX_EXPORT int voxax_bound_blocks(const uint8_t* alive, int64_t R, const int64
         return false;
       }
     for (int64_t b = 0; b < nb; ++b) {
-      double cnt = 0.0, sd = 0.0, st = 0.0;
-      for (int64_t r = off[b]; r < off[b + 1]; ++r) {  // (without branches)
-        const bool a = alive[r] != 0;
-        cnt += a ? 1.0 : 0.0;
-        sd += a ? wd[r] : 0.0;
-        st += a ? wt[r] : 0.0;
-      }
-      out[b] = cnt;
+      int64_t cnt = 0;
+      for (int64_t r = off[b]; r < off[b + 1]; ++r) cnt += alive[r] != 0;
+      double sd = 0.0, st = 0.0;
+      if (with_sums)
+        for (int64_t r = off[b]; r < off[b + 1]; ++r) {  // (without branches)
+          const bool a = alive[r] != 0;
+          sd += a ? wd[r] : 0.0;
+          st += a ? wt[r] : 0.0;
+        }
+      out[b] = static_cast<double>(cnt);
       out[nb + b] = sd;
       out[2 * nb + b] = st;
     }

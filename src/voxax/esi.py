@@ -487,6 +487,14 @@ def _column_test(points, ks, params, G: int, lims, threads) -> np.ndarray:
 
 
 VP8 = ctypes.POINTER(ctypes.c_uint8)
+# the hot entry points of the selection take plain addresses: `a.ctypes.data` costs a
+# quarter of `_host.pointer` (called some 10^5 times per selection)
+_P = ctypes.c_void_p
+
+
+def _addr(a: np.ndarray) -> int:
+    """The address of a C-contiguous array's data (for `_P` arguments)."""
+    return a.ctypes.data
 # the tables of a column ray cast (see `_Casts`)
 _CAST_ARGS = [ctypes.c_int64, _host.D, _host.D, _host.I64, ctypes.c_int64, ctypes.c_int64, _host.D, _host.I64, _host.I32,
               ctypes.c_int64, _host.D, ctypes.c_int64, ctypes.c_double]  # fmt: skip
@@ -509,10 +517,10 @@ _LIST_SIGNATURES = {
     ),
     "voxax_column_known": (
         ctypes.c_int,
-        [_host.I64, ctypes.c_int64, _host.I64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, VP8, _host.I64,
-         _host.I64, _host.I8, ctypes.c_int64, ctypes.c_int64, _host.D]
+        [_P, ctypes.c_int64, _P, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, _P, _P,
+         _P, _P, ctypes.c_int64, ctypes.c_int64, _P]
         + _CAST_ARGS
-        + [ctypes.c_int32, _host.I64, ctypes.c_char_p, ctypes.c_int64],
+        + [ctypes.c_int32, _P, ctypes.c_char_p, ctypes.c_int64],
     ),
 }
 
@@ -663,10 +671,10 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
     lib = _host.declare(_LIST_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_column_known(
-        _host.pointer(pairs, _host.I64), len(pairs), _host.pointer(off, _host.I64), len(off) - 1, R, nh,
-        _host.pointer(IN, VP8), _host.pointer(gid, _host.I64), _host.pointer(hk, _host.I64),
-        _host.pointer(ghit, _host.I8), ghit.shape[1], int(gn), _host.pointer(gpts, _host.D), *casts.args,
-        _host.threads(threads), _host.pointer(n_cast, _host.I64), err, _host.ERRLEN,
+        _addr(pairs), len(pairs), _addr(off), len(off) - 1, R, nh,
+        _addr(IN), _addr(gid), _addr(hk),
+        _addr(ghit), ghit.shape[1], int(gn), _addr(gpts), *casts.args,
+        _host.threads(threads), _addr(n_cast), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return int(n_cast[0])
@@ -676,19 +684,19 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
 _BOUND_SIGNATURES = {
     "voxax_bound_samples": (
         ctypes.c_int,
-        [_host.I64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, _host.D, _host.D, _host.D, VP8, VP8,
-         ctypes.c_int64, ctypes.c_int64, ctypes.c_int32, _host.D, VP8, _host.D, _host.I64, _host.I64,
+        [_P, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, _P, _P, _P, _P, _P,
+         ctypes.c_int64, ctypes.c_int64, ctypes.c_int32, _P, _P, _P, _P, _P,
          ctypes.c_char_p, ctypes.c_int64],
     ),
     "voxax_bound_removals": (
         ctypes.c_int,
-        [VP8, ctypes.c_int64, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.I64,
-         ctypes.c_int64, _host.D, _host.D, ctypes.c_int32, _host.D, _host.D, _host.D, ctypes.c_char_p,
+        [_P, ctypes.c_int64, ctypes.c_int64, _P, ctypes.c_int64, _P, ctypes.c_int64, _P,
+         ctypes.c_int64, _P, _P, ctypes.c_int32, _P, _P, _P, ctypes.c_char_p,
          ctypes.c_int64],
     ),
     "voxax_bound_blocks": (
         ctypes.c_int,
-        [VP8, ctypes.c_int64, _host.I64, ctypes.c_int64, _host.D, _host.D, _host.D, ctypes.c_char_p, ctypes.c_int64],
+        [_P, ctypes.c_int64, _P, ctypes.c_int64, _P, _P, ctypes.c_int32, _P, ctypes.c_char_p, ctypes.c_int64],
     ),
 }  # fmt: skip
 
@@ -725,10 +733,10 @@ def _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0: int, nc: int, with_suf: bool)
     lib = _host.declare(_BOUND_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_bound_samples(
-        _host.pointer(rr, _host.I64), n, rows, nh, _host.pointer(cur, _host.D), _host.pointer(Dr, _host.D),
-        _host.pointer(suf, _host.D), _host.pointer(Vr, VP8), _host.pointer(sufv, VP8), int(c0), int(nc),
-        int(bool(with_suf)), _host.pointer(C, _host.D), _host.pointer(Vn, VP8), _host.pointer(cd, _host.D),
-        _host.pointer(vn, _host.I64), _host.pointer(vmax, _host.I64), err, _host.ERRLEN,
+        _addr(rr), n, rows, nh, _addr(cur), _addr(Dr),
+        _addr(suf), _addr(Vr), _addr(sufv), int(c0), int(nc),
+        int(bool(with_suf)), _addr(C), _addr(Vn), _addr(cd),
+        _addr(vn), _addr(vmax), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return C, Vn.view(bool), cd, vn, vmax
@@ -756,18 +764,18 @@ def _bound_removals(IN, rows, cols, col_of, s3: int, wd, wt, threads):
     lib = _host.declare(_BOUND_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_bound_removals(
-        _host.pointer(IN.view(np.uint8), VP8), nh, R, _host.pointer(rows, _host.I64), n,
-        _host.pointer(cols, _host.I64), nc, None if col_of is None else _host.pointer(col_of, _host.I64), int(s3),
-        _host.pointer(wd, _host.D), _host.pointer(wt, _host.D), _host.threads(threads), _host.pointer(sums, _host.D),
-        _host.pointer(Md, _host.D), _host.pointer(Mt, _host.D), err, _host.ERRLEN,
+        _addr(IN.view(np.uint8)), nh, R, _addr(rows), n,
+        _addr(cols), nc, None if col_of is None else _addr(col_of), int(s3),
+        _addr(wd), _addr(wt), _host.threads(threads), _addr(sums),
+        _addr(Md), _addr(Mt), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return sums, Md, Mt
 
 
-def _bound_blocks(alive, off, wd, wt) -> np.ndarray:
+def _bound_blocks(alive, off, wd, wt, sums: bool = True) -> np.ndarray:
     """`(3, nb)`: the sums of `alive`, `alive * wd` and `alive * wt` over each block
-    `off[b] <= row < off[b + 1]` (C++)."""
+    `off[b] <= row < off[b + 1]` (C++; the last two 0 without `sums`)."""
     R = len(alive)
     alive = _c_table(alive, np.uint8, (R,), "bound sums")
     off = np.ascontiguousarray(off, np.int64)
@@ -780,8 +788,7 @@ def _bound_blocks(alive, off, wd, wt) -> np.ndarray:
     lib = _host.declare(_BOUND_SIGNATURES)
     err = _host.error_buffer()
     status = lib.voxax_bound_blocks(
-        _host.pointer(alive, VP8), R, _host.pointer(off, _host.I64), nb, _host.pointer(wd, _host.D),
-        _host.pointer(wt, _host.D), _host.pointer(out, _host.D), err, _host.ERRLEN,
+        _addr(alive), R, _addr(off), nb, _addr(wd), _addr(wt), int(bool(sums)), _addr(out), err, _host.ERRLEN,
     )  # fmt: skip
     _host.check(status, err)
     return out
@@ -1399,7 +1406,9 @@ class _Dhf:
                 return (E,) + arrays
             return (E[keep],) + tuple(a[..., keep] for a in arrays)
 
-        cd, H, C, Vn, vn, vmax = prune(cd * (1 - 1e-9), cd, H, C, Vn, vn, vmax)[1:]  # the cheap part first
+        # (the children's columns of `C` and `Vn` are `pos`: pruning does not copy them)
+        pos = np.arange(len(H))
+        cd, H, pos, vn, vmax = prune(cd * (1 - 1e-9), cd, H, pos, vn, vmax)[1:]  # the cheap part first
         if not len(H):
             return H, cd, None
         blocks = self._blocks(hs)
@@ -1415,7 +1424,9 @@ class _Dhf:
         # each block's rows inside the node's HFs: count, distances, On values
         # (the blocks before `start` play no part)
         cnt, bwd, bwt = np.zeros((3, nh))
-        cnt[start:], bwd[start:], bwt[start:] = _bound_blocks(node.alive, self.off[start : nh + 1], self.wd, self.wt)
+        cnt[start:], bwd[start:], bwt[start:] = _bound_blocks(
+            node.alive, self.off[start : nh + 1], self.wd, self.wt, r == 1
+        )
         a = prob.on_surface
         on_vis = float(np.minimum(node.base, self.tpmin)[node.vis].sum())
         if r == 1:
@@ -1436,15 +1447,15 @@ class _Dhf:
                 E[~np.isfinite(dist)] = np.inf
                 return E
 
-            E, H, C, Vn, cd, td, tt, n = prune(energy(on_vis), H, C, Vn, cd, td, tt, n)
+            E, H, pos, cd, td, tt, n = prune(energy(on_vis), H, pos, cd, td, tt, n)
             if not len(H):
                 return H, E, None
             hkH = [self.hk[j] for j in H]
             TP = prob.TPall(self.angle)
             z = np.flatnonzero(node.vis & (node.base > 0))
             on = np.minimum(node.base[z][None, :], TP[np.ix_(hkH, z)]).sum(1)
-            on = on + (Vn * TP[np.ix_(hkH, self.rows[rr])].T).sum(0)
-            return H, energy(on), (node, H, C, Vn)
+            on = on + (Vn[:, pos] * TP[np.ix_(hkH, self.rows[rr])].T).sum(0)
+            return H, energy(on), (node, H, C, Vn, pos)
         # the next r - 1 HFs can remove at most the floaters of their r - 1 best
         lat = np.arange(s3, nh)[:, None] > H[None, :]
         vmax = n_vis + vmax
@@ -1468,11 +1479,11 @@ class _Dhf:
         # first with the floaters of the child and of the HFs after it unknown (at most
         # their blocks' rows inside the node's HFs, each farther from S than `a`)
         E = bound(td, tt, nd, Md, Mt, lat, vmax, cd, cnt[H] + topc[H + 1])
-        E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax = prune(E, H, C, Vn, cd, td, tt, nd, Md, Mt, lat, vmax)
+        E, H, pos, cd, td, tt, nd, Md, Mt, lat, vmax = prune(E, H, pos, cd, td, tt, nd, Md, Mt, lat, vmax)
         if not len(H) or not hs:
             # (at the root this would cast the rays of nearly every candidate floater along
             # every HF: measured slower on the knot)
-            return H, E, (node, H, C, Vn)
+            return H, E, (node, H, C, Vn, pos)
         # then, below the root, with the child's own rows inside the node's HFs known, less what the HFs
         # after it can remove (their rays are cast for the children still within the bound)
         rc = np.concatenate([self.brows[h] for h in H])
@@ -1482,13 +1493,14 @@ class _Dhf:
         self.ensure(H, np.arange(H[0] + 1, nh))
         (od, ot, _), rd, rt = _bound_removals(self.IN, rc, H, col, s3, self.wd, self.wt, prob.threads)
         E2 = bound(td + od, tt + ot, nd + cnt[H], Md + rd, Mt + rt, lat, vmax, cd, topc[H + 1])
-        return H, np.maximum(E, E2), (node, H, C, Vn)
+        return H, np.maximum(E, E2), (node, H, C, Vn, pos)
 
     def child(self, state, o: int) -> _Node:
         """The node of child `o` of a `children` result. Its candidate floaters are the rows
         of its own blocks and of the blocks after its last HF that lie inside its HFs (the
         rays along the new HF are cast here)."""
-        node, H, C, Vn = state
+        node, H, C, Vn, pos = state
+        c = int(pos[o])
         prob, h, nh = self.prob, int(H[o]), self.nh
         k = self.hk[h]
         blocks = self._blocks(node.hs + (h,)) + list(range(h + 1, nh))
@@ -1499,12 +1511,12 @@ class _Dhf:
                 mine[self.off[j] : self.off[j + 1]] = True
         self.ensure(blocks, [h])
         alive = node.alive & mine & self.IN[h]
-        keep = ~Vn[:, o]
+        keep = ~Vn[:, c]
         return _Node(
             node.hs + (h,),
             node.rr[keep],
-            C[keep, o],
-            node.n_vis + int(Vn[:, o].sum()),
+            C[keep, c],
+            node.n_vis + int(Vn[:, c].sum()),
             node.vis | prob.visT()[k],
             np.minimum(node.base, prob.TP(k, self.angle)),
             alive,
@@ -1513,7 +1525,8 @@ class _Dhf:
     def leaf_energy(self, state, o: int, eps1: float, eps2: float) -> float:
         """E of leaf `o` of a `children` result with `r = 1`: the arithmetic of
         `_Problem.energy`, term for term and in its order, so the same value to the bit."""
-        node, H, C, Vn = state
+        node, H, C, Vn, pos = state
+        c = int(pos[o])
         prob, nh, h = self.prob, self.nh, int(H[o])
         k = self.hk[h]
         prob.n_full += 1
@@ -1535,8 +1548,8 @@ class _Dhf:
             tot_d += float(self.wd[sl][keep].sum())
             n += int(keep.sum())
         z = np.zeros(prob.n_samples)
-        keep = ~Vn[:, o]
-        z[self.rows[node.rr[keep]]] = C[keep, o]
+        keep = ~Vn[:, c]
+        z[self.rows[node.rr[keep]]] = C[keep, c]
         cd_st = float(z.mean())
         if n == 0:
             return math.inf
