@@ -70,22 +70,23 @@ inline double one_if(bool b) {
 // SSE registers otherwise)
 typedef double v4d __attribute__((vector_size(32)));
 
-// For the rows 0 <= i < rows of A (ncp columns, 0 or 1) and the column blocks of kLanes
-// columns below lim: md[c] += aw[i] * A[i, c] and mt[c] += bw[i] * A[i, c], each
-// column's sum in the order of the rows.
-VOXAX_CLONES void add_rows(const double* A, int64_t ncp, const double* aw, const double* bw,
-                           int64_t rows, int64_t lim, double* md, double* mt) {
+// For the rows at[0 .. rows) of A (ncp columns, 0 or 1; all rows 0 .. rows where at is
+// null) and the column blocks of kLanes columns below lim: md[c] += aw[k] * A[at[k], c]
+// and mt[c] += bw[k] * A[at[k], c], each column's sum in the order of the rows.
+VOXAX_CLONES void add_rows(const double* A, int64_t ncp, const int32_t* at, const double* aw,
+                           const double* bw, int64_t rows, int64_t lim, double* md, double* mt) {
   for (int64_t c0 = 0; c0 < lim; c0 += kLanes) {
     v4d x0, x1, y0, y1;  // (unaligned loads and stores through memcpy)
     std::memcpy(&x0, md + c0, sizeof x0);
     std::memcpy(&x1, md + c0 + 4, sizeof x1);
     std::memcpy(&y0, mt + c0, sizeof y0);
     std::memcpy(&y1, mt + c0 + 4, sizeof y1);
-    for (int64_t i = 0; i < rows; ++i) {
+    for (int64_t k = 0; k < rows; ++k) {
+      const double* a = A + (at ? at[k] : k) * ncp + c0;
       v4d a0, a1;
-      std::memcpy(&a0, A + i * ncp + c0, sizeof a0);
-      std::memcpy(&a1, A + i * ncp + c0 + 4, sizeof a1);
-      const double p = aw[i], q = bw[i];
+      std::memcpy(&a0, a, sizeof a0);
+      std::memcpy(&a1, a + 4, sizeof a1);
+      const double p = aw[k], q = bw[k];
       x0 += p * a0;
       x1 += p * a1;
       y0 += q * a0;
@@ -258,8 +259,9 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
       for (int64_t i0 = 0; i0 < n; i0 += kRowChunk) {
         const int64_t m = std::min(kRowChunk, n - i0);
         chunk_of(i0, m, Ac.data());
-        add_rows(Ac.data(), ncp, wdr.data() + i0, wtr.data() + i0, m, nc, s0.data(), s1.data());
-        add_rows(Ac.data(), ncp, one.data(), one.data(), m, nc, s2.data(), unused.data());
+        add_rows(Ac.data(), ncp, nullptr, wdr.data() + i0, wtr.data() + i0, m, nc, s0.data(),
+                 s1.data());
+        add_rows(Ac.data(), ncp, nullptr, one.data(), one.data(), m, nc, s2.data(), unused.data());
       }
       for (int64_t c = 0; c < nc; ++c) {
         sums[c] = s0[c];
@@ -291,19 +293,23 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
       if (j0 >= j1) return;
       std::vector<double> Ac(static_cast<size_t>(kRowChunk * ncp));
       double aw[kRowChunk], bw[kRowChunk];
+      int32_t at[kRowChunk];
       for (int64_t i0 = 0; i0 < n; i0 += kRowChunk) {
         const int64_t m = std::min(kRowChunk, n - i0);
         chunk_of(i0, m, Ac.data());
         for (int64_t j = j0; j < j1; ++j) {
           const int64_t h = s3 + j, lim = lims[j];
           if (lim == 0 || h < h0) continue;
+          // the rows that h leaves out, listed without branches (the others would add 0)
           const uint8_t* g = G.data() + (h - h0) * n + i0;
+          int64_t k = 0;
           for (int64_t i = 0; i < m; ++i) {
-            const double out = one_if(g[i] == 0);
-            aw[i] = out * wdr[i0 + i];
-            bw[i] = out * wtr[i0 + i];
+            at[k] = static_cast<int32_t>(i);
+            aw[k] = wdr[i0 + i];
+            bw[k] = wtr[i0 + i];
+            k += g[i] == 0;
           }
-          add_rows(Ac.data(), ncp, aw, bw, m, lim, MP.data() + j * ncp,
+          add_rows(Ac.data(), ncp, at, aw, bw, k, lim, MP.data() + j * ncp,
                    MP.data() + (nr3 + j) * ncp);
         }
       }
