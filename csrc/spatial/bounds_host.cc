@@ -1,7 +1,8 @@
 // The dense sums of the ESI selection's lower bounds (`voxax.esi._Dhf.children`), a plain C
 // ABI for ctypes. Each entry point reads a node's rows and the children's columns and
-// writes per-column sums; every sum runs over its rows in the order given, so the results
-// are the same bits for any thread count.
+// writes per-column sums; each sum is taken over its rows in one fixed order (the order
+// given, or four interleaved partial sums), so the results are the same bits for any
+// thread count.
 //
 //   voxax_bound_samples(rr (n,) i64, n, rows, nh, cur (n,) f64, Dr (rows, nh) f64,
 //                       suf (rows, nh + 1) f64, Vr (rows, nh) u8, sufv (rows, nh + 1) u8,
@@ -19,8 +20,8 @@
 //                        err, errlen)
 //
 // Row i counts in column c when IN[cols[c], rows[i]] != 0 (col_of null), or when
-// col_of[i] == c. sums[0 / 1 / 2][c] sums wd[row] / wt[row] / 1 over the rows counting in
-// column c; Md[h - s3, c] (Mt) sums wd (wt) over the rows counting in column c with
+// col_of[i] == c (col_of ascending). sums[0 / 1 / 2][c] sums wd[row] / wt[row] / 1 over the rows
+// counting in column c; Md[h - s3, c] (Mt) sums wd (wt) over the rows counting in column c with
 // IN[h, row] == 0, for s3 <= h < nh and h > cols[c] (0 for h <= cols[c]). cols must be
 // ascending.
 //
@@ -46,10 +47,12 @@ namespace {
 // Below this much work (row x column pairs) one thread does it: starting threads costs more.
 constexpr int64_t kThreadWork = int64_t{1} << 18;
 
+// Rows set out at a time as a 0/1 matrix (32 x 80 doubles for the paper's 80 candidates: in
+// the first-level cache).
 constexpr int64_t kRowChunk = 32;
 
-// AVX2 where the machine has it: the products below are of a weight and 0 or 1, exact, so
-// the sums are the same bits with or without fused multiply-adds.
+// AVX2 where the machine has it: the products below are of a weight and 0 or 1, exact, and
+// each lane adds in the same order, so the vector code gives the same bits as the plain one.
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
 #define VOXAX_CLONES __attribute__((target_clones("avx2", "default")))
 #else

@@ -744,7 +744,8 @@ def _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0: int, nc: int, with_suf: bool)
 
 def _bound_removals(IN, rows, cols, col_of, s3: int, wd, wt, threads):
     """The floater sums of the bounds (C++): row `i` counts in column `c` where
-    `IN[cols[c], rows[i]]` (`col_of` None) or where `col_of[i] == c`. Returns `sums`
+    `IN[cols[c], rows[i]]` (`col_of` None) or where `col_of[i] == c` (`cols` and `col_of`
+    ascending). Returns `sums`
     `(3, nc)` (the sums of `wd`, `wt` and 1 over the rows counting in each column) and `Md`,
     `Mt` `(nh - s3, nc)`: the sums of `wd`, `wt` over the rows counting in column `c` that
     HF `h = s3 + j` removes (`IN[h, row]` False), for `h > cols[c]` (0 elsewhere)."""
