@@ -99,3 +99,14 @@ def random_bound_case(rng, nh=None, R=None):
     s3 = int(rng.integers(0, nh + 1))
     wd, wt = rng.random(R), rng.random(R) * 3
     return IN, rows.astype(np.int64), cols.astype(np.int64), col_of.astype(np.int64), s3, wd, wt
+
+
+def random_sample_tables(rng, nh, max_rows=60, max_samples=50):
+    """Random inputs of the bounds' sample sums for `nh` HF candidates: `rr`, `cur`, `Dr`,
+    `suf`, `Vr`, `sufv`, `c0`, `nc` (as `voxax.esi._bound_samples` takes them)."""
+    nrow = int(rng.integers(1, max_rows))
+    Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
+    Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5
+    rr = rng.integers(0, nrow, int(rng.integers(0, max_samples)))
+    c0 = int(rng.integers(0, nh + 1))
+    return rr, rng.random(len(rr)), Dr, suf, Vr, sufv, c0, int(rng.integers(0, nh - c0 + 1))

@@ -11,6 +11,7 @@ from _esi_shapes import (
     brute_force_depths,
     mug,
     random_bound_case,
+    random_sample_tables,
     rotation,
 )
 
@@ -436,16 +437,10 @@ def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
             for got, want in zip(runs[0], bound_removals_reference(IN, rows, cols, co, s3, wd, wt)):
                 np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
         # the sample sums, on tables of the same sizes
-        nh, nrow = IN.shape[0], int(rng.integers(1, 60))
-        Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
-        Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5
-        rr = rng.integers(0, nrow, int(rng.integers(0, 50)))
-        cur = rng.random(len(rr))
-        c0 = int(rng.integers(0, nh + 1))
-        nc = int(rng.integers(0, nh - c0 + 1))
+        tables = random_sample_tables(rng, IN.shape[0])
         for with_suf in (False, True):
-            got = esi._bound_samples(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf)
-            want = bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf)
+            got = esi._bound_samples(*tables, with_suf)
+            want = bound_samples_reference(*tables, with_suf)
             for g, w in zip(got, want):
                 np.testing.assert_allclose(g, w, rtol=1e-12, atol=0)
         # the block sums

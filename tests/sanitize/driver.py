@@ -1026,6 +1026,22 @@ def run_spatial(rng, n_inputs):
         else:
             fail(f"spatial '{name}': no error raised")
         COUNTS["spatial_invalid"] += 1
+def expect_rejected(kind: str, bad: dict, errors: tuple) -> None:
+    """Each `name: (call, match)` of `bad` must raise one of `errors` with a message matching
+    `match`; counted in COUNTS[kind + "_invalid"]."""
+    for name, (call, match) in bad.items():
+        try:
+            call()
+        except errors as err:
+            if not re.search(match, str(err)):
+                fail(f"{kind} '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"{kind} '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"{kind} '{name}': no error raised")
+        COUNTS[kind + "_invalid"] += 1
+
+
 def run_bounds(rng, n_inputs):
     """The sums of the selection's bounds (`csrc/spatial/bounds_host.cc`): random inputs
     from empty up, against their definitions and across thread counts, then hostile ones."""
@@ -1035,6 +1051,7 @@ def run_bounds(rng, n_inputs):
         bound_removals_reference,
         bound_samples_reference,
         random_bound_case,
+        random_sample_tables,
     )
 
     from voxax.esi import _bound_blocks, _bound_removals, _bound_samples
@@ -1053,16 +1070,9 @@ def run_bounds(rng, n_inputs):
             close("removals", runs[0], bound_removals_reference(IN, rows, cols, co, s3, wd, wt))
             COUNTS["bounds"] += 3
             CALLS["esi_bounds"] += 3
-        nh, nrow = IN.shape[0], int(rng.integers(1, 40))
-        Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
-        Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5
-        rr = rng.integers(0, nrow, int(rng.integers(0, 40)))
-        cur = rng.random(len(rr))
-        c0 = int(rng.integers(0, nh + 1))
-        nc = int(rng.integers(0, nh - c0 + 1))
+        tables = random_sample_tables(rng, IN.shape[0], 40, 40)
         ws = bool(t % 2)
-        close("samples", _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0, nc, ws),
-              bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, ws))  # fmt: skip
+        close("samples", _bound_samples(*tables, ws), bound_samples_reference(*tables, ws))
         R = IN.shape[1]
         off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 6))))
         alive = rng.random(R) < 0.5
@@ -1088,17 +1098,7 @@ def run_bounds(rng, n_inputs):
         "sample columns": (lambda: _bound_samples([1], [0.0], D5, D6, B5, B6, 3, 2, True), "c0"),
         "sample shape": (lambda: _bound_samples([1], [0.0], D5, D5, B5, B6, 0, 2, True), "shape"),
     }
-    for name, (call, match) in bad.items():
-        try:
-            call()
-        except ValueError as err:
-            if not re.search(match, str(err)):
-                fail(f"bounds '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"bounds '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"bounds '{name}': no error raised")
-        COUNTS["bounds_invalid"] += 1
+    expect_rejected("bounds", bad, (ValueError,))
 
 
 def run_rdt(rng, n_inputs):
@@ -1239,17 +1239,7 @@ def run_line_crossings(rng, n_inputs):
         "raw negative lines": (lambda: raw(30, 10, 0, -3, 3), "negative"),
         "raw too many lines": (lambda: raw(30, 10, 0, 1, 1 << 40), "2\\^36"),
     }
-    for name, (call, match) in bad.items():
-        try:
-            call()
-        except (ValueError, TypeError) as err:
-            if not re.search(match, str(err)):
-                fail(f"line_crossings '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"line_crossings '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"line_crossings '{name}': no error raised")
-        COUNTS["line_crossings_invalid"] += 1
+    expect_rejected("line_crossings", bad, (ValueError, TypeError))
 
 
 def run_fc(rng, n_inputs):
