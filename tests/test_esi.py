@@ -478,3 +478,29 @@ def test_bound_kernels_reject_bad_input():
         with pytest.raises(ValueError):
             call()
         assert name
+
+
+def test_bound_removal_sums_are_the_documented_order_to_the_bit():
+    """The removal sums are the sums in their documented order, bit for bit (whatever the
+    vector code the machine runs): in the rows' order, and for one column per row in four
+    interleaved partial sums `((s0 + s1) + (s2 + s3))` (row `i` in `s[i % 4]`)."""
+    rng = np.random.default_rng(11)
+    IN, rows, cols, col_of, s3, wd, wt = random_bound_case(rng, nh=24, R=600)
+    cols, s3 = np.array([2, 5, 6, 11, 17], np.int64), 3
+    col_of = np.sort(rng.integers(0, len(cols), len(rows)))
+    member = IN[np.ix_(cols, rows)].T
+    _, Md, Mt = esi._bound_removals(IN, rows, cols, None, s3, wd, wt, 2)
+    _, Md1, Mt1 = esi._bound_removals(IN, rows, cols, col_of, s3, wd, wt, 2)
+    for j, h in enumerate(range(s3, IN.shape[0])):
+        for c in range(len(cols)):
+            want = [0.0, 0.0]
+            parts = np.zeros((2, 4))
+            for i, row in enumerate(rows):
+                if h > cols[c] and not IN[h, row]:
+                    if member[i, c]:
+                        want[0] += wd[row]
+                        want[1] += wt[row]
+                    if col_of[i] == c:
+                        parts[:, i % 4] += (wd[row], wt[row])
+            assert (Md[j, c], Mt[j, c]) == tuple(want)
+            assert (Md1[j, c], Mt1[j, c]) == tuple((p[0] + p[1]) + (p[2] + p[3]) for p in parts)

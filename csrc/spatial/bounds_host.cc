@@ -53,7 +53,7 @@ constexpr int64_t kRowChunk = 32;
 
 // AVX2 where the machine has it: the products below are of a weight and 0 or 1, exact, and
 // each lane adds in the same order, so the vector code gives the same bits as the plain one.
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__SANITIZE_ADDRESS__)
+#if defined(__GNUC__) && defined(__x86_64__) && defined(__linux__) && !defined(__SANITIZE_ADDRESS__)
 #define VOXAX_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define VOXAX_CLONES
