@@ -1597,8 +1597,8 @@ def run_intersections(rng, rounds=60):
             v = np.round(v * 2) / 2
         elif kind == 2:  # degenerate faces
             v[1::3] = v[0::3]
-        elif kind == 3:
-            v *= 10.0 ** rng.choice([-45, 70])
+        elif kind == 3:  # huge or tiny, within the accepted magnitudes [1e-50, 1e75]
+            v = np.where(np.abs(v) < 1e-3, np.copysign(1e-3, v), v) * 10.0 ** rng.choice([-45, 70])
         f = rng.integers(0, len(v), size=(nf, 3)) if kind == 4 else np.arange(3 * nf).reshape(nf, 3)
         if kind == 5:  # duplicate faces, both orientations
             f = np.concatenate([f, f[:, ::-1]])
