@@ -69,6 +69,7 @@ inline double one_if(bool b) {
   std::memcpy(&d, &bits, sizeof d);
   return d;
 }
+
 // four doubles (GCC and Clang vector extensions: AVX registers in the AVX2 clone, pairs of
 // SSE registers otherwise)
 typedef double v4d __attribute__((vector_size(32)));
@@ -257,19 +258,21 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
       }
     };
     {
-      std::vector<double> Ac(static_cast<size_t>(kRowChunk * ncp)), one(kRowChunk, 1.0);
-      std::vector<double> s0(static_cast<size_t>(ncp), 0.0), s1(s0), s2(s0), unused(s0);
+      std::vector<double> Ac(static_cast<size_t>(kRowChunk * ncp));
+      std::vector<double> s0(static_cast<size_t>(ncp), 0.0), s1(s0);
       for (int64_t i0 = 0; i0 < n; i0 += kRowChunk) {
         const int64_t m = std::min(kRowChunk, n - i0);
         chunk_of(i0, m, Ac.data());
         add_rows(Ac.data(), ncp, nullptr, wdr.data() + i0, wtr.data() + i0, m, nc, s0.data(),
                  s1.data());
-        add_rows(Ac.data(), ncp, nullptr, one.data(), one.data(), m, nc, s2.data(), unused.data());
       }
       for (int64_t c = 0; c < nc; ++c) {
+        const uint8_t* g = G.data() + (cols[c] - h0) * n;  // the count: the row's 0/1 flags
+        int64_t count = 0;
+        for (int64_t i = 0; i < n; ++i) count += g[i];
         sums[c] = s0[c];
         sums[nc + c] = s1[c];
-        sums[2 * nc + c] = s2[c];
+        sums[2 * nc + c] = static_cast<double>(count);
       }
     }
     if (nr3 == 0) return true;
@@ -302,7 +305,7 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
         chunk_of(i0, m, Ac.data());
         for (int64_t j = j0; j < j1; ++j) {
           const int64_t h = s3 + j, lim = lims[j];
-          if (lim == 0 || h < h0) continue;
+          if (lim == 0) continue;  // (else h > cols[0] = h0: G holds its row)
           // the rows that h leaves out, listed without branches (the others would add 0)
           const uint8_t* g = G.data() + (h - h0) * n + i0;
           int64_t k = 0;
@@ -317,13 +320,11 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
         }
       }
     });
-    for (int64_t j = 0; j < nr3; ++j) {
-      const int64_t lim = std::lower_bound(cols, cols + nc, s3 + j) - cols;
-      for (int64_t c = 0; c < lim; ++c) {
+    for (int64_t j = 0; j < nr3; ++j)
+      for (int64_t c = 0; c < lims[j]; ++c) {
         Md[j * nc + c] = MP[j * ncp + c];
         Mt[j * nc + c] = MP[(nr3 + j) * ncp + c];
       }
-    }
     return true;
   });
 }
@@ -346,7 +347,7 @@ VOXAX_EXPORT int voxax_bound_blocks(const uint8_t* alive, int64_t R, const int64
       for (int64_t r = off[b]; r < off[b + 1]; ++r) cnt += alive[r] != 0;
       double sd = 0.0, st = 0.0;
       if (with_sums)
-        for (int64_t r = off[b]; r < off[b + 1]; ++r) {  // (without branches)
+        for (int64_t r = off[b]; r < off[b + 1]; ++r) {
           const bool a = alive[r] != 0;
           sd += a ? wd[r] : 0.0;
           st += a ? wt[r] : 0.0;

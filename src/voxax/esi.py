@@ -495,6 +495,8 @@ _P = ctypes.c_void_p
 def _addr(a: np.ndarray) -> int:
     """The address of a C-contiguous array's data (for `_P` arguments)."""
     return a.ctypes.data
+
+
 # the tables of a column ray cast (see `_Casts`)
 _CAST_ARGS = [ctypes.c_int64, _host.D, _host.D, _host.I64, ctypes.c_int64, ctypes.c_int64, _host.D, _host.I64, _host.I32,
               ctypes.c_int64, _host.D, ctypes.c_int64, ctypes.c_double]  # fmt: skip
@@ -680,7 +682,6 @@ def _column_known(pairs, off, IN, gid, hk, ghit, gn, gpts, casts: _Casts, thread
     return int(n_cast[0])
 
 
-
 _BOUND_SIGNATURES = {
     "voxax_bound_samples": (
         ctypes.c_int,
@@ -745,10 +746,10 @@ def _bound_samples(rr, cur, Dr, suf, Vr, sufv, c0: int, nc: int, with_suf: bool)
 def _bound_removals(IN, rows, cols, col_of, s3: int, wd, wt, threads):
     """The floater sums of the bounds (C++): row `i` counts in column `c` where
     `IN[cols[c], rows[i]]` (`col_of` None) or where `col_of[i] == c` (`cols` and `col_of`
-    ascending). Returns `sums`
-    `(3, nc)` (the sums of `wd`, `wt` and 1 over the rows counting in each column) and `Md`,
-    `Mt` `(nh - s3, nc)`: the sums of `wd`, `wt` over the rows counting in column `c` that
-    HF `h = s3 + j` removes (`IN[h, row]` False), for `h > cols[c]` (0 elsewhere)."""
+    ascending). Returns `sums` `(3, nc)` (the sums of `wd`, `wt` and 1 over the rows
+    counting in each column) and `Md`, `Mt` `(nh - s3, nc)`: the sums of `wd`, `wt` over
+    the rows counting in column `c` that HF `h = s3 + j` removes (`IN[h, row]` False), for
+    `h > cols[c]` (0 elsewhere)."""
     nh, R = IN.shape
     if IN.dtype != np.bool_ or not IN.flags.c_contiguous:
         raise ValueError("bound sums: IN must be C-contiguous bool (nh, R)")
@@ -793,6 +794,7 @@ def _bound_blocks(alive, off, wd, wt, sums: bool = True) -> np.ndarray:
     )  # fmt: skip
     _host.check(status, err)
     return out
+
 
 class _Problem:
     """Everything precomputed for the energy of any combination of candidate axes.
@@ -1329,11 +1331,10 @@ class _Dhf:
             empty if j < nh and self.same[j] else np.flatnonzero(inside[soff[k] : soff[k + 1]])
             for j, k in enumerate(bk)
         ]
-        self.bk = bk
         sizes = np.array([len(i) for i in bidx])
         self.off = np.concatenate([[0], np.cumsum(sizes)])
         R = int(self.off[-1])
-        self.owner = np.repeat(np.arange(nh + 2), sizes)
+        self.R = R
         self.gid = np.concatenate([soff[k] + i for k, i in zip(bk, bidx)]).astype(np.int64)
         self.hkarr = np.asarray(self.hk, np.int64)
         self.wd = np.concatenate(prob.distances_many(list(zip(bk, bidx))))
@@ -1379,7 +1380,7 @@ class _Dhf:
         if not self.built:
             self._build()
         n_vis = self.prob.n_samples - len(self.rows)
-        return _Node((), np.arange(len(self.rows)), self.cur, n_vis, self.visd, self.base, np.ones(len(self.owner), bool))
+        return _Node((), np.arange(len(self.rows)), self.cur, n_vis, self.visd, self.base, np.ones(self.R, bool))
 
     def _blocks(self, hs) -> list:
         """The blocks of the DHF and of the HFs `hs`."""
@@ -1505,7 +1506,7 @@ class _Dhf:
         prob, h, nh = self.prob, int(H[o]), self.nh
         k = self.hk[h]
         blocks = self._blocks(node.hs + (h,)) + list(range(h + 1, nh))
-        mine = np.zeros(len(self.owner), bool)
+        mine = np.zeros(self.R, bool)
         mine[self.off[h + 1] :] = True  # the blocks after h, then the DHF's two
         for j in node.hs + (h,):
             if not self.same[j]:

@@ -734,6 +734,23 @@ def _spatial_soup(rng, kind):
     return v, f
 
 
+def expect_rejected(kind: str, bad: dict, errors: tuple) -> None:
+    """Each `name: (call, match)` of `bad` must raise one of `errors` (under jit: when its
+    result is waited for) with a message matching `match`; counted in
+    COUNTS[kind + "_invalid"]."""
+    for name, (call, match) in bad.items():
+        try:
+            jax.block_until_ready(call())
+        except errors as err:
+            if not re.search(match, str(err)):
+                fail(f"{kind} '{name}': unexpected message: {err}")
+        except Exception as err:  # noqa: BLE001
+            fail(f"{kind} '{name}': unexpected {type(err).__name__}: {err}")
+        else:
+            fail(f"{kind} '{name}': no error raised")
+        COUNTS[kind + "_invalid"] += 1
+
+
 def run_spatial(rng, n_inputs):
     """BVH closest points and ray hits (host and FFI paths) on adversarial soups, with
     brute-force checks of the distances on small inputs and hostile inputs that must raise."""
@@ -1015,31 +1032,7 @@ def run_spatial(rng, n_inputs):
             jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(30, jnp.int32)), "outputs"),
     }
-    for name, (call, match) in bad.items():
-        try:
-            jax.block_until_ready(call())
-        except (ValueError, TypeError, jax.errors.JaxRuntimeError) as err:
-            if not re.search(match, str(err)):
-                fail(f"spatial '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"spatial '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"spatial '{name}': no error raised")
-        COUNTS["spatial_invalid"] += 1
-def expect_rejected(kind: str, bad: dict, errors: tuple) -> None:
-    """Each `name: (call, match)` of `bad` must raise one of `errors` with a message matching
-    `match`; counted in COUNTS[kind + "_invalid"]."""
-    for name, (call, match) in bad.items():
-        try:
-            call()
-        except errors as err:
-            if not re.search(match, str(err)):
-                fail(f"{kind} '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"{kind} '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"{kind} '{name}': no error raised")
-        COUNTS[kind + "_invalid"] += 1
+    expect_rejected("spatial", bad, (ValueError, TypeError, jax.errors.JaxRuntimeError))
 
 
 def run_bounds(rng, n_inputs):
@@ -1152,16 +1145,7 @@ def run_rdt(rng, n_inputs):
         "no fragments": (lambda: cvt.rdt(frag._replace(points=np.zeros((0, 3)), normals=np.zeros((0, 3))), s), "fragments"),
         "max_hole": (lambda: cvt.rdt(frag, s, max_hole=100), "max_hole"),
     }
-    for name, (call, match) in bad.items():
-        try:
-            call()
-        except (ValueError, TypeError) as err:
-            if not re.search(match, str(err)):
-                fail(f"rdt '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"rdt '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"rdt '{name}': no error raised")
+    expect_rejected("rdt", bad, (ValueError, TypeError))
 
 
 def run_line_crossings(rng, n_inputs):
@@ -1381,17 +1365,7 @@ def run_fc(rng, n_inputs):
         "raw signs negative rows": (lambda: raw_signs([0], [4, 4, 4], [0], [1], k=-1), "null"),
         "raw signs negative crossings": (lambda: raw_signs([0], [4, 4, 4], [0], [1], c=-5), "null"),
     }
-    for name, (call, match) in bad.items():
-        try:
-            call()
-        except (ValueError, TypeError) as err:
-            if not re.search(match, str(err)):
-                fail(f"fc '{name}': unexpected message: {err}")
-        except Exception as err:  # noqa: BLE001
-            fail(f"fc '{name}': unexpected {type(err).__name__}: {err}")
-        else:
-            fail(f"fc '{name}': no error raised")
-        COUNTS["fc_invalid"] += 1
+    expect_rejected("fc", bad, (ValueError, TypeError))
 
 
 # -- marching cubes ------------------------------------------------------------------------
