@@ -41,7 +41,7 @@ def info():
         "voxax": voxax.__version__,
         "voxax_installed_dist": version("voxax"),
         "voxax_path": os.path.dirname(voxax.__file__),
-        "kernel_library": str(voxax._ffi.library_path()),
+        "kernel_library": str(voxax._kernels.library_path()),
         "numpy": np.__version__,
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],

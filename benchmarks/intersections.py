@@ -11,7 +11,7 @@ the same mesh (same run), and agreement with independent checks on smaller meshe
 2. A self-intersecting mesh (`bent_bar` at low resolution): the non-adjacent intersecting
    pairs against a brute-force exact oracle (every pair of non-adjacent faces whose
    bounding boxes meet, decided in rational arithmetic by the oracle of
-   `tests/test_intersections.py`), and the intersecting faces against MeshLab's
+   `tests/spatial/test_intersections.py`), and the intersecting faces against MeshLab's
    `compute_selection_by_self_intersections_per_face` (pymeshlab; floating point).
 """
 

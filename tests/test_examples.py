@@ -32,7 +32,7 @@ def test_voxelize_mesh(tmp_path, capsys):
 
 def test_self_intersection(tmp_path):
     # The voxel stage alone at 32^3 (the full run with refinement is the example's default, and
-    # tests/test_resolve.py covers refinement): the script exits 1 because thin intersections remain.
+    # tests/apps/test_resolve.py covers refinement): the script exits 1 because thin intersections remain.
     argv = ["--resolution", "32", "--max-rounds", "0", "--out", str(tmp_path), "--quiet"]
     assert _load("self_intersection").main(argv) == 1
     for name in ("input.ply", "resolved.ply", "overlaps.png", "history.png"):

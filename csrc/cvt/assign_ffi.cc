@@ -14,7 +14,7 @@
 #include "common/host_errors.h"
 #include "common/parallel.h"
 #include "cvt/assign.h"
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 
 namespace voxax {
 namespace {

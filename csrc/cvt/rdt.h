@@ -32,7 +32,7 @@
 #include <unordered_set>
 #include <vector>
 
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 #include "spatial/knn.h"
 
 namespace voxax {

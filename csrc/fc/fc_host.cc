@@ -35,7 +35,7 @@
 #include "fc/encode.h"
 #include "fc/signs.h"
 #include "intersect/predicates.h"
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 

@@ -23,7 +23,7 @@
 #include "common/constants.h"
 #include "common/host_errors.h"
 #include "raster/line_crossings.h"
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 

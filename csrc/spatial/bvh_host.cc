@@ -24,7 +24,7 @@
 
 #include "common/host_errors.h"
 #include "spatial/bvh.h"
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 

@@ -16,7 +16,7 @@
 #include "common/host_errors.h"
 #include "common/parallel.h"
 #include "common/validate.h"
-#include "spatial/host_pool.h"
+#include "common/host_pool.h"
 #include "spatial/knn.h"
 
 namespace voxax {

@@ -31,16 +31,16 @@ The public API:
   kernels.
 """
 
-from . import _ffi  # noqa: F401  (registers the kernels with XLA)
+from . import _kernels  # noqa: F401  (registers the kernels with XLA)
 from ._grid import Grid
 from ._mesh import Mesh
 from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
 from . import baselines, curves, data, energies, io, plot, reference
 from . import apps, fabricate
 from . import cvt
-from ._filters import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
-from ._winding import winding_number
-from ._minimize import MinimizeResult, StopReason, StopRules, minimize
+from ._voxelize import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
+from ._spatial import winding_number
+from ._optimize import MinimizeResult, StopReason, StopRules, minimize
 from ._isosurface import IsoMesh, isosurface, isosurface_fn, isosurface_topology, isosurface_vertices
 from ._spatial import (
     BVH,
@@ -56,10 +56,10 @@ from ._spatial import (
 from . import fields, metrics, raster
 from . import fc
 from . import esi, nesi
-from ._export import export_safety_checks, ffi_targets
-from ._least_squares import LeastSquaresResult, least_squares
-from ._sharded import slab_grids, voxelize_sharded, voxelize_slab
-from ._intersections import Intersections, intersections
+from ._kernels.export import export_safety_checks, ffi_targets
+from ._optimize import LeastSquaresResult, least_squares
+from ._voxelize import slab_grids, voxelize_sharded, voxelize_slab
+from ._spatial import Intersections, intersections
 
 __version__ = "0.1.0"
 

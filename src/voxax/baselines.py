@@ -20,7 +20,7 @@ import numpy as np
 
 from . import _validate
 from ._grid import Grid
-from ._winding import winding_number
+from ._spatial import winding_number
 
 __all__ = ["point_sampled", "interpolate"]
 

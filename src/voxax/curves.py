@@ -34,8 +34,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _filters, _validate
+from . import _validate
 from ._grid import Grid
+from ._voxelize import filters as _filters
 
 __all__ = [
     "Curve",

@@ -399,7 +399,7 @@ def fit(
 
     **Returns:** the trained [`NESI`][voxax.nesi.NESI].
     """
-    from ._minimize import StopRules, minimize
+    from ._optimize import StopRules, minimize
 
     where = "nesi.fit"
     lod = _check_lod(lod)

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import _host
+from . import _kernels
 from . import _validate as check
 from ._grid import Grid
 
@@ -32,24 +32,24 @@ _SIGNATURES = {
     "voxax_line_crossings": (
         ctypes.c_int,
         [
-            _host.D,
+            _kernels.D,
             ctypes.c_int64,
-            _host.I32,
-            ctypes.c_int64,
-            ctypes.c_int32,
-            _host.D,
-            ctypes.c_int64,
-            _host.D,
+            _kernels.I32,
             ctypes.c_int64,
             ctypes.c_int32,
-            ctypes.POINTER(_host.VP),
+            _kernels.D,
+            ctypes.c_int64,
+            _kernels.D,
+            ctypes.c_int64,
+            ctypes.c_int32,
+            ctypes.POINTER(_kernels.VP),
             ctypes.c_char_p,
             ctypes.c_int64,
         ],
     ),
-    "voxax_crossings_size": (ctypes.c_int64, [_host.VP]),
-    "voxax_crossings_copy": (None, [_host.VP, _host.I64, _host.D, _host.I8, _host.I32]),
-    "voxax_crossings_free": (None, [_host.VP]),
+    "voxax_crossings_size": (ctypes.c_int64, [_kernels.VP]),
+    "voxax_crossings_copy": (None, [_kernels.VP, _kernels.I64, _kernels.D, _kernels.I8, _kernels.I32]),
+    "voxax_crossings_free": (None, [_kernels.VP]),
 }
 
 _LINES = ("centers", "nodes")
@@ -192,25 +192,25 @@ def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int32)
     kind, coords = _line_coords(grid, axis, lines)
-    lib = _host.declare(_SIGNATURES)
-    err = _host.error_buffer()
-    handle = _host.VP()
+    lib = _kernels.declare(_SIGNATURES)
+    err = _kernels.error_buffer()
+    handle = _kernels.VP()
     status = lib.voxax_line_crossings(
-        _host.pointer(v, _host.D),
+        _kernels.pointer(v, _kernels.D),
         len(v),
-        _host.pointer(f, _host.I32),
+        _kernels.pointer(f, _kernels.I32),
         len(f),
         axis,
-        _host.pointer(coords[0], _host.D),
+        _kernels.pointer(coords[0], _kernels.D),
         len(coords[0]),
-        _host.pointer(coords[1], _host.D),
+        _kernels.pointer(coords[1], _kernels.D),
         len(coords[1]),
-        _host.threads(threads),
+        _kernels.threads(threads),
         ctypes.byref(handle),
         err,
-        _host.ERRLEN,
+        _kernels.ERRLEN,
     )
-    _host.check(status, err)
+    _kernels.check(status, err)
     try:
         n = int(lib.voxax_crossings_size(handle))
         offsets = np.empty(len(coords[0]) * len(coords[1]) + 1, np.int64)
@@ -219,10 +219,10 @@ def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers
         face = np.empty(n, np.int32)
         lib.voxax_crossings_copy(
             handle,
-            _host.pointer(offsets, _host.I64),
-            _host.pointer(depth, _host.D),
-            _host.pointer(sign, _host.I8),
-            _host.pointer(face, _host.I32),
+            _kernels.pointer(offsets, _kernels.I64),
+            _kernels.pointer(depth, _kernels.D),
+            _kernels.pointer(sign, _kernels.I8),
+            _kernels.pointer(face, _kernels.I32),
         )
     finally:
         lib.voxax_crossings_free(handle)

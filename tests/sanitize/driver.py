@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 import voxax  # noqa: E402
 from voxax import (  # noqa: E402
     Grid,  # noqa: E402
-    _ffi,
+    _kernels,
     reference,
 )
 
@@ -559,7 +559,7 @@ def run_zero_size(dim, dtype):
         OBSERVED[f"zero-size batch {dim}D {np.dtype(dtype).name}: {name}"] = f"shape {shape}"
         CALLS["zero_size"] += 1
     # Eagerly, a zero-size *faces* batch is rejected by the Python validation with an
-    # unhelpful NumPy message (see tests/test_robustness.py); record what happens.
+    # unhelpful NumPy message (see tests/voxelize/test_robustness.py); record what happens.
     try:
         out = voxax.voxelize(v, np.zeros((0,) + f.shape, np.int32), grid)
         OBSERVED[f"zero-size batch {dim}D {np.dtype(dtype).name}: faces (0, F, d), eager"] = f"shape {out.shape}"
@@ -625,18 +625,18 @@ def run_raw_ffi(rng):
     g = GRIDS_3D["odd"]
     v, f, _ = make_input(rng, "closed", 3, g, np.float64)
     v, f = jnp.asarray(v), jnp.asarray(f)
-    attrs = _ffi.grid_attributes(g)
+    attrs = _kernels.grid_attributes(g)
 
     def fwd(vv, ff, shape=g.shape, dtype=jnp.float64, **over):
         a = dict(attrs)
         a.update(over)
-        return jax.ffi.ffi_call(_ffi.FORWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, **a)
+        return jax.ffi.ffi_call(_kernels.FORWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, **a)
 
     def bwd(vv, ff, cot, shape=None, dtype=jnp.float64, **over):
         a = dict(attrs)
         a.update(over)
         shape = shape or (ff.shape[-2], 3, 3)
-        return jax.ffi.ffi_call(_ffi.BACKWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, cot, **a)
+        return jax.ffi.ffi_call(_kernels.BACKWARD, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, cot, **a)
 
     cot = jnp.ones(g.shape)
     cases = {
@@ -904,7 +904,7 @@ def run_spatial(rng, n_inputs):
                     fail(f"{label}: column inside-tests differ from the direct casts")
                 CALLS["esi_column_casts"] += 4
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
-            from voxax._cvt_optimize import _assign_moments, assign_moments_host
+            from voxax.cvt._optimize import _assign_moments, assign_moments_host
 
             if len(v):
                 wq = rng.uniform(0.0, 1.0, len(p))
@@ -920,7 +920,7 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
-    from voxax._cvt_optimize import _assign_moments, assign_moments_host
+    from voxax.cvt._optimize import _assign_moments, assign_moments_host
     from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
@@ -956,17 +956,17 @@ def run_spatial(rng, n_inputs):
         "jit zero direction": (lambda: jax.jit(lambda dd: voxax.first_hits((v, f), jnp.zeros((1, 3)), dd))(
             jnp.zeros((1, 3))), "zero"),
         "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "k must"),
-        "raw FFI kNN k = 40": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+        "raw FFI kNN k = 40": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
             jax.ShapeDtypeStruct((3, 40), jnp.int32), jax.ShapeDtypeStruct((3, 40), jnp.float64)))(
             jnp.asarray(v), jnp.zeros((3, 3))), "k must"),
-        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_ffi.KNN, (
+        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
             jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
             jnp.asarray(v), jnp.zeros((3, 3))), "shape"),
-        "raw FFI wrong rank": (lambda: jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, (
+        "raw FFI wrong rank": (lambda: jax.ffi.ffi_call(_kernels.CLOSEST_POINTS, (
             jax.ShapeDtypeStruct((3,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 2))), "shape"),
-        "raw FFI wrong outputs": (lambda: jax.ffi.ffi_call(_ffi.CLOSEST_POINTS, (
+        "raw FFI wrong outputs": (lambda: jax.ffi.ffi_call(_kernels.CLOSEST_POINTS, (
             jax.ShapeDtypeStruct((5,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 3))), "outputs"),
@@ -1023,11 +1023,11 @@ def run_spatial(rng, n_inputs):
             v, v, jnp.full(30, jnp.nan), jnp.full(30, 1 << 30, jnp.int32)), "weights"),
         "jit CVT assign Inf sample": (lambda: jax.jit(_assign_moments)(
             v, jnp.full((30, 3), jnp.inf), jnp.ones(30), jnp.zeros(30, jnp.int32)), "NaN or Inf"),
-        "raw FFI CVT assign short hint": (lambda: jax.ffi.ffi_call(_ffi.CVT_ASSIGN, (
+        "raw FFI CVT assign short hint": (lambda: jax.ffi.ffi_call(_kernels.CVT_ASSIGN, (
             jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((30, 4), jnp.float64),
             jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(29, jnp.int32)), "shape"),
-        "raw FFI CVT assign wrong outputs": (lambda: jax.ffi.ffi_call(_ffi.CVT_ASSIGN, (
+        "raw FFI CVT assign wrong outputs": (lambda: jax.ffi.ffi_call(_kernels.CVT_ASSIGN, (
             jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((29, 4), jnp.float64),
             jax.ShapeDtypeStruct((30,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(30, jnp.int32)), "outputs"),
@@ -1036,9 +1036,9 @@ def run_spatial(rng, n_inputs):
 
 
 def run_bounds(rng, n_inputs):
-    """The sums of the selection's bounds (`csrc/spatial/bounds_host.cc`): random inputs
+    """The sums of the selection's bounds (`csrc/esi/bounds_host.cc`): random inputs
     from empty up, against their definitions and across thread counts, then hostile ones."""
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "esi"))
     from _esi_shapes import (
         bound_blocks_reference,
         bound_removals_reference,
@@ -1153,7 +1153,7 @@ def run_line_crossings(rng, n_inputs):
     the grid lines: structural checks, thread-count determinism, and hostile inputs."""
     import ctypes
 
-    from voxax import _host, raster
+    from voxax import _kernels, raster
 
     kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
     for i in range(n_inputs):
@@ -1197,19 +1197,19 @@ def run_line_crossings(rng, n_inputs):
         COUNTS["line_crossings"] += 1
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     g = voxax.Grid.cube(4)
-    lib = _host.declare(raster._SIGNATURES)
+    lib = _kernels.declare(raster._SIGNATURES)
 
     def raw(nv, nf, axis, n0, n1, lines0=None):
-        err = _host.error_buffer()
-        handle = _host.VP()
+        err = _kernels.error_buffer()
+        handle = _kernels.VP()
         l0 = np.ascontiguousarray(lines0 if lines0 is not None else np.linspace(-1, 1, max(n0, 1)))
         l1 = np.ascontiguousarray(np.linspace(-1, 1, min(max(n1, 1), 8)))  # only read when n1 <= 8
         vv, ff = np.ascontiguousarray(v), np.ascontiguousarray(f)
-        status = lib.voxax_line_crossings(_host.pointer(vv, _host.D), nv, _host.pointer(ff, _host.I32), nf, axis,
-                                          _host.pointer(l0, _host.D), n0, _host.pointer(l1, _host.D), n1, 2,
-                                          ctypes.byref(handle), err, _host.ERRLEN)
+        status = lib.voxax_line_crossings(_kernels.pointer(vv, _kernels.D), nv, _kernels.pointer(ff, _kernels.I32), nf, axis,
+                                          _kernels.pointer(l0, _kernels.D), n0, _kernels.pointer(l1, _kernels.D), n1, 2,
+                                          ctypes.byref(handle), err, _kernels.ERRLEN)
         lib.voxax_crossings_free(handle)
-        _host.check(status, err)
+        _kernels.check(status, err)
 
     bad = {
         "NaN vertex": (lambda: raster.line_crossings(np.where(np.arange(90).reshape(30, 3) == 7, np.nan, v), f, g, 0),
@@ -1231,7 +1231,7 @@ def run_fc(rng, n_inputs):
     onto the grid (structural checks, thread-count determinism), and hostile raw calls."""
     import ctypes
 
-    from voxax import _host, fc
+    from voxax import _kernels, fc
 
     kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
     for i in range(n_inputs):
@@ -1272,39 +1272,39 @@ def run_fc(rng, n_inputs):
             if rep.n_boundary_edges:
                 fail(f"{label}: a closed mesh on grid nodes decodes with a boundary")
         COUNTS["fc"] += 1
-    lib = _host.declare(fc._SIGNATURES)
+    lib = _kernels.declare(fc._SIGNATURES)
     v, f = np.ascontiguousarray(rng.uniform(-1, 1, (30, 3))), np.arange(30, dtype=np.int32).reshape(10, 3)
 
     def raw_encode(nv, nf, box, shape, params, flags=1, joined=None):
-        err, handle = _host.error_buffer(), _host.VP()
+        err, handle = _kernels.error_buffer(), _kernels.VP()
         box, shape = np.ascontiguousarray(box, np.float64), np.ascontiguousarray(shape, np.int64)
         params, sizes = np.ascontiguousarray(params, np.float64), np.zeros(3, np.int64)
         joined = None if joined is None else np.ascontiguousarray(joined, np.int64)
-        status = lib.voxax_fc_encode(_host.pointer(v, _host.D), nv, _host.pointer(f, _host.I32), nf, None,
-                                     _host.pointer(box, _host.D), _host.pointer(shape, _host.I64),
-                                     _host.pointer(params, _host.D), flags,
-                                     None if joined is None else _host.pointer(joined, _host.I64),
+        status = lib.voxax_fc_encode(_kernels.pointer(v, _kernels.D), nv, _kernels.pointer(f, _kernels.I32), nf, None,
+                                     _kernels.pointer(box, _kernels.D), _kernels.pointer(shape, _kernels.I64),
+                                     _kernels.pointer(params, _kernels.D), flags,
+                                     None if joined is None else _kernels.pointer(joined, _kernels.I64),
                                      0 if joined is None else len(joined), 2, ctypes.byref(handle),
-                                     _host.pointer(sizes, _host.I64), err, _host.ERRLEN)
+                                     _kernels.pointer(sizes, _kernels.I64), err, _kernels.ERRLEN)
         lib.voxax_fc_free(handle)
-        _host.check(status, err)
+        _kernels.check(status, err)
 
     def raw_decode(index, shape, k=None):
-        err, handle = _host.error_buffer(), _host.VP()
+        err, handle = _kernels.error_buffer(), _kernels.VP()
         index = np.ascontiguousarray(index, np.int64)
         k = len(index) if k is None else k
         p = np.zeros((max(len(index), 1), 3))
         s = np.ones((max(len(index), 1), 12), np.int8)
         shape, count = np.ascontiguousarray(shape, np.int64), np.zeros(1, np.int64)
-        status = lib.voxax_fc_decode(_host.pointer(index, _host.I64), _host.pointer(p, _host.D),
-                                     _host.pointer(p, _host.D), s.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)), k,
-                                     _host.pointer(shape, _host.I64), 0, 2, ctypes.byref(handle),
-                                     _host.pointer(count, _host.I64), err, _host.ERRLEN)
+        status = lib.voxax_fc_decode(_kernels.pointer(index, _kernels.I64), _kernels.pointer(p, _kernels.D),
+                                     _kernels.pointer(p, _kernels.D), s.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)), k,
+                                     _kernels.pointer(shape, _kernels.I64), 0, 2, ctypes.byref(handle),
+                                     _kernels.pointer(count, _kernels.I64), err, _kernels.ERRLEN)
         lib.voxax_fc_free_triangles(handle)
-        _host.check(status, err)
+        _kernels.check(status, err)
 
     def raw_signs(index, shape, edge, sign, k=None, c=None):
-        err, handle = _host.error_buffer(), _host.VP()
+        err, handle = _kernels.error_buffer(), _kernels.VP()
         index = np.ascontiguousarray(index, np.int64)
         edge, sign = np.ascontiguousarray(edge, np.int64), np.ascontiguousarray(sign, np.int8)
         k = len(index) if k is None else k
@@ -1312,14 +1312,14 @@ def run_fc(rng, n_inputs):
         S = np.zeros((max(len(index), 1), 12), np.int8)
         shape, count = np.ascontiguousarray(shape, np.int64), np.zeros(1, np.int64)
         i8 = ctypes.POINTER(ctypes.c_int8)
-        status = lib.voxax_fc_signs(_host.pointer(index, _host.I64), k, _host.pointer(shape, _host.I64),
-                                    _host.pointer(edge, _host.I64), sign.ctypes.data_as(i8), c, 2,
-                                    S.ctypes.data_as(i8), ctypes.byref(handle), _host.pointer(count, _host.I64),
-                                    err, _host.ERRLEN)
+        status = lib.voxax_fc_signs(_kernels.pointer(index, _kernels.I64), k, _kernels.pointer(shape, _kernels.I64),
+                                    _kernels.pointer(edge, _kernels.I64), sign.ctypes.data_as(i8), c, 2,
+                                    S.ctypes.data_as(i8), ctypes.byref(handle), _kernels.pointer(count, _kernels.I64),
+                                    err, _kernels.ERRLEN)
         try:
-            _host.check(status, err)
+            _kernels.check(status, err)
             pairs = np.zeros((int(count[0]), 2), np.int64)
-            lib.voxax_fc_triangles(handle, _host.pointer(pairs, _host.I64))
+            lib.voxax_fc_triangles(handle, _kernels.pointer(pairs, _kernels.I64))
         finally:
             lib.voxax_fc_free_triangles(handle)
         return S, pairs
@@ -1442,7 +1442,7 @@ def run_marching_cubes(rng, count):
         # the capacity path: exact fit, too small (overflow reported, nothing out of bounds)
         for cap in (max(1, nv), max(1, len(faces)), 1):
             call = jax.ffi.ffi_call(
-                _ffi.MARCHING_CUBES,
+                _kernels.MARCHING_CUBES,
                 (jax.ShapeDtypeStruct((cap, 2), jnp.int32), jax.ShapeDtypeStruct((cap, dim), jnp.int32),
                  jax.ShapeDtypeStruct((2,), jnp.int32)),
                 vmap_method="expand_dims",
@@ -1466,7 +1466,7 @@ def run_marching_cubes(rng, count):
             pass
     for dim_attr, shapes in ((5, ((3, 2), (3, 3), (2,))), (3, ((3, 3), (3, 3), (2,))), (3, ((3, 2), (3, 2), (2,)))):
         COUNTS["marching_cubes_invalid"] += 1
-        call = jax.ffi.ffi_call(_ffi.MARCHING_CUBES, tuple(jax.ShapeDtypeStruct(s, jnp.int32) for s in shapes),
+        call = jax.ffi.ffi_call(_kernels.MARCHING_CUBES, tuple(jax.ShapeDtypeStruct(s, jnp.int32) for s in shapes),
                                 vmap_method="expand_dims")
         try:
             jax.block_until_ready(call(jnp.zeros((4, 4, 4)), level=np.float64(0.0), dim=np.int64(dim_attr)))
@@ -1521,13 +1521,13 @@ def run_raw_tangent_ffi(rng):
     g = GRIDS_3D["odd"]
     v, f, _ = make_input(rng, "closed", 3, g, np.float64)
     v, f = jnp.asarray(v), jnp.asarray(f)
-    attrs = _ffi.grid_attributes(g)
+    attrs = _kernels.grid_attributes(g)
     tc = jnp.ones((f.shape[0], 3, 3))
 
     def tan(vv, ff, tt, shape=g.shape, dtype=jnp.float64, **over):
         a = dict(attrs)
         a.update(over)
-        return jax.ffi.ffi_call(_ffi.TANGENT, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, tt, **a)
+        return jax.ffi.ffi_call(_kernels.TANGENT, jax.ShapeDtypeStruct(shape, dtype))(vv, ff, tt, **a)
 
     cases = {
         "tangent: shape": lambda: tan(v, f, jnp.ones((f.shape[0], 3, 2))),
@@ -1561,7 +1561,7 @@ def run_intersections(rng, rounds=60):
     touching soups; invalid inputs; hostile raw calls of the C entry point."""
     import ctypes
 
-    from voxax import _intersections
+    from voxax._spatial import intersect as _intersections
 
     for k in range(rounds):
         nf = int(rng.integers(1, 120))
@@ -1614,7 +1614,7 @@ def run_intersections(rng, rounds=60):
                 fail(f"intersections: wrong message {exc}")
         COUNTS["intersections_invalid"] += 1
     # Raw calls that skip the Python checks: the kernel validates on its own.
-    lib = _ffi.library()
+    lib = _kernels.library()
     _intersections._setup(lib)
     err = ctypes.create_string_buffer(256)
     handle = ctypes.c_void_p()
@@ -1665,7 +1665,7 @@ def main(argv=None):
     ARTIFACTS = args.artifacts
     t0 = time.perf_counter()
 
-    lib = str(_ffi.library_path())
+    lib = str(_kernels.library_path())
     expected = os.environ.get("VOXAX_KERNELS")
     maps = open("/proc/self/maps").read() if os.path.exists("/proc/self/maps") else ""
     sanitized = "libasan" in maps

@@ -10,11 +10,11 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _minimize as solve
 from .. import _validate
 from .. import io as _io
 from .._grid import Grid
 from .._mesh import Mesh
+from .._optimize import minimization as solve
 from .._values import ValueEquality
 
 

@@ -14,8 +14,8 @@ import numpy as np
 
 from .. import energies
 from .._grid import Grid
-from .._intersections import intersections
 from .._mesh import Mesh
+from .._spatial import intersections
 from .._voxelize import voxelize
 from . import _common
 

@@ -1,0 +1,215 @@
+"""`intersections`: the exact triangle-triangle intersection test (self test or two meshes)."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .. import _kernels
+from .._constants import MAX_ABS_COORDINATE
+from .._mesh import Mesh
+
+__all__ = ["Intersections", "intersections", "MIN_ABS_COORDINATE"]
+
+#: Smallest accepted non-zero coordinate magnitude of the exact test (its exact predicates
+#: stay clear of underflow above it).
+MIN_ABS_COORDINATE = 1e-50
+
+
+class Intersections(NamedTuple):
+    """What [`intersections`][voxax.intersections] returns.
+
+    - `pairs`: `(K, 2) int64`, the intersecting face pairs, sorted lexicographically. In a
+      self test each row is `(i, j)` with `i < j`; between two meshes it is
+      `(face of mesh, face of other)`.
+    - `count`: `K`.
+    """
+
+    pairs: np.ndarray
+    count: int
+
+    @property
+    def faces(self) -> np.ndarray:
+        """`(n,) int64`: the distinct faces in `pairs`, for a self test (for a two-mesh
+        test, use `pairs[:, 0]` and `pairs[:, 1]` separately)."""
+        return np.unique(self.pairs.reshape(-1))
+
+
+def _arrays(mesh: Any, faces: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
+    if faces is None:
+        if isinstance(mesh, Mesh):
+            vertices, faces = mesh.vertices, mesh.faces
+        elif hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
+            vertices, faces = mesh.vertices, mesh.faces
+        elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
+            vertices, faces = mesh
+        else:
+            raise TypeError(
+                f"{name}: expected a voxax Mesh, a trimesh.Trimesh, a (vertices, faces) pair or "
+                f"vertices and faces, got {type(mesh).__name__}"
+            )
+    else:
+        vertices = mesh
+    try:
+        vertices = np.asarray(vertices)
+        faces = np.asarray(faces)
+    except Exception as exc:  # ragged lists and the like
+        raise TypeError(f"{name}: vertices and faces must be arrays ({exc})") from None
+    if vertices.dtype == bool or not (
+        np.issubdtype(vertices.dtype, np.floating) or np.issubdtype(vertices.dtype, np.integer)
+    ):
+        raise TypeError(f"{name}: vertices must be a float or integer array, got dtype {vertices.dtype}")
+    if faces.size == 0 and faces.ndim <= 2:
+        faces = faces.reshape(0, 3).astype(np.int32)
+    if faces.dtype == bool or not np.issubdtype(faces.dtype, np.integer):
+        raise TypeError(f"{name}: faces must be an integer array, got dtype {faces.dtype}")
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"{name}: vertices must have shape (V, 3), got {vertices.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError(f"{name}: faces must have shape (F, 3), got {faces.shape}")
+    nv = vertices.shape[0]
+    if nv >= 2**31 or faces.shape[0] >= 2**31:
+        raise ValueError(f"{name}: at most 2^31 - 1 vertices and faces are supported")
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError(f"{name}: vertices contain NaN or Inf")
+    mags = np.abs(vertices)
+    if np.any((mags != 0) & ((mags < MIN_ABS_COORDINATE) | (mags > MAX_ABS_COORDINATE))):
+        raise ValueError(
+            f"{name}: a vertex coordinate has magnitude outside [{MIN_ABS_COORDINATE:g}, "
+            f"{MAX_ABS_COORDINATE:g}] (other than 0); the exact test needs coordinates in that "
+            "range (rescale the mesh)"
+        )
+    if faces.size and (faces.min() < 0 or faces.max() >= nv):
+        bad = int(faces.min()) if faces.min() < 0 else int(faces.max())
+        raise ValueError(f"{name}: faces refer to vertex {bad}, outside [0, {nv})")
+    return vertices, np.ascontiguousarray(faces, dtype=np.int32)
+
+
+def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merges vertices with identical coordinates (so that adjacency is seen by position)."""
+    if vertices.shape[0] < 2:
+        return vertices, faces
+    v = vertices + 0.0  # -0.0 becomes 0.0
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    sv = v[order]
+    new = np.ones(len(v), dtype=bool)
+    new[1:] = np.any(sv[1:] != sv[:-1], axis=1)
+    if new.all():
+        return vertices, faces
+    label = np.cumsum(new) - 1
+    inverse = np.empty(len(v), dtype=np.int64)
+    inverse[order] = label
+    return np.ascontiguousarray(sv[new]), np.ascontiguousarray(inverse[faces], dtype=np.int32)
+
+
+def _setup(lib: ctypes.CDLL) -> None:
+    if getattr(lib, "_voxax_intersections_ready", False):
+        return
+    ptr = ctypes.c_void_p
+    lib.voxax_intersections.restype = ctypes.c_int64
+    lib.voxax_intersections.argtypes = [
+        ptr, ctypes.c_int64, ptr, ctypes.c_int64,
+        ptr, ctypes.c_int64, ptr, ctypes.c_int64,
+        ctypes.c_int64, ctypes.POINTER(ctypes.c_void_p), ctypes.c_char_p, ctypes.c_int64,
+    ]  # fmt: skip
+    lib.voxax_intersections_copy.restype = None
+    lib.voxax_intersections_copy.argtypes = [ptr, ptr]
+    lib.voxax_intersections_free.restype = None
+    lib.voxax_intersections_free.argtypes = [ptr]
+    lib._voxax_intersections_ready = True
+
+
+def intersections(
+    vertices: Any,
+    faces: Any = None,
+    other: Any = None,
+    *,
+    weld: bool = True,
+    threads: int | None = None,
+) -> Intersections:
+    """All pairs of intersecting triangles of a mesh (self test), or between two meshes.
+
+    The test is exact for the float64 coordinates: every verdict comes from exactly
+    evaluated orientation predicates (a floating-point filter with an exact fallback),
+    never from a tolerance. Triangles are closed: **touching counts as intersecting** (a
+    vertex on another face, an edge on an edge, coplanar faces sharing boundary points),
+    because a mesh free of self-intersections should keep a clearance.
+
+    Self test, faces that share vertices (the mesh's own adjacency):
+
+    - sharing an edge: reported when they fold through each other (coplanar, with their
+      third corners on the same side of the shared edge);
+    - sharing one corner: reported when they meet anywhere besides that corner;
+    - sharing all three corners (a duplicate face, in either orientation): reported.
+
+    Vertices with bit-identical coordinates are merged first (`weld=True`), so an unwelded
+    mesh has the adjacency of its welded version. Degenerate faces (zero area: collinear or
+    repeated corners) are tested as the segments or points they are against faces they
+    share no vertex with, and are never reported against faces that share a vertex with
+    them. Open meshes are fine (the test looks at faces, not at volumes).
+
+    Between two meshes there is no adjacency: every touching or crossing pair is reported.
+
+    **Arguments:**
+
+    - `vertices`: `(V, 3)` float, or a voxax `Mesh` / `trimesh.Trimesh` /
+      `(vertices, faces)` pair (then leave `faces` out).
+    - `faces`: `(F, 3)` int.
+    - `other`: a second mesh (`Mesh`, `trimesh.Trimesh` or `(vertices, faces)`): test the
+      faces of the first against those of the second instead of the self test.
+    - `weld`: merge vertices with identical coordinates before the self test.
+    - `threads`: worker threads (default: the CPU count); the result does not depend on it.
+
+    **Returns:** [`Intersections`][voxax.Intersections] `(pairs (K, 2) int64, count)`.
+
+    **Raises:** `TypeError` for non-numeric arrays; `ValueError` for bad shapes, NaN or Inf,
+    coordinates of magnitude outside `[1e-50, 1e75]` (other than 0), or face indices out
+    of range.
+
+    **Example:**
+
+    ```python
+    >>> import voxax
+    >>> voxax.intersections(voxax.data.icosphere()).count
+    0
+    >>> pairs, count = voxax.intersections(voxax.data.bent_bar())
+    >>> count > 0
+    True
+
+    ```
+    """
+    va, fa = _arrays(vertices, faces, "voxax.intersections")
+    if other is not None:
+        vb, fb = _arrays(other, None, "voxax.intersections (other)")
+    elif weld:
+        va, fa = _weld(va, fa)
+    threads = _kernels.threads(threads) or (os.cpu_count() or 1)
+    lib = _kernels.library()
+    _setup(lib)
+    handle = ctypes.c_void_p()
+    err = ctypes.create_string_buffer(1024)
+
+    def ptr(a):
+        return a.ctypes.data_as(ctypes.c_void_p) if a is not None and a.size else None
+
+    if other is None:
+        args = (ptr(va), va.shape[0], ptr(fa), fa.shape[0], None, 0, None, 0)
+    else:
+        # A non-null pointer marks the two-mesh test even when the other mesh is empty.
+        dummy = np.zeros(3)
+        pb = ptr(vb) or dummy.ctypes.data_as(ctypes.c_void_p)
+        args = (ptr(va), va.shape[0], ptr(fa), fa.shape[0], pb, vb.shape[0], ptr(fb), fb.shape[0])
+    count = lib.voxax_intersections(*args, int(threads), ctypes.byref(handle), err, len(err))
+    if count < 0:
+        raise ValueError(err.value.decode("utf-8", "replace"))
+    try:
+        pairs = np.empty((count, 2), dtype=np.int64)
+        if count:
+            lib.voxax_intersections_copy(handle, pairs.ctypes.data_as(ctypes.c_void_p))
+    finally:
+        lib.voxax_intersections_free(handle)
+    return Intersections(pairs, int(count))

@@ -1,0 +1,418 @@
+"""The discrete restricted centroidal Voronoi tessellation of fragments: energy, Lloyd, L-BFGS.
+
+Each fragment `x_j` (weight `w_j`) belongs to the region of its nearest seed `s_a(j)`; the
+energy is `F(S) = sum_j w_j |x_j - s_a(j)|^2` and, the assignment being piecewise constant
+(and the energy continuous across its switches), its gradient is
+`dF/ds_i = 2 (W_i s_i - sum_{j in region i} w_j x_j)` with `W_i` the region's weight
+(Eq. 2 with weights). Lloyd's step moves every seed to its region's weighted centroid.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from .. import _kernels
+from ._fragments import Fragments
+
+__all__ = [
+    "CVTResult",
+    "assign",
+    "assign_moments_host",
+    "energy",
+    "energy_gradient",
+    "init_seeds",
+    "lloyd_step",
+    "optimize",
+]
+
+
+def _frag(frag) -> Fragments:
+    if not isinstance(frag, Fragments):
+        raise TypeError(f"cvt: expected Fragments (from voxax.cvt.fragments), got {type(frag).__name__}")
+    if frag.size == 0:
+        raise ValueError("cvt: there are no fragments (empty surface)")
+    return frag
+
+
+def _seeds(seeds, where: str):
+    import jax.numpy as jnp
+
+    s = jnp.asarray(seeds)
+    if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 1:
+        raise ValueError(f"{where}: seeds must have shape (n, 3) with n >= 1, got {s.shape}")
+    if not jnp.issubdtype(s.dtype, jnp.floating):
+        s = s.astype(jnp.float64)
+    return s
+
+
+def _w(frag: Fragments, weighted: bool):
+    return frag.weights if weighted else np.ones(frag.size)
+
+
+def assign(seeds, frag: Fragments):
+    """The index of each fragment's nearest seed (ties: the smaller index), `(P,)` int32.
+
+    Exact (uniform-grid k-nearest-neighbour search); under `jax.jit` it runs as an FFI
+    kernel (float64: needs `jax_enable_x64`).
+    """
+    from .._spatial import nearest_neighbors
+
+    frag = _frag(frag)
+    _, idx = nearest_neighbors(seeds, frag.points, k=1)
+    return idx[:, 0]
+
+
+def energy(seeds, frag: Fragments, *, weighted: bool = True):
+    """The CVT energy `sum_j w_j |x_j - s_a(j)|^2` of `seeds (n, 3)` over the fragments.
+
+    Pure JAX (the assignment is a constant of the autodiff), so `jax.grad(energy)` is
+    Eq. 2, `2 (W_i s_i - sum_j w_j x_j)`; works under `jit`. `weighted=False` gives every
+    fragment weight 1 (the paper's energy).
+
+    **Returns:** scalar float64.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    s = _seeds(seeds, "cvt.energy")
+    idx = assign(jax.lax.stop_gradient(s), frag)
+    x = jnp.asarray(frag.points)
+    w = jnp.asarray(_w(frag, weighted))
+    d = x - s[idx]
+    return jnp.sum(w * jnp.sum(d * d, axis=-1))
+
+
+def _moments(seeds, frag: Fragments, weighted: bool):
+    import jax
+    import jax.numpy as jnp
+
+    s = _seeds(seeds, "cvt")
+    idx = assign(jax.lax.stop_gradient(s), frag)
+    w = jnp.asarray(_w(frag, weighted))
+    x = jnp.asarray(frag.points)
+    n = s.shape[0]
+    mass = jax.ops.segment_sum(w, idx, num_segments=n)
+    first = jax.ops.segment_sum(w[:, None] * x, idx, num_segments=n)
+    return s, idx, mass, first
+
+
+def energy_gradient(seeds, frag: Fragments, *, weighted: bool = True):
+    """Eq. 2 in closed form: `2 (W_i s_i - sum_{j in region i} w_j x_j)`, `(n, 3)`."""
+    frag = _frag(frag)
+    s, _, mass, first = _moments(seeds, frag, weighted)
+    return 2.0 * (mass[:, None] * s - first)
+
+
+def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
+    """One Lloyd step: every seed moves to its region's (weighted) centroid; seeds with an
+    empty region stay. **Returns:** `(seeds (n, 3), region sizes (n,) int)`."""
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    s, idx, mass, first = _moments(seeds, frag, weighted)
+    new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
+    count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=s.shape[0])
+    return new, count
+
+
+def _assign_moments(s, x, w, hint):
+    """The nearest-seed assignment of the fragments with their regions' moments, one FFI
+    call (`csrc/cvt/assign.h`): `hint (P,) int32` is any earlier assignment (it only speeds
+    the search; out-of-range entries mean none). **Returns:** `(idx (P,) int32, moments
+    (n, 4) [weight, weighted first moment], count (n,) int32 of weight > 0, energy ())`."""
+    import jax
+
+    from .. import _kernels
+
+    n, m = s.shape[0], x.shape[0]
+    out = (
+        jax.ShapeDtypeStruct((m,), np.int32),
+        jax.ShapeDtypeStruct((n, 4), np.float64),
+        jax.ShapeDtypeStruct((n,), np.int32),
+        jax.ShapeDtypeStruct((1,), np.float64),
+    )
+    idx, mom, count, e = jax.ffi.ffi_call(_kernels.CVT_ASSIGN, out, vmap_method="sequential")(
+        jax.lax.stop_gradient(s), x, w, hint
+    )
+    return idx, mom, count, e[0]
+
+
+def assign_moments_host(seeds, points, weights, hint=None, *, threads=None):
+    """Eager twin of the optimiser's assignment kernel (for checks): the nearest seed of
+    every point (ties: the smaller index), the regions' weights and weighted first
+    moments, their counts of positive-weight points, and the energy, with `threads`
+    threads. **Returns:** `(idx (m,) int32, moments (n, 4), count (n,) int32, energy)`."""
+    s = np.ascontiguousarray(seeds, np.float64).reshape(-1, 3)
+    x = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    w = np.ascontiguousarray(weights, np.float64).reshape(-1)
+    m = len(x)
+    if len(w) != m:
+        raise ValueError(f"cvt: {m} points but {len(w)} weights")
+    h = np.full(m, -1, np.int32) if hint is None else np.ascontiguousarray(hint, np.int32).reshape(-1)
+    if len(h) != m:
+        raise ValueError(f"cvt: {m} points but {len(h)} hints")
+    lib = _kernels.declare(_HOST_SIGNATURES)
+    idx = np.empty(m, np.int32)
+    mom = np.empty((len(s), 4))
+    count = np.empty(len(s), np.int32)
+    energy = np.zeros(1)
+    err = _kernels.error_buffer()
+    status = lib.voxax_cvt_assign_host(
+        _kernels.pointer(s, _kernels.D), len(s), _kernels.pointer(x, _kernels.D), _kernels.pointer(w, _kernels.D), m,
+        _kernels.pointer(h, _kernels.I32), _kernels.threads(threads), _kernels.pointer(idx, _kernels.I32),
+        _kernels.pointer(mom, _kernels.D), _kernels.pointer(count, _kernels.I32), _kernels.pointer(energy, _kernels.D),
+        err, _kernels.ERRLEN,
+    )  # fmt: skip
+    _kernels.check(status, err)
+    return idx, mom, count, float(energy[0])
+
+
+_HOST_SIGNATURES = {
+    "voxax_cvt_assign_host": (
+        ctypes.c_int,
+        [_kernels.D, ctypes.c_int64, _kernels.D, _kernels.D, ctypes.c_int64, _kernels.I32, ctypes.c_int32, _kernels.I32, _kernels.D,
+         _kernels.I32, _kernels.D, ctypes.c_char_p, ctypes.c_int64],
+    )
+}  # fmt: skip
+
+
+def _lloyd_arrays(s, x, w, hint):
+    """A Lloyd step on plain arrays (fragments passed as arguments, not as constants, so
+    one compilation serves every call of the same shapes); also returns the energy of the
+    seeds it starts from and their assignment (the next step's hint)."""
+    import jax.numpy as jnp
+
+    idx, mom, count, e = _assign_moments(s, x, w, hint)
+    mass, first = mom[:, 0], mom[:, 1:]
+    new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
+    return new, count, e, idx  # padding has w = 0: not counted
+
+
+def _energy_arrays(s, args):
+    """`scale * sum_j w_j |x_j - s_a(j)|^2` with `args = (x, w, scale, hint)` (traced
+    arrays), and the assignment. Its gradient is Eq. 2, `2 scale (W_i s_i - sum_j w_j x_j)`,
+    from the kernel's moments (a constant plus a term that is zero but carries it)."""
+    import jax
+    import jax.numpy as jnp
+
+    x, w, scale, hint = args
+    idx, mom, _, e = _assign_moments(s, x, w, hint)
+    s0 = jax.lax.stop_gradient(s)
+    g = jax.lax.stop_gradient(2.0 * scale * (mom[:, :1] * s0 - mom[:, 1:]))
+    return scale * e + jnp.sum(g * (s - s0)), idx
+
+
+_JITTED: dict = {}
+
+
+def _jitted(name: str, fn):
+    import jax
+
+    if name not in _JITTED:
+        _JITTED[name] = jax.jit(fn)
+    return _JITTED[name]
+
+
+def _bucket(size: int) -> int:
+    """`size` rounded up to one of 8 sizes per octave (at most 1/8 more): the fragment
+    arrays are padded to it, so problems of similar size share one compilation."""
+    if size <= 1024:
+        return 1024
+    step = 1 << (int(size).bit_length() - 4)
+    return -(-size // step) * step
+
+
+def _padded(frag: Fragments, weighted: bool):
+    """The fragment points and weights as device arrays padded to `_bucket(P)` with copies
+    of the first point at weight 0 (which change no sum, energy or region count)."""
+    import jax.numpy as jnp
+
+    p = frag.size
+    size = _bucket(p)
+    x = np.empty((size, 3))
+    x[:p] = frag.points
+    x[p:] = frag.points[0]
+    w = np.zeros(size)
+    w[:p] = _w(frag, weighted)
+    return jnp.asarray(x), jnp.asarray(w)
+
+
+def _lbfgs_init(solver, y, args):
+    import jax
+    import jax.numpy as jnp
+
+    f_struct = jax.ShapeDtypeStruct((), jnp.float64)
+    aux_struct = jax.ShapeDtypeStruct(args[3].shape, jnp.int32)
+    return solver.init(_energy_arrays, y, args, {}, f_struct, aux_struct, frozenset())
+
+
+def _lbfgs_step(solver, y, state, args):
+    y_new, state, _ = solver.step(_energy_arrays, y, args, {}, state, frozenset())
+    done, result = solver.terminate(_energy_arrays, y_new, args, {}, state, frozenset())
+    # `y_new` is the last accepted iterate, and the solver keeps its energy (no second
+    # nearest-seed search per step) and its assignment (the next search's hint)
+    return y_new, state, state.f_info.f, state.aux, done, result
+
+
+def _lbfgs(y, args, steps: int, rtol: float):
+    """optimistix L-BFGS driven step by step from Python (one energy evaluation per step), with its
+    init and step compiled once per problem shape (the solver and the energy are static,
+    the seeds and fragments arguments)."""
+    import equinox as eqx
+    import optimistix as optx
+
+    init = _JITTED.setdefault("lbfgs_init", eqx.filter_jit(_lbfgs_init))
+    step = _JITTED.setdefault("lbfgs_step", eqx.filter_jit(_lbfgs_step))
+    solver = optx.LBFGS(rtol=rtol, atol=0.0)
+    state = init(solver, y, args)
+    hist = []
+    reason = "max_steps"
+    for _ in range(steps):
+        y_new, state, e, hint, done, result = step(solver, y, state, args)
+        args = (*args[:3], hint)
+        e = float(e)
+        if not np.isfinite(e):
+            reason = "nonfinite"
+            break
+        hist.append(e)
+        y = y_new
+        if bool(done):
+            reason = "converged" if result == optx.RESULTS.successful else f"failed: {optx.RESULTS[result]}"
+            break
+    return y, hist, reason
+
+
+def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
+    """`n` seeds drawn at distinct fragments with probability proportional to their weight
+    (so uniformly by area). `key`: an int seed or a `jax.random` key. **Returns:** `(n, 3)`."""
+    frag = _frag(frag)
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"cvt.init_seeds: n must be >= 1, got {n}")
+    if n > frag.size:
+        raise ValueError(f"cvt.init_seeds: {n} seeds but only {frag.size} fragments; use a finer grid or fewer seeds")
+    rng = np.random.default_rng(_int_key(key))
+    p = frag.weights / frag.weights.sum()
+    pick = rng.choice(frag.size, size=n, replace=False, p=p)
+    return frag.points[np.sort(pick)].copy()
+
+
+def _int_key(key) -> int:
+    if isinstance(key, (int, np.integer)):
+        return int(key)
+    k = np.asarray(key)
+    if k.dtype.kind == "V" or str(k.dtype).startswith("key"):
+        import jax
+
+        k = np.asarray(jax.random.key_data(key))
+    return int(np.sum(k.astype(np.uint64)) % (2**63))
+
+
+def respawn(seeds, frag: Fragments, count) -> tuple[np.ndarray, int]:
+    """Moves the seeds with empty regions onto the fragments farthest from their own seed
+    (largest first, ties by index): deterministic. **Returns:** `(seeds, moved)`."""
+    s = np.array(seeds, np.float64)
+    empty = np.nonzero(np.asarray(count) == 0)[0]
+    if len(empty) == 0:
+        return s, 0
+    idx = np.asarray(assign(s, frag))
+    d = np.sum((frag.points - s[idx]) ** 2, axis=1)
+    far = np.lexsort((np.arange(len(d)), -d))[: len(empty)]
+    s[empty[: len(far)]] = frag.points[far]
+    return s, len(empty)
+
+
+@dataclasses.dataclass(frozen=True)
+class CVTResult:
+    """What [`optimize`][voxax.cvt.optimize] returns.
+
+    - `seeds`: `(n, 3)` float64, the optimised seeds.
+    - `energy`: `(steps + 1,)` float64, the energy before the first step and after each.
+    - `steps`: int, steps taken.
+    - `respawned`: int, seeds moved out of empty regions.
+    - `method`: `"lloyd"` or `"lbfgs"`.
+    """
+
+    seeds: np.ndarray
+    energy: np.ndarray
+    steps: int
+    respawned: int
+    method: str
+    info: Any = None
+
+
+def optimize(
+    frag: Fragments, seeds, *, method: str = "lloyd", steps: int = 50, weighted: bool = True, tol: float = 0.0
+) -> CVTResult:
+    """Optimises the seeds towards a restricted CVT of the fragments.
+
+    **Arguments:**
+
+    - `frag`: [`Fragments`][voxax.cvt.Fragments].
+    - `seeds`: `(n, 3)` float initial seeds (e.g. [`init_seeds`][voxax.cvt.init_seeds]).
+    - `method`: `"lloyd"` (centroid steps; empty regions are respawned after each step;
+      stops early at an exact fixed point, where a step returns the seeds it was given) or
+      `"lbfgs"` (optimistix L-BFGS on [`energy`][voxax.cvt.energy], stepped from Python like
+      [`voxax.minimize`][voxax.minimize]; empty regions are respawned at the end, followed by
+      a Lloyd step).
+    - `steps`: maximum number of steps.
+    - `weighted`: use the fragment weights (uniform density by area).
+    - `tol`: stop when the relative energy decrease of a step is below this.
+
+    **Returns:** [`CVTResult`][voxax.cvt.CVTResult].
+    """
+    import jax
+    import jax.numpy as jnp
+
+    frag = _frag(frag)
+    if not jax.config.jax_enable_x64:
+        raise ValueError("cvt.optimize computes in float64: enable jax_enable_x64")
+    s = np.array(_seeds(seeds, "cvt.optimize"), np.float64)
+    if len(s) > frag.size:
+        raise ValueError(f"cvt.optimize: {len(s)} seeds but only {frag.size} fragments")
+    steps = int(steps)
+    if steps < 0:
+        raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")
+    if method == "lloyd":
+        step = _jitted("lloyd", _lloyd_arrays)
+        en = _jitted("energy", _energy_arrays)
+        x, w = _padded(frag, weighted)
+        one = jnp.asarray(1.0)
+        hint = jnp.full(x.shape[0], -1, jnp.int32)
+        hist = []
+        moved = 0
+        taken = 0
+        for _ in range(steps):
+            new, count, e, hint = step(jnp.asarray(s), x, w, hint)
+            hist.append(float(e))
+            if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
+                hist.pop()
+                break
+            new, m = respawn(np.asarray(new), frag, count)
+            moved += m
+            fixed = m == 0 and np.array_equal(new, s)
+            s = new
+            taken += 1
+            if fixed:  # an exact fixed point: every further step would return these seeds
+                break
+        hist.append(float(en(jnp.asarray(s), (x, w, one, hint))[0]))
+        return CVTResult(s, np.array(hist), taken, moved, "lloyd")
+    if method == "lbfgs":
+        x, w = _padded(frag, weighted)
+        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))), jnp.full(x.shape[0], -1, jnp.int32))
+        scale = float(args[2])
+        e0, hint = _jitted("energy", _energy_arrays)(jnp.asarray(s), args)
+        e0 = float(e0) / scale
+        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12))
+        y = np.asarray(y, np.float64)
+        _, count, _, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
+        y, moved = respawn(y, frag, count)
+        hist = np.concatenate([[e0], np.asarray(hist) / scale])
+        return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason)
+    raise ValueError(f'cvt.optimize: method must be "lloyd" or "lbfgs", got {method!r}')
