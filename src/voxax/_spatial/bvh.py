@@ -47,7 +47,7 @@ _D, _I32, _I64, _I8, _VP = _kernels.D, _kernels.I32, _kernels.I64, _kernels.I8, 
 _ptr, _check, _threads = _kernels.pointer, _kernels.check, _kernels.threads
 
 
-def _lib():
+def signed_library():
     i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
     sig = {
         "voxax_bvh_build": (
@@ -103,7 +103,7 @@ def _lib():
     return _kernels.declare(sig)
 
 
-def _coords(x, name: str) -> np.ndarray:
+def as_coords(x, name: str) -> np.ndarray:
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
         raise TypeError(f"{name} must be a real array, got dtype {a.dtype}")
@@ -209,9 +209,9 @@ class BVH:
             mesh = Mesh(vertices, faces)
         if mesh.dim != 3:
             raise ValueError("BVH needs a 3D triangle mesh, got a 2D polyline")
-        v = _coords(mesh.vertices, "vertices")
+        v = as_coords(mesh.vertices, "vertices")
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
-        lib = _lib()
+        lib = signed_library()
         handle = _VP()
         err = ctypes.create_string_buffer(_ERRLEN)
         status = lib.voxax_bvh_build(
@@ -237,7 +237,7 @@ class BVH:
     def n_nodes(self) -> int:
         """Number of tree nodes."""
         out = np.zeros(2, np.int64)
-        _lib().voxax_bvh_stats(self._handle, _ptr(out, _I64))
+        signed_library().voxax_bvh_stats(self._handle, _ptr(out, _I64))
         return int(out[0])
 
     def __repr__(self) -> str:
@@ -258,7 +258,7 @@ class BVH:
 
         **Returns:** [`ClosestPoints`][voxax.ClosestPoints] with leading shape `(...)`.
         """
-        p = _coords(points, "points")
+        p = as_coords(points, "points")
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
         n = len(p)
@@ -270,7 +270,7 @@ class BVH:
         bary = np.empty((n, 3), np.float64)
         point = np.empty((n, 3), np.float64)
         err = ctypes.create_string_buffer(_ERRLEN)
-        status = _lib().voxax_bvh_closest(
+        status = signed_library().voxax_bvh_closest(
             self._handle,
             _ptr(p, _D),
             n,
@@ -292,8 +292,8 @@ class BVH:
         )
 
     def _rays(self, origins, directions, t_min, t_max):
-        o = _coords(origins, "ray origins")
-        d = _coords(directions, "ray directions")
+        o = as_coords(origins, "ray origins")
+        d = as_coords(directions, "ray directions")
         try:
             lead = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
         except ValueError:
@@ -320,7 +320,7 @@ class BVH:
         bary = np.empty((n, 3), np.float64)
         sign = np.empty(n, np.int8)
         err = ctypes.create_string_buffer(_ERRLEN)
-        status = _lib().voxax_bvh_first_hit(
+        status = signed_library().voxax_bvh_first_hit(
             self._handle,
             _ptr(o, _D),
             _ptr(d, _D),
@@ -405,7 +405,7 @@ class BVH:
         counts = np.zeros(n, np.int64)
         out = _VP()
         err = ctypes.create_string_buffer(_ERRLEN)
-        lib = _lib()
+        lib = signed_library()
         status = lib.voxax_bvh_all_hits(
             self._handle,
             _ptr(o, _D),
@@ -442,7 +442,7 @@ def _as_bvh(mesh) -> BVH:
     return BVH(mesh)
 
 
-def _traced(*xs) -> bool:
+def any_traced(*xs) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
 
 
@@ -472,7 +472,7 @@ def _mesh_arrays(mesh):
     return v.astype(jnp.float64), f.astype(jnp.int32)
 
 
-def _rows(x, name):
+def as_rows(x, name):
     import jax.numpy as jnp
 
     x = jnp.asarray(x)
@@ -487,7 +487,7 @@ def _rows(x, name):
 
 def _closest_points_ffi(mesh, points) -> ClosestPoints:
     v, f = _mesh_arrays(mesh)
-    p = _rows(points, "points")
+    p = as_rows(points, "points")
     lead = p.shape[:-1]
     flat = p.reshape(-1, 3)
     n = flat.shape[0]
@@ -512,7 +512,7 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
     import jax.numpy as jnp
 
     v, f = _mesh_arrays(mesh)
-    o, d = _rows(origins, "ray origins"), _rows(directions, "ray directions")
+    o, d = as_rows(origins, "ray origins"), as_rows(directions, "ray directions")
     try:
         lead = jnp.broadcast_shapes(o.shape[:-1], d.shape[:-1])
     except ValueError:
@@ -563,7 +563,7 @@ def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints
     >>> closest_points(data.cube(2.0), [[0.0, 0.0, 0.5]]).distance.tolist()
     [0.5]
     """
-    if _traced(mesh if isinstance(mesh, tuple) else (), points):
+    if any_traced(mesh if isinstance(mesh, tuple) else (), points):
         return _closest_points_ffi(mesh, points)
     return _as_bvh(mesh).closest_points(points, threads=threads)
 
@@ -586,7 +586,7 @@ def first_hits(
     >>> first_hits(data.cube(2.0), [[0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]]).t.tolist()
     [1.0]
     """
-    if _traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
+    if any_traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
         return _first_hits_ffi(mesh, origins, directions, t_min, t_max)
     return _as_bvh(mesh).first_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
@@ -626,60 +626,3 @@ def all_hits(
     return _as_bvh(mesh).all_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
     )
-
-
-def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None):
-    """The `k` nearest of `points` to every query point, exactly (a uniform-grid search).
-
-    Neighbours are ordered by distance, ties by index (so the result is unique and the
-    same for any thread count). Where `k` exceeds the number of points, the missing
-    neighbours have index -1 and distance `inf`. Under `jax.jit` (traced arguments) this
-    runs as an FFI kernel with a static `(M, k)` output and returns JAX arrays.
-
-    **Arguments:**
-
-    - `points`: `(N, 3)` float, the data points.
-    - `queries`: `(..., 3)` float.
-    - `k`: number of neighbours, 1 <= k <= 32.
-    - `threads`: number of threads for the eager path (default: all cores).
-
-    **Returns:** `(distances (..., k) float64, indices (..., k) int32)`, like
-    `scipy.spatial.cKDTree.query` (which returns int64 indices and drops the last axis
-    for `k=1`; here the `k` axis is always kept).
-
-    >>> d, i = nearest_neighbors([[0, 0, 0], [1, 0, 0], [3, 0, 0]], [[0.9, 0, 0]], k=2)
-    >>> i.tolist(), d.round(12).tolist()
-    ([[1, 0]], [[0.1, 0.9]])
-    """
-    k = int(k)
-    if not 1 <= k <= 32:
-        raise ValueError(f"k must lie in [1, 32], got {k}")
-    if _traced(points, queries):
-
-        if not jax.config.jax_enable_x64:
-            raise ValueError("the jit path of nearest_neighbors computes in float64: enable jax_enable_x64")
-        s = _rows(points, "points")
-        if s.ndim != 2:
-            raise ValueError(f"points must have shape (N, 3), got {s.shape}")
-        q = _rows(queries, "queries")
-        lead = q.shape[:-1]
-        flat = q.reshape(-1, 3)
-        m = flat.shape[0]
-        out = (jax.ShapeDtypeStruct((m, k), np.int32), jax.ShapeDtypeStruct((m, k), np.float64))
-        idx, dist = jax.ffi.ffi_call(_kernels.KNN, out, vmap_method="sequential")(s, flat)
-        return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
-    s = _coords(points, "points")
-    if s.ndim != 2:
-        raise ValueError(f"points must have shape (N, 3), got {s.shape}")
-    q = _coords(queries, "queries")
-    lead = q.shape[:-1]
-    q = q.reshape(-1, 3)
-    m = len(q)
-    idx = np.empty((m, k), np.int32)
-    dist = np.empty((m, k), np.float64)
-    err = ctypes.create_string_buffer(_ERRLEN)
-    status = _lib().voxax_knn_host(
-        _ptr(s, _D), len(s), _ptr(q, _D), m, k, _threads(threads), _ptr(idx, _I32), _ptr(dist, _D), err, _ERRLEN
-    )
-    _check(status, err)
-    return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
