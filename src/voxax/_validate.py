@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 import operator
+import os
+import warnings
 
 import numpy as np
 
@@ -23,7 +25,11 @@ __all__ = [
     "is_mesh_object",
     "mesh_object_arrays",
     "unpack_mesh",
+    "is_mesh_pair",
     "mesh_like",
+    "key_or_seed",
+    "numpy_rng",
+    "jax_key",
     "mesh",
     "grid",
     "key",
@@ -64,25 +70,63 @@ def mesh_object_arrays(where: str, obj) -> tuple:
     return vertices, faces
 
 
-def unpack_mesh(where: str, vertices, faces, *params):
-    """Resolves the `f(mesh, p1, p2, ...)` overload of `f(vertices, faces, p1, p2, ...)`.
+def is_mesh_pair(x) -> bool:
+    """A `(vertices, faces)` pair: a tuple or list of two arrays of rank 2 or more."""
+    return isinstance(x, (tuple, list)) and len(x) == 2 and all(np.ndim(a) >= 2 for a in x)
 
-    When `vertices` is a mesh object, the values passed positionally after it sit one
-    slot to the left (the `faces` slot holds `p1`); values given by keyword sit in their
-    own slots. Required parameters default to None, so the positional values are the
-    leading run of non-None slots. Returns `(vertices, faces, (p1, p2, ...))`.
+
+def _not_a_surface(where: str, value) -> None:
+    """Raises a `TypeError` that says what to do for the common non-surface inputs."""
+    kind = type(value).__name__
+    if isinstance(value, (str, os.PathLike)):
+        raise TypeError(f"{where}: got a file path ({os.fspath(value)!r}); load it first: voxax.io.load(path)")
+    if hasattr(value, "geometry") and hasattr(value, "dump"):
+        raise TypeError(
+            f"{where}: got a trimesh.Scene; pass one mesh: scene.dump(concatenate=True) or voxax.io.load(path)"
+        )
+    from ._grid import Grid
+
+    if isinstance(value, Grid):
+        raise TypeError(f"{where}: got a voxax.Grid where the mesh goes: the mesh comes first, then the grid")
+    raise TypeError(
+        f"{where}: expected a voxax.Mesh, a trimesh.Trimesh, a (vertices, faces) pair or vertices and faces, "
+        f"got {kind}"
+    )
+
+
+def unpack_mesh(where: str, vertices, faces, *params):
+    """The one coercion of a surface argument: `f(vertices, faces, p1, ...)` or `f(mesh, p1, ...)`.
+
+    `vertices` may be a mesh object (a `voxax.Mesh`, a `trimesh.Trimesh`, anything with
+    `.vertices` and `.faces`) or a `(vertices, faces)` pair; then the values passed
+    positionally after it sit one slot to the left (the `faces` slot holds `p1`), and values
+    given by keyword sit in their own slots. Required parameters default to None, so the
+    positional values are the leading run of non-None slots. A file path, a
+    `trimesh.Scene` or a grid in the mesh's place get a `TypeError` that says what to pass.
+    Returns `(vertices, faces, (p1, p2, ...))`.
     """
-    if not is_mesh_object(vertices):
+    from ._grid import Grid
+
+    if isinstance(vertices, Grid):
+        _not_a_surface(where, vertices)
+    pair = is_mesh_pair(vertices)
+    if not pair and not is_mesh_object(vertices):
+        if isinstance(vertices, (str, os.PathLike)) or not hasattr(vertices, "__len__") and not hasattr(vertices, "shape"):
+            _not_a_surface(where, vertices)
+        if hasattr(vertices, "geometry") and hasattr(vertices, "dump"):
+            _not_a_surface(where, vertices)
         if faces is None:
-            raise TypeError(f"{where}: missing `faces` (pass `vertices, faces` or a voxax.Mesh)")
+            raise TypeError(
+                f"{where}: missing `faces` (pass `vertices, faces`, a (vertices, faces) pair or a voxax.Mesh)"
+            )
         return vertices, faces, params
-    v, f = mesh_object_arrays(where, vertices)
+    v, f = vertices if pair else mesh_object_arrays(where, vertices)
     slots = (faces,) + params
     n = 0
     while n < len(slots) and slots[n] is not None:
         n += 1
     if n > len(params):
-        raise TypeError(f"{where}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
+        raise TypeError(f"{where}: got a mesh and `faces`; pass either a mesh or `vertices, faces`")
     shifted = tuple(slots[j] if j < n else params[j] for j in range(len(params)))
     return v, f, shifted
 
@@ -120,9 +164,7 @@ def mesh_like(where: str, value) -> tuple:
         if isinstance(faces, np.ndarray):
             faces = np.ascontiguousarray(faces.astype(np.int32))
         return vertices, faces
-    raise TypeError(
-        f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or a (vertices, faces) pair, got {type(value).__name__}"
-    )
+    _not_a_surface(where, value)
 
 
 def face_kind(d: int) -> str:
@@ -293,3 +335,48 @@ def positive_float(where: str, name: str, value, allow_zero: bool = False) -> fl
     if not (ok and math.isfinite(out)):
         raise ValueError(f"{where}: `{name}` must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
     return out
+
+
+def key_or_seed(where: str, key, seed=None, default=0):
+    """The `key` of a function that took `seed=` before (kept one release, with a warning).
+
+    Returns `key`, or `seed` when only the deprecated `seed` was given (with a
+    `DeprecationWarning`), or `default` when neither was.
+    """
+    if seed is not None:
+        warnings.warn(
+            f"{where}: `seed` is deprecated and will be removed; pass `key` (an int or a JAX PRNG key)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        if key is not None:
+            raise TypeError(f"{where}: pass `key` or the deprecated `seed`, not both")
+        return seed
+    return default if key is None else key
+
+
+def _int_key(where: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(value).__name__}")
+    if value < 0:
+        raise ValueError(f"{where}: `key` must be a non-negative int or a JAX PRNG key, got {value}")
+    return int(value)
+
+
+def numpy_rng(where: str, value) -> np.random.Generator:
+    """A NumPy generator from `key`: an int seed or a JAX PRNG key (its key data seeds it)."""
+    if isinstance(value, (int, np.integer, bool)) or value is None:
+        return np.random.default_rng(_int_key(where, value))
+    import jax
+
+    data = np.asarray(jax.random.key_data(key(where, value)), dtype=np.uint32).ravel()
+    return np.random.default_rng([int(w) for w in data])
+
+
+def jax_key(where: str, value):
+    """A JAX PRNG key from `key`: an int seed (`jax.random.key(int)`) or a JAX PRNG key."""
+    if isinstance(value, (int, np.integer, bool)) or value is None:
+        import jax
+
+        return jax.random.key(_int_key(where, value))
+    return key(where, value)
