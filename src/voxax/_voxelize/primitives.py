@@ -31,7 +31,7 @@ import numpy as np
 from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 
-from .. import _kernels
+from .._kernels import voxelize as kernels
 
 __all__ = [
     "SECOND_DERIVATIVE_MESSAGE",
@@ -251,20 +251,7 @@ for _p in (forward_p, tangent_p, backward_p):
 
 # -- lowering: the FFI kernel on CPU, a host callback elsewhere ----------------------------
 
-_TARGETS = {forward_p: _kernels.FORWARD, tangent_p: _kernels.TANGENT, backward_p: _kernels.BACKWARD}
-
-
-def _host_kernel(target, result, grid, *args):
-    cpu = jax.devices("cpu")[0]
-    with jax.default_device(cpu):
-        out = _host_jit(target, result, grid)(*[jax.device_put(np.asarray(a), cpu) for a in args])
-    return np.asarray(out)
-
-
-@functools.lru_cache(maxsize=64)
-def _host_jit(target, result, grid):
-    call = jax.ffi.ffi_call(target, result, vmap_method="expand_dims")
-    return jax.jit(lambda *a: call(*a, **_kernels.grid_attributes(grid)))
+_TARGETS = {forward_p: kernels.FORWARD, tangent_p: kernels.TANGENT, backward_p: kernels.BACKWARD}
 
 
 def _lowering(prim):
@@ -276,7 +263,7 @@ def _lowering(prim):
         platforms = tuple(getattr(ctx.module_context, "platforms", ()) or ())
         on_host = _FORCE_HOST_CALLBACK or any(p != "cpu" for p in platforms)
         if on_host:
-            host = functools.partial(_host_kernel, target, result, grid)
+            host = functools.partial(kernels.host_call, target, result, grid)
 
             def run(*a):
                 return jax.pure_callback(host, result, *a)
@@ -284,7 +271,7 @@ def _lowering(prim):
         else:
 
             def run(*a):
-                return jax.ffi.ffi_call(target, result)(*a, **_kernels.grid_attributes(grid))
+                return kernels.call(target, result, grid, *a)
 
         return mlir.lower_fun(run, multiple_results=False)(ctx, *args)
 
