@@ -62,7 +62,7 @@ def run(n_faces: int, n_queries: int, threads: int, repeats: int, rng) -> dict:
     d = rng.normal(size=(n_queries, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     vol = rng.uniform(-1, 1, (n_queries, 3))
-    s = voxax.metrics.sample_surface(mesh, n_queries, seed=1)
+    s = voxax.metrics.sample_surface(mesh, n_queries, key=1)
     near = s.points + rng.uniform(-0.01, 0.01, (n_queries, 1)) * s.normals
     res = {
         "faces": mesh.n_faces,
@@ -83,7 +83,7 @@ def run(n_faces: int, n_queries: int, threads: int, repeats: int, rng) -> dict:
         res[f"{name}_wall"] = n_queries / wall
         res[f"{name}_cpu"] = threads * n_queries / cpu
     # nearest neighbours: 20k seeds on the surface, the near-surface points as queries
-    seeds = voxax.metrics.sample_surface(mesh, 20_000, seed=2).points
+    seeds = voxax.metrics.sample_surface(mesh, 20_000, key=2).points
     for k in (1, 3):
         wall, cpu = best_time(
             lambda k=k: voxax.nearest_neighbors(seeds, near, k, threads=threads),

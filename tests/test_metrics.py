@@ -20,9 +20,9 @@ def _pairwise(P, Q):
 
 def test_sample_surface_uniform_and_deterministic():
     cube = data.cube(2.0)
-    s1 = metrics.sample_surface(cube, 6000, seed=3)
-    s2 = metrics.sample_surface(cube, 6000, seed=3)
-    s3 = metrics.sample_surface(cube, 6000, seed=4)
+    s1 = metrics.sample_surface(cube, 6000, key=3)
+    s2 = metrics.sample_surface(cube, 6000, key=3)
+    s3 = metrics.sample_surface(cube, 6000, key=4)
     for x, y in zip(s1, s2):
         assert np.array_equal(x, y)
     assert not np.array_equal(s1.points, s3.points)
@@ -44,7 +44,7 @@ def test_sample_surface_uniform_and_deterministic():
     assert np.all(np.abs(frac - 1 / 6) < 0.025)
     # area weighting: two triangles of areas 1 and 3
     V = np.array([[0, 0, 0], [2, 0, 0], [0, 1, 0], [0, 0, 1], [3, 0, 1], [0, 2, 1.0]])
-    s = metrics.sample_surface((V, [[0, 1, 2], [3, 4, 5]]), 20000, seed=0)
+    s = metrics.sample_surface((V, [[0, 1, 2], [3, 4, 5]]), 20000, key=0)
     assert abs(np.mean(s.faces == 1) - 0.75) < 0.015
     # uniform inside a triangle: the mean is the centroid
     np.testing.assert_allclose(s.points[s.faces == 1].mean(0), [1, 2 / 3, 1], atol=0.02)
@@ -117,15 +117,15 @@ def test_hausdorff_analytic():
 
 def test_hausdorff_vs_brute_force_on_small_meshes():
     # directed Hausdorff over the same samples, with the brute-force distance to every face
-    from test_bvh import brute_distance
+    from conftest import brute_distance
 
     a, b = data.icosphere(1, radius=0.8), data.torus()
     samples = np.concatenate(
-        [a.vertices, metrics.sample_surface(a, 500, seed=0).points]
+        [a.vertices, metrics.sample_surface(a, 500, key=0).points]
     )
     expect = brute_distance(samples, b.vertices, b.faces).max()
     np.testing.assert_allclose(
-        metrics.directed_hausdorff(a, b, n=500, seed=0), expect, rtol=1e-12
+        metrics.directed_hausdorff(a, b, n=500, key=0), expect, rtol=1e-12
     )
 
 
@@ -307,7 +307,7 @@ def test_chamfer_loss_jax():
     np.add.at(expect, nn_qp, 2 * (P[nn_qp] - Q) / len(Q))
     np.testing.assert_allclose(g, expect, rtol=1e-10, atol=1e-14)
     # samples recomputed from barycentrics are differentiable and equal the points
-    s = metrics.sample_surface(data.icosphere(1), 50, seed=0)
+    s = metrics.sample_surface(data.icosphere(1), 50, key=0)
     V, F = data.icosphere(1)
     np.testing.assert_allclose(
         np.einsum("nk,nkd->nd", s.barycentric, V[F[s.faces]]), s.points, atol=1e-15

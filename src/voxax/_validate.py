@@ -380,3 +380,35 @@ def jax_key(where: str, value):
 
         return jax.random.key(_int_key(where, value))
     return key(where, value)
+
+
+def surface_first(fn):
+    """Lets a function whose first parameter is one surface (`f(mesh, p1, ...)`) take the
+    other surface forms too: `f(vertices, faces, p1, ...)` and `f(vertices, faces=faces,
+    ...)`. The surface reaches `fn` as a mesh object or a `(vertices, faces)` pair (turn it
+    into arrays with `mesh_like`), so every surface form goes through one coercion."""
+    import functools
+    import inspect
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        faces = kwargs.pop("faces", None)
+        if not args:
+            return fn(*args, **kwargs)
+        first = args[0]
+        if is_mesh_object(first) or is_mesh_pair(first):
+            if faces is not None:
+                raise TypeError(f"{fn.__name__}: got a mesh and `faces`; pass either a mesh or `vertices, faces`")
+            return fn(*args, **kwargs)
+        if faces is None and len(args) >= 2 and np.ndim(args[1]) == 2 and not is_mesh_object(args[1]):
+            faces, args = args[1], args[:1] + args[2:]
+        if faces is None:
+            return fn(*args, **kwargs)  # `fn` says what is wrong with its first argument
+        return fn((first, faces), *args[1:], **kwargs)
+
+    sig = inspect.signature(fn)
+    params = [p for p in sig.parameters.values() if p.kind is not inspect.Parameter.VAR_KEYWORD]
+    rest = [p for p in sig.parameters.values() if p.kind is inspect.Parameter.VAR_KEYWORD]
+    extra = inspect.Parameter("faces", inspect.Parameter.KEYWORD_ONLY, default=None)
+    wrapper.__signature__ = sig.replace(parameters=[*params, extra, *rest])
+    return wrapper

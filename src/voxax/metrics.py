@@ -2,8 +2,9 @@
 distances with exact point-to-triangle distances, F-score, triangle quality, topology
 (Euler characteristic, manifoldness, boundaries, orientation) and volumetric IoU.
 
-Meshes are `voxax.Mesh` values or `(vertices, faces)` pairs of triangles. Functions that
-compare two surfaces take either meshes (sampled here, deterministically per `seed`) or
+Meshes are `voxax.Mesh` or `trimesh.Trimesh` values or `(vertices, faces)` pairs of
+triangles (functions of one mesh also take `vertices, faces` as two arguments). Functions
+that compare two surfaces take either meshes (sampled here, deterministically per `key`) or
 point clouds `(N, 3)`. Point-to-point nearest neighbours use `scipy.spatial.cKDTree`;
 point-to-surface distances are exact, through [`voxax.BVH`][voxax.BVH].
 
@@ -40,34 +41,42 @@ __all__ = [
 ]
 
 
-def _mesh(mesh, name: str = "mesh") -> Mesh:
+def _mesh(mesh, name: str = "mesh", where: str = "voxax.metrics", finite: bool = True) -> Mesh:
+    """A 3D triangle mesh with finite vertices from any surface form (or a BVH's mesh)."""
     if isinstance(mesh, Mesh):
         m = mesh
     elif isinstance(mesh, BVH):
         m = mesh.mesh
-    elif isinstance(mesh, tuple) and len(mesh) == 2:
-        m = Mesh(*mesh)
     else:
-        raise TypeError(
-            f"{name} must be a voxax.Mesh or a (vertices, faces) pair, got {type(mesh).__name__}"
-        )
+        m = Mesh(*_validate.mesh_like(f"{where}: `{name}`", mesh))
     if m.dim != 3:
-        raise ValueError(f"{name} must be a 3D triangle mesh, got a 2D polyline")
+        raise ValueError(f"{where}: `{name}` must be a 3D triangle mesh, got a 2D polyline")
+    if m.vertices.dtype.kind != "f":
+        raise TypeError(f"{where}: `{name}` must have float vertices, got {m.vertices.dtype}")
+    if finite and not np.all(np.isfinite(m.vertices)):
+        raise ValueError(f"{where}: `{name}` has NaN or infinite vertices")
     return m
 
 
-def _seed(seed) -> np.random.Generator:
-    if isinstance(seed, (int, np.integer)) or seed is None:
-        return np.random.default_rng(0 if seed is None else int(seed))
-    try:  # a jax.random key
-        import jax
+def _rng(key, where: str) -> np.random.Generator:
+    """The sampling generator of `key`: an int seed, or a jax.random key (two of its bits)."""
+    if key is None or isinstance(key, (bool, int, np.integer)):
+        return _validate.numpy_rng(where, 0 if key is None else key)
+    import jax
 
-        bits = np.asarray(jax.random.bits(seed, (2,), dtype=np.uint32))
-        return np.random.default_rng([int(b) for b in bits])
-    except Exception as exc:
-        raise TypeError(
-            f"seed must be an int or a jax.random key, got {type(seed).__name__}"
-        ) from exc
+    bits = np.asarray(jax.random.bits(_validate.key(where, key), (2,), dtype=np.uint32))
+    return np.random.default_rng([int(b) for b in bits])
+
+
+def _key_b(key, where: str):
+    """The key of the second surface's samples: `key + 1` for an int, else drawn from `key`."""
+    if key is None or isinstance(key, (bool, int, np.integer)):
+        return (0 if key is None else int(key)) + 1
+    return int(_rng(key, where).integers(2**31))
+
+
+def _count(where: str, n) -> int:
+    return _validate.positive_int(where, "n", n)
 
 
 def _face_geometry(m: Mesh):
@@ -94,36 +103,38 @@ class SurfaceSamples(NamedTuple):
     barycentric: np.ndarray
 
 
-def sample_surface(mesh, n: int, seed=0) -> SurfaceSamples:
+@_validate.surface_first
+def sample_surface(mesh, n: int, key=None, *, seed=None) -> SurfaceSamples:
     """`n` points uniformly distributed over the area of a triangle mesh.
 
     Faces are drawn with probability proportional to their area (degenerate faces are
     never drawn) and points uniformly inside them (`a (1 - sqrt r1) + b sqrt r1 (1 - r2) +
-    c sqrt r1 r2`). The same `seed` gives the same bits.
+    c sqrt r1 r2`). The same `key` gives the same bits.
 
     **Arguments:**
 
-    - `mesh`: `Mesh` or `(vertices (V, 3), faces (F, 3))`.
+    - `mesh`: a `Mesh`, a `trimesh.Trimesh`, a `(vertices (V, 3), faces (F, 3))` pair, or
+      `vertices, faces` as two arguments.
     - `n`: number of points (>= 0).
-    - `seed`: an int or a `jax.random` key.
+    - `key`: an int (default 0) or a `jax.random` key. `seed` is its deprecated old name.
 
     **Returns:** [`SurfaceSamples`][voxax.metrics.SurfaceSamples] `(points, faces, normals)`.
 
     >>> from voxax import data
-    >>> s = sample_surface(data.cube(2.0), 1000, seed=1)
+    >>> s = sample_surface(data.cube(2.0), 1000, key=1)
     >>> bool(abs(abs(s.points).max() - 1) < 1e-12), s.points.shape
     (True, (1000, 3))
     """
-    m = _mesh(mesh)
-    n = int(n)
-    if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
+    where = "voxax.metrics.sample_surface"
+    key = _validate.key_or_seed(where, key, seed)
+    m = _mesh(mesh, where=where)
+    n = _validate.positive_int(where, "n", n, minimum=0)
     a, b, c, nrm, norm = _face_geometry(m)
     area = 0.5 * norm
     total = float(area.sum())
     if n > 0 and not total > 0:
-        raise ValueError("cannot sample a surface of zero area")
-    rng = _seed(seed)
+        raise ValueError(f"{where}: cannot sample a surface of zero area")
+    rng = _rng(key, where)
     cdf = np.cumsum(area)
     faces = np.searchsorted(
         cdf, rng.random(n) * cdf[-1] if n else np.zeros(0), side="right"
@@ -137,19 +148,20 @@ def sample_surface(mesh, n: int, seed=0) -> SurfaceSamples:
     return SurfaceSamples(pts, faces, normals, w)
 
 
-def _cloud(x, n: int, seed, name: str) -> tuple[np.ndarray, Mesh | None]:
-    if isinstance(x, (Mesh, BVH)) or (isinstance(x, tuple) and len(x) == 2):
-        m = _mesh(x, name)
-        return sample_surface(m, n, seed).points, m
-    p = np.asarray(x, dtype=np.float64)
+def _cloud(x, n: int, key, name: str, where: str) -> tuple[np.ndarray, Mesh | None]:
+    if isinstance(x, (Mesh, BVH)) or _validate.is_mesh_object(x) or _validate.is_mesh_pair(x):
+        m = _mesh(x, name, where)
+        return sample_surface(m, n, key).points, m
+    p = np.asarray(x)
+    if p.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: `{name}` must be a mesh or a float point cloud (N, 3), got {p.dtype}")
+    p = p.astype(np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(
-            f"{name} must be a mesh or a point cloud (N, 3), got shape {p.shape}"
-        )
+        raise ValueError(f"{where}: `{name}` must be a mesh or a point cloud (N, 3), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
-        raise ValueError(f"{name} contains NaN or Inf")
+        raise ValueError(f"{where}: `{name}` contains NaN or Inf")
     if len(p) == 0:
-        raise ValueError(f"{name} is an empty point cloud")
+        raise ValueError(f"{where}: `{name}` is an empty point cloud")
     return p, None
 
 
@@ -175,7 +187,7 @@ CHAMFER_CONVENTIONS = ("l2", "l1_bbox", "g2p")
 
 
 def chamfer(
-    a, b, *, convention: str = "l2", n: int = 10_000, seed=0, to_surface: bool = False
+    a, b, *, convention: str = "l2", n: int = 10_000, key=None, to_surface: bool = False, seed=None
 ) -> float:
     """The Chamfer distance between two surfaces, in one of three published conventions.
 
@@ -195,10 +207,11 @@ def chamfer(
 
     **Arguments:**
 
-    - `a`, `b`: meshes (`Mesh` or `(vertices, faces)`), sampled with `n` points each, or
-      point clouds `(N, 3)`.
+    - `a`, `b`: meshes (a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair),
+      sampled with `n` points each, or point clouds `(N, 3)`.
     - `convention`: one of `"l2"`, `"l1_bbox"`, `"g2p"`.
-    - `n`: samples per mesh; `seed`: the sampling seed (`b` uses `seed + 1`).
+    - `n`: samples per mesh (>= 1); `key`: the sampling key, an int (default 0; `b` uses
+      `key + 1`) or a `jax.random` key. `seed` is its deprecated old name.
     - `to_surface`: measure `d(x, Y)` to the other *mesh* exactly (BVH) instead of to its
       samples (point to surface; needs meshes).
 
@@ -209,15 +222,13 @@ def chamfer(
     >>> chamfer(s, s.translated((0.1, 0, 0)), convention="l1_bbox", to_surface=True) > 0
     True
     """
+    where = "voxax.metrics.chamfer"
+    key = _validate.key_or_seed(where, key, seed)
     if convention not in CHAMFER_CONVENTIONS:
-        raise ValueError(
-            f"convention must be one of {CHAMFER_CONVENTIONS}, got {convention!r}"
-        )
-    seed_b = (
-        seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
-    )
-    P, ma = _cloud(a, n, seed, "a")
-    Q, mb = _cloud(b, n, seed_b, "b")
+        raise ValueError(f"{where}: `convention` must be one of {CHAMFER_CONVENTIONS}, got {convention!r}")
+    n = _count(where, n)
+    P, ma = _cloud(a, n, key, "a", where)
+    Q, mb = _cloud(b, n, _key_b(key, where), "b", where)
     d_qp = _distances(Q, P, ma, to_surface)
     if convention == "g2p":
         return float(np.mean(d_qp**2))
@@ -227,7 +238,7 @@ def chamfer(
     ref = mb.vertices[np.unique(mb.faces)] if mb is not None else Q
     diag = float(np.linalg.norm(ref.max(0) - ref.min(0)))
     if not diag > 0:
-        raise ValueError("the reference's bounding box has a zero diagonal")
+        raise ValueError(f"{where}: the reference's bounding box has a zero diagonal")
     return float(1000.0 * (np.mean(d_pq) + np.mean(d_qp)) / diag)
 
 
@@ -286,7 +297,7 @@ def chamfer_loss(p, q, *, squared: bool = True, chunk_size: int = 1024):
     return jnp.mean(power(rows)) + jnp.mean(power(cols))
 
 
-def directed_hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
+def directed_hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     """The one-sided Hausdorff distance `max_{x in a} d(x, b)` from mesh `a` to mesh `b`.
 
     `a` is represented by its vertices plus `n` area-uniform samples (so the value is a
@@ -295,18 +306,21 @@ def directed_hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
 
     **Returns:** a Python float.
     """
-    ma, mb = _mesh(a, "a"), _mesh(b, "b")
+    where = "voxax.metrics.directed_hausdorff"
+    key = _validate.key_or_seed(where, key, seed)
+    ma, mb = _mesh(a, "a", where), _mesh(b, "b", where)
+    n = _validate.positive_int(where, "n", n, minimum=0)
     if mb.n_faces == 0:
-        raise ValueError("b has no faces")
+        raise ValueError(f"{where}: `b` has no faces")
     pts = ma.vertices[np.unique(ma.faces)]
     if n > 0 and ma.n_faces:
-        pts = np.concatenate([pts, sample_surface(ma, n, seed).points])
+        pts = np.concatenate([pts, sample_surface(ma, n, key).points])
     if len(pts) == 0:
         return 0.0
     return float(BVH(mb).closest_points(pts).distance.max())
 
 
-def hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
+def hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     """The two-sided Hausdorff distance between two triangle meshes.
 
     `max(directed_hausdorff(a, b), directed_hausdorff(b, a))`: each surface's vertices and
@@ -314,8 +328,9 @@ def hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
 
     **Arguments:**
 
-    - `a`, `b`: `Mesh` or `(vertices, faces)`.
-    - `n`: samples per surface; `seed`: sampling seed.
+    - `a`, `b`: meshes (a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair).
+    - `n`: samples per surface (>= 0: 0 uses the vertices alone); `key`: the sampling key
+      (an int, default 0, or a `jax.random` key). `seed` is its deprecated old name.
 
     **Returns:** a Python float.
 
@@ -323,14 +338,12 @@ def hausdorff(a, b, *, n: int = 100_000, seed=0) -> float:
     >>> round(hausdorff(data.icosphere(2, radius=1.0), data.icosphere(2, radius=0.75)), 12)
     0.25
     """
-    return max(
-        directed_hausdorff(a, b, n=n, seed=seed),
-        directed_hausdorff(b, a, n=n, seed=seed),
-    )
+    key = _validate.key_or_seed("voxax.metrics.hausdorff", key, seed)
+    return max(directed_hausdorff(a, b, n=n, key=key), directed_hausdorff(b, a, n=n, key=key))
 
 
 def f_score(
-    a, b, threshold: float, *, n: int = 10_000, seed=0, to_surface: bool = False
+    a, b, threshold: float, *, n: int = 10_000, key=None, to_surface: bool = False, seed=None
 ) -> float:
     """The F-score at distance `threshold` between a prediction `a` and a reference `b`.
 
@@ -342,13 +355,12 @@ def f_score(
 
     **Returns:** a Python float.
     """
-    if not threshold > 0:
-        raise ValueError(f"threshold must be > 0, got {threshold}")
-    seed_b = (
-        seed + 1 if isinstance(seed, (int, np.integer)) else _seed(seed).integers(2**31)
-    )
-    P, ma = _cloud(a, n, seed, "a")
-    Q, mb = _cloud(b, n, seed_b, "b")
+    where = "voxax.metrics.f_score"
+    key = _validate.key_or_seed(where, key, seed)
+    threshold = _validate.positive_float(where, "threshold", threshold)
+    n = _count(where, n)
+    P, ma = _cloud(a, n, key, "a", where)
+    Q, mb = _cloud(b, n, _key_b(key, where), "b", where)
     precision = float(np.mean(_distances(P, Q, mb, to_surface) <= threshold))
     recall = float(np.mean(_distances(Q, P, ma, to_surface) <= threshold))
     if precision + recall == 0:
@@ -356,6 +368,7 @@ def f_score(
     return 2 * precision * recall / (precision + recall)
 
 
+@_validate.surface_first
 def triangle_quality(mesh) -> np.ndarray:
     """Per-triangle quality `Q = (6 / sqrt 3) A / (p e_max)`, 1 for equilateral triangles.
 
@@ -372,7 +385,7 @@ def triangle_quality(mesh) -> np.ndarray:
     >>> round(float(triangle_quality((v, [[0, 1, 2]]))[0]), 12)
     1.0
     """
-    m = _mesh(mesh)
+    m = _mesh(mesh, where="voxax.metrics.triangle_quality")
     a, b, c, _, norm = _face_geometry(m)
     e = np.stack(
         [
@@ -404,6 +417,7 @@ def _edges(faces: np.ndarray):
     return he, uniq, inv.reshape(-1), cnt
 
 
+@_validate.surface_first
 def euler_characteristic(mesh) -> int:
     """The Euler characteristic `V - E + F` of a triangle mesh.
 
@@ -414,7 +428,7 @@ def euler_characteristic(mesh) -> int:
 
     **Returns:** a Python int.
     """
-    m = _mesh(mesh)
+    m = _mesh(mesh, where="voxax.metrics.euler_characteristic", finite=False)
     if m.n_faces == 0:
         return 0
     _, uniq, _, _ = _edges(m.faces)
@@ -469,6 +483,7 @@ def _components(n_nodes: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
     return connected_components(g, directed=False)
 
 
+@_validate.surface_first
 def manifold_report(mesh) -> ManifoldReport:
     """Manifoldness, boundaries, orientation and defects of a triangle mesh.
 
@@ -491,7 +506,7 @@ def manifold_report(mesh) -> ManifoldReport:
     >>> r.watertight, r.euler_characteristic, r.genus
     (True, 0, 1)
     """
-    m = _mesh(mesh)
+    m = _mesh(mesh, where="voxax.metrics.manifold_report", finite=False)
     F = m.faces.astype(np.int64)
     nf = len(F)
     if nf == 0:

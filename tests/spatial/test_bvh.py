@@ -2,40 +2,12 @@
 
 import numpy as np
 import pytest
+from conftest import brute_distance
 
 import voxax
 from voxax import data, fields, metrics
 
 # -- independent oracles ---------------------------------------------------------------------
-
-
-def _seg_dist(p, a, b):
-    ab = b - a
-    L = np.sum(ab * ab, -1)
-    t = np.where(L > 0, np.sum((p - a) * ab, -1) / np.where(L > 0, L, 1), 0.0)
-    t = np.clip(t, 0, 1)
-    return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
-
-
-def brute_distance(p, V, F):
-    """Distance from points (P, 3) to a triangle soup: the plane projection when it falls
-    inside the triangle, else the nearest of the three edges (zero-area faces: edges only)."""
-    a, b, c = (V[F[:, k]][None] for k in range(3))
-    q = p[:, None, :]
-    n = np.cross(b - a, c - a)
-    nn = np.sum(n * n, -1)
-    ok = nn > 1e-30
-    nhat = n / np.sqrt(np.where(ok, nn, 1))[..., None]
-    h = np.sum((q - a) * nhat, -1)
-    proj = q - h[..., None] * nhat
-    inside = ok.copy() & True
-    for u, v in ((a, b), (b, c), (c, a)):
-        inside = inside & (np.sum(np.cross(v - u, proj - u) * n, -1) >= 0)
-    edges = np.minimum(
-        np.minimum(_seg_dist(q, a, b), _seg_dist(q, b, c)), _seg_dist(q, c, a)
-    )
-    d = np.where(inside, np.abs(h), edges)
-    return d.min(axis=1)
 
 
 def brute_hits(o, d, V, F):
@@ -138,7 +110,7 @@ def test_closest_points_on_a_smooth_mesh_far_and_near(shift):
     V = m.vertices + shift
     F = np.asarray(m.faces)
     rng = np.random.default_rng(3)
-    s = metrics.sample_surface(m, 150, seed=2)
+    s = metrics.sample_surface(m, 150, key=2)
     eps = 10.0 ** rng.uniform(-9, -2, (150, 1)) * rng.choice([-1, 1], (150, 1))
     P = np.concatenate([rng.uniform(-2.5, 2.5, (250, 3)), s.points + eps * s.normals]) + shift
     res = voxax.closest_points((V, F), P)
