@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     # the fill energy is a sum over voxels, so the paper's 0.005 lets shapes crumple.
     placed, report = voxax.apps.optimize_tiling(
         meshes, instances=instances, resolution=args.resolution, max_steps=args.max_steps,
-        arap_weight=args.arap_weight, seed=args.seed, progress=not args.quiet,
+        arap_weight=args.arap_weight, key=args.seed, progress=not args.quiet,
     )
     print(report.summary())
     print(f"cell voxels covered exactly once: {report.coverage_initial:.1%} -> {report.coverage_final:.1%} "

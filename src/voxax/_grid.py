@@ -124,7 +124,8 @@ class Grid:
         **Arguments:**
 
         - `vertices`: `(..., V, d)` float, the points to enclose (batch axes allowed), or a
-          mesh object (`voxax.Mesh`, `trimesh.Trimesh`) whose vertices to enclose.
+          mesh object (`voxax.Mesh`, `trimesh.Trimesh`) whose vertices to enclose: those
+          that some face uses (unused vertices do not widen the grid).
         - `n`: int or `(d,)` ints, cells along the longest axis (or per axis when
           `cubic_cells=False`).
         - `pad`: float >= 0, the margin as a fraction of the longest side.
@@ -140,7 +141,9 @@ class Grid:
         ```
         """
         if hasattr(vertices, "vertices") and hasattr(vertices, "faces") and not hasattr(vertices, "shape"):
-            vertices = vertices.vertices  # a mesh object
+            v = np.asarray(vertices.vertices, dtype=np.float64)  # a mesh object: the vertices its faces use
+            faces = np.asarray(vertices.faces)
+            vertices = v[np.unique(faces)] if faces.size and v.ndim == 2 else v
         v = np.asarray(vertices, dtype=np.float64)
         if v.ndim < 2 or v.shape[-1] not in (2, 3) or v.shape[-2] == 0:
             raise ValueError(f"Grid.around: expected vertices of shape (..., V, 2|3) with V > 0, got {v.shape}")

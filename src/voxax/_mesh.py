@@ -283,21 +283,31 @@ def _info_equal(a: Mapping, b: Mapping) -> bool:
     return True
 
 
-def fit(vertices: np.ndarray, max_abs: float) -> tuple[np.ndarray, np.ndarray, float]:
+def used_vertices(vertices: np.ndarray, faces) -> np.ndarray:
+    """The vertices that some face uses (all of them when `faces` is None or empty)."""
+    if faces is None or np.size(faces) == 0:
+        return vertices
+    return vertices[np.unique(np.asarray(faces))]
+
+
+def fit(vertices: np.ndarray, max_abs: float, faces=None) -> tuple[np.ndarray, np.ndarray, float]:
     """Centre the bounding box at the origin and scale so that max |v| == max_abs.
 
-    Returns `(new_vertices, centre, scale)` with `new = (old - centre) * scale`.
+    With `faces`, the box is that of the vertices some face uses (unused vertices are moved
+    along but do not change the fit). Returns `(new_vertices, centre, scale)` with
+    `new = (old - centre) * scale`.
     """
     if len(vertices) == 0:
         raise ValueError("cannot normalize a mesh without vertices")
-    if not np.all(np.isfinite(vertices)):
+    box = used_vertices(vertices, faces)
+    if not np.all(np.isfinite(box)):
         raise ValueError("cannot normalize a mesh with non-finite vertex coordinates")
     if not max_abs > 0:
         raise ValueError(f"max_abs must be > 0, got {max_abs}")
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    lo, hi = box.min(axis=0), box.max(axis=0)
     centre = (lo + hi) / 2.0
     centred = vertices - centre
-    extent = np.abs(centred).max()
+    extent = np.abs(box - centre).max()
     if not extent > 0:
         raise ValueError("cannot normalize a mesh whose vertices all coincide")
     scale = float(max_abs) / float(extent)

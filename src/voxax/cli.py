@@ -490,7 +490,7 @@ def _tile(args) -> int:
     instances = args.instances if counts > 1 else args.instances[0]
     placed, report = apps.optimize_tiling(
         meshes, instances=instances, min_step=args.min_step or None, deform=not args.rigid, init=args.init,
-        seed=args.seed, **_optimization_options(args),
+        key=args.seed, **_optimization_options(args),
     )
     print(report.summary())
     voxax.io.save(voxax.Mesh.concatenate(*placed), os.path.join(args.out, "tiling.ply"))

@@ -155,7 +155,9 @@ def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     """Centre the bounding box at the origin and scale uniformly so that `max |v| == max_abs`.
 
     This is the paper's preprocessing (with `max_abs = 0.8` the mesh sits well inside
-    the default grid `[-1, 1]^d`). Orientation and face indices are unchanged.
+    the default grid `[-1, 1]^d`). Orientation and face indices are unchanged. The box is
+    that of the vertices that some face uses: unused vertices move along but do not
+    change the fit.
 
     **Arguments:**
 
@@ -172,7 +174,7 @@ def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     ([[-1.0, -0.5, -0.5], [1.0, 0.5, 0.5]], [1.0, 0.5, 0.5], 1.0)
     """
     m = mesh if isinstance(mesh, Mesh) else Mesh(*as_arrays(mesh))
-    vertices, centre, scale = fit(m.vertices, float(max_abs))
+    vertices, centre, scale = fit(m.vertices, float(max_abs), m.faces)
     out = Mesh(vertices, m.faces, m.info)
     return (out, centre, scale) if return_transform else out
 

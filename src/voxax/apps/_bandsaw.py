@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import energies
+from .. import _validate, energies
 from .._grid import Grid
 from .._mesh import Mesh
 from .._voxelize import voxelize
@@ -65,6 +65,7 @@ class BandsawReport(_common.Report):
     scale: float
 
 
+@_validate.surface_first
 def optimize_for_bandsaw(
     mesh: Any,
     *,

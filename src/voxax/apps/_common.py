@@ -19,10 +19,27 @@ from .._values import ValueEquality
 
 
 def as_mesh(where: str, mesh: Any) -> Mesh:
-    """A 3D voxax `Mesh` from a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair."""
+    """A 3D voxax `Mesh` from a `Mesh`, a `trimesh.Trimesh` or a `(vertices, faces)` pair.
+
+    A closed mesh that encloses a negative volume is inside out: the applications, which
+    expect outward faces, refuse it with a message that says how to flip it.
+    """
     out = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like(where, mesh))
     _validate.mesh(where, out.vertices, out.faces, dim=3, context="the applications need a 3D triangle mesh")
+    refuse_inside_out(where, out)
     return out
+
+
+def refuse_inside_out(where: str, mesh: Mesh) -> None:
+    """Raises a `ValueError` for a closed mesh whose faces point inwards (negative volume)."""
+    if mesh.n_faces == 0 or not _io.is_watertight(mesh.vertices, mesh.faces):
+        return
+    volume = mesh.signed_volume()
+    if volume < 0:
+        raise ValueError(
+            f"{where}: the mesh is inside out (closed, enclosing a negative volume, {volume:.6g}): its faces "
+            "must point outwards. Flip them: voxax.Mesh(mesh.vertices, mesh.faces[:, ::-1])"
+        )
 
 
 def warn_if_open(mesh: Mesh, where: str) -> None:

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import energies, esi
+from .. import _validate, energies, esi
 from .._grid import Grid
 from .._mesh import Mesh
 from .._voxelize import voxelize
@@ -52,6 +52,7 @@ def _undercut(mesh: Mesh, axis: int, resolution: int) -> float:
     return float(hull.signed_volume() - mesh.signed_volume())
 
 
+@_validate.surface_first
 def optimize_for_molding(
     mesh: Any,
     axis: int = 2,

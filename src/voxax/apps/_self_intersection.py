@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import energies
+from .. import _validate, energies
 from .._grid import Grid
 from .._mesh import Mesh
 from .._spatial import intersections
@@ -123,6 +123,7 @@ def _local_box(vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray, spaci
     return centre - 0.5 * cells * h + shift * h, h
 
 
+@_validate.surface_first
 def resolve_self_intersections(
     mesh: Any,
     *,

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import energies
+from .. import _validate, energies
 from .._grid import Grid
 from .._mesh import Mesh
 from .._spatial import intersections
@@ -164,10 +164,11 @@ def optimize_tiling(
     init: str = "random",
     translations=None,
     angles=None,
-    seed: int = 0,
+    key=None,
     dtype=None,
     progress: bool = True,
     callback=None,
+    seed=None,
 ) -> tuple[list[Mesh], TilingReport]:
     """Places and deforms copies of one or more meshes so that they fill space periodically.
 
@@ -218,7 +219,8 @@ def optimize_tiling(
     - `deform`: optimize per-instance vertex offsets (else only rigid motions).
     - `init`: `"random"` or `"lattice"`.
     - `translations`, `angles`: optional `(B, 3)` initial translations and yaw/pitch/roll.
-    - `seed`: seed of the random initialisation.
+    - `key`: the random initialisation's key, an int (default 0) or a JAX PRNG key. `seed`
+      is its deprecated old name.
     - `dtype`: float32 or float64 (default: float64 when JAX's x64 mode is on).
     - `progress`, `callback`: passed to `voxax.minimize`.
 
@@ -242,6 +244,7 @@ def optimize_tiling(
     if isinstance(blocks, bool) or not isinstance(blocks, (int, np.integer)) or blocks < 1:
         raise ValueError(f"blocks must be a positive int, got {blocks!r}")
     blocks = int(blocks)
+    key = _validate.key_or_seed("voxax.apps.optimize_tiling", key, seed)
     resolution = _common.check_resolution("optimize_tiling", resolution, blocks)
     alpha = _common.check_positive("optimize_tiling", arap_weight, "arap_weight", allow_zero=True)
     learning_rate = _common.check_positive("optimize_tiling", learning_rate, "learning_rate")
@@ -290,7 +293,7 @@ def optimize_tiling(
         faces_all = jnp.asarray(fp)
 
     # Initial placement.
-    rng = np.random.default_rng(seed)
+    rng = _validate.numpy_rng("voxax.apps.optimize_tiling", key)
     if init == "random":
         t0 = rng.uniform(lower, upper, size=(B, 3))
         a0 = np.stack(
