@@ -254,6 +254,11 @@ ERRORS = [
     (["remesh", "{tmp}/missing.ply"], "no such mesh file"),
     (["remesh", "torus", "--seeds", "2"], "expected an integer >= 4"),
     (["remesh", "torus", "-o", "{tmp}/out.npz"], "must end in .ply"),
+    (["voxelize", "torus", "--fit", "-o", "{tmp}/W.npy"], "a .npy file cannot hold"),
+    (["resolve", "{tmp}/inside_out.ply", "-o", "{tmp}/r"], "inside out"),
+    (["bandsaw", "{tmp}/inside_out.ply", "-o", "{tmp}/b"], "pass --flip"),
+    (["tile", "{tmp}/inside_out.ply", "-o", "{tmp}/t"], "inside out"),
+    (["mesh", "{tmp}/negative.npz", "-o", "{tmp}/m.ply"], "inside-out mesh"),
 ]
 
 
@@ -302,6 +307,11 @@ def error_runs(tmp_path_factory):
         pytest.skip("needs os.fork")
     tmp = tmp_path_factory.mktemp("cli_errors")
     (tmp / "garbage.ply").write_bytes(b"ply\nthis is not a mesh\n\x00\x01")
+    ball = voxax.data.icosphere(1, radius=0.5)
+    voxax.io.save(voxax.Mesh(ball.vertices, ball.faces[:, ::-1]), tmp / "inside_out.ply")
+    grid = voxax.Grid.cube(8)
+    negative = -np.asarray(voxax.voxelize(ball, grid))
+    np.savez(tmp / "negative.npz", W=negative, lower=grid.lower, upper=grid.upper, shape=grid.shape)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
     cases = [[a.replace("{tmp}", str(tmp)) for a in argv] for argv, _ in ERRORS]

@@ -149,6 +149,45 @@ def _load_mesh(name: str, dim: int | None = 3):
             raise UsageError(f"{name!r} is neither a mesh file nor a built-in mesh ({builtin})") from None
     if dim is not None and mesh.dim != dim:
         raise UsageError(f"{name!r} is a {mesh.dim}D mesh; this command needs a {dim}D triangle mesh")
+    _note_unused_vertices(mesh)
+    return mesh
+
+
+def _note_unused_vertices(mesh) -> None:
+    """Says when vertices that no face uses are left out of fits and bounds."""
+    import numpy as np
+
+    if mesh.n_faces:
+        unused = mesh.n_vertices - len(np.unique(np.asarray(mesh.faces)))
+        if unused:
+            _warn(f"{unused} of the mesh's {mesh.n_vertices} vertices are used by no face; they are ignored "
+                  "when fitting grids and bounds")
+
+
+def _inside_out(mesh) -> float | None:
+    """The enclosed volume of a closed 3D mesh whose faces point inwards, else None."""
+    import voxax
+
+    if mesh.dim != 3 or mesh.n_faces == 0 or not voxax.io.is_watertight(mesh.vertices, mesh.faces):
+        return None
+    volume = mesh.signed_volume()
+    return volume if volume < 0 else None
+
+
+def _flip_or_refuse(mesh, flip: bool, need_outward: bool):
+    """`--flip` reverses every face; an inside-out closed mesh is refused (need_outward) or
+    warned about (voxelize, whose negative values are then meaningful)."""
+    import voxax
+
+    if flip:
+        mesh = voxax.Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.info)
+    volume = _inside_out(mesh)
+    if volume is not None:
+        text = (f"the mesh is inside out: it is closed but encloses a negative volume ({volume:.6g}), so its faces "
+                "point inwards")
+        if need_outward:
+            raise UsageError(f"{text}; pass --flip to reverse every face")
+        _warn(f"{text}: its values are negative; pass --flip to reverse every face")
     return mesh
 
 
@@ -222,7 +261,8 @@ def _add_optimization_options(p, resolution: int, learning_rate: float, arap_wei
                    help=f"weight of the as-rigid-as-possible regularizer (default {arap_weight:g})")
     p.add_argument("--max-steps", type=_at_least(0), default=max_steps, metavar="STEPS",
                    help=f"most optimization steps (default {max_steps})")
-    p.add_argument("--out", "-o", default=out, metavar="FOLDER", help=f"output folder (default {out})")
+    p.add_argument("--output", "--out", "-o", dest="out", default=out, metavar="FOLDER",
+                   help=f"output folder (default {out})")
     p.add_argument("--float32", action="store_true", help="optimize in float32 instead of float64")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -236,6 +276,12 @@ def _optimization_options(args) -> dict:
 
 def _add_mesh_argument(p, example: str) -> None:
     p.add_argument("mesh", help=f"a mesh file readable by trimesh, or a built-in mesh name (e.g. {example})")
+    _add_flip_option(p)
+
+
+def _add_flip_option(p) -> None:
+    p.add_argument("--flip", action="store_true",
+                   help="reverse every face first (for an inside-out mesh, whose faces point inwards)")
 
 
 # -- voxax demo -------------------------------------------------------------------------------
@@ -303,9 +349,10 @@ def _voxelize_arguments(p) -> None:
     p.add_argument("--normalize", action="store_true",
                    help="first centre the mesh and scale it so that its largest |coordinate| is 0.8")
     p.add_argument("--float32", action="store_true", help="voxelize in float32 instead of float64")
+    _add_flip_option(p)
     p.add_argument("--output", "-o", default="voxels.npz", metavar="FILE",
                    help="output file: .npz with arrays W, lower, upper, shape (default voxels.npz), "
-                   "or .npy with W alone")
+                   "or .npy with W alone (not with --fit, whose grid only a .npz keeps)")
 
 
 def _outside(vertices, lower, upper) -> tuple[bool, str] | None:
@@ -326,12 +373,15 @@ def _outside(vertices, lower, upper) -> tuple[bool, str] | None:
 
 def _voxelize(args) -> int:
     _check_output(args.output, (".npz", ".npy"))
+    if args.fit and args.output.lower().endswith(".npy"):
+        raise UsageError("--fit makes its own grid, which a .npy file cannot hold; write a .npz (W, lower, upper, "
+                         "shape) instead")
     _setup_jax(args.float32)
     import numpy as np
 
     import voxax
 
-    mesh = _load_mesh(args.mesh, dim=None)
+    mesh = _flip_or_refuse(_load_mesh(args.mesh, dim=None), args.flip, need_outward=False)
     if args.normalize:
         mesh = voxax.io.normalize(mesh)
     if mesh.dim == 3 and not voxax.io.is_watertight(mesh.vertices, mesh.faces):
@@ -339,7 +389,7 @@ def _voxelize(args) -> int:
     dtype = np.float32 if args.float32 else np.float64
     vertices = np.asarray(mesh.vertices, dtype)
     if args.fit:
-        grid = voxax.Grid.around(vertices, args.resolution)
+        grid = voxax.Grid.around(voxax.Mesh(vertices, mesh.faces), args.resolution)
     else:
         grid = voxax.Grid.cube(args.resolution, dim=mesh.dim)
         outside = _outside(vertices, grid.lower, grid.upper)
@@ -386,7 +436,7 @@ def _resolve(args) -> int:
     import voxax
     from voxax import apps
 
-    mesh = _load_mesh(args.mesh)
+    mesh = _flip_or_refuse(_load_mesh(args.mesh), args.flip, need_outward=True)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.resolve_self_intersections(
             mesh, eps=args.eps, normalize=not args.no_normalize, refine=not args.no_refine,
@@ -432,7 +482,7 @@ def _bandsaw(args) -> int:
     import voxax
     from voxax import apps, fabricate
 
-    mesh = _load_mesh(args.mesh)
+    mesh = _flip_or_refuse(_load_mesh(args.mesh), args.flip, need_outward=True)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.optimize_for_bandsaw(
             mesh, w=args.w, min_step=args.min_step or None, normalize=not args.no_normalize,
@@ -471,6 +521,7 @@ def _tile_arguments(p) -> None:
                    help="initial placement: random (the paper's) or a lattice (default random)")
     p.add_argument("--seed", type=_integer, default=0, help="seed of the random placement (default 0)")
     p.add_argument("--separate", action="store_true", help="also write each instance to its own file")
+    _add_flip_option(p)
 
 
 def _tile(args) -> int:
@@ -486,7 +537,7 @@ def _tile(args) -> int:
     import voxax
     from voxax import apps
 
-    meshes = [_load_mesh(m) for m in args.meshes]
+    meshes = [_flip_or_refuse(_load_mesh(m), args.flip, need_outward=True) for m in args.meshes]
     instances = args.instances if counts > 1 else args.instances[0]
     placed, report = apps.optimize_tiling(
         meshes, instances=instances, min_step=args.min_step or None, deform=not args.rigid, init=args.init,
@@ -521,7 +572,7 @@ def _mesh_arguments(p) -> None:
                    "level set (inside where W > 0.5) is extracted")
     p.add_argument("--sdf", choices=_SDFS, metavar="NAME",
                    help=f"instead of a grid file, mesh a built-in field on [-1, 1]^3: {', '.join(_SDFS)}")
-    p.add_argument("--resolution", "-r", type=_resolution(least=2), default=64, metavar="N",
+    p.add_argument("--resolution", "-n", "-r", type=_resolution(least=2), default=64, metavar="N",
                    help="cells per axis for --sdf (default 64)")
     p.add_argument("--level", type=_number, default=None, metavar="X",
                    help="the iso-level (default 0.5 for a grid file, 0 for --sdf)")
@@ -565,7 +616,9 @@ def _mesh(args) -> int:
         if not np.all(np.isfinite(W)):
             raise UsageError(f"{args.grid!r}: W has NaN or Inf values")
         level = 0.5 if args.level is None else args.level
-        iso = voxax.isosurface(W, grid, level, inside="above", close=True)
+        with warnings.catch_warnings():  # an empty result is reported below, in command-line words
+            warnings.filterwarnings("ignore", message=".*does not cross level")
+            iso = voxax.isosurface(W, grid, level, inside="above", close=True)
     else:
         grid = voxax.Grid.cube(args.resolution)
         level = 0.0 if args.level is None else args.level
@@ -573,7 +626,14 @@ def _mesh(args) -> int:
         iso = voxax.isosurface(np.asarray(values), grid, level, close=True)
     mesh = iso.to_mesh()
     if mesh.n_faces == 0:
-        raise UsageError(f"the level {level} does not cross the field: the mesh is empty")
+        values = W if args.sdf is None else np.asarray(values)
+        lo, hi = float(np.min(values)), float(np.max(values))
+        hint = ""
+        if args.sdf is None and hi < level and lo < -abs(level):
+            hint = ("; the values are negative, as those of an inside-out mesh (faces pointing inwards): voxelize "
+                    "it with --flip")
+        raise UsageError(f"the level {level} does not cross the field (values in [{lo:.6g}, {hi:.6g}]): the mesh "
+                         f"is empty{hint}")
     voxax.io.save(mesh, args.output)
     print(f"wrote {args.output}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, "
           f"Euler characteristic {voxax.metrics.euler_characteristic(mesh)}, grid {grid}")
@@ -582,7 +642,7 @@ def _mesh(args) -> int:
 
 def _fc_arguments(p) -> None:
     _add_mesh_argument(p, "torus")
-    p.add_argument("--resolution", "-r", type=_resolution(least=2), default=512, metavar="N",
+    p.add_argument("--resolution", "-n", "-r", type=_resolution(least=2), default=512, metavar="N",
                    help="cells along the longest side of a grid around the mesh (default 512)")
     p.add_argument("--components", action="store_true",
                    help="one anchor per connected component of a cell's pieces (keeps nearby sheets apart)")
@@ -598,13 +658,13 @@ def _fc(args) -> int:
     _check_output(args.output, _MESH_OUTPUTS)
     if args.report:
         _check_output(args.report, (".json",))
-    mesh = _load_mesh(args.mesh, 3)
+    mesh = _flip_or_refuse(_load_mesh(args.mesh, 3), args.flip, need_outward=True)
     import time
 
     import voxax
 
     options = dict(lambda_d=args.lambda_d, anchors_per_cell="components" if args.components else 1)
-    grid = voxax.Grid.around(mesh.vertices, args.resolution)
+    grid = voxax.Grid.around(mesh, args.resolution)
     if args.report:
         out, rep = voxax.fc.roundtrip(mesh, grid=grid, **options)
         _write_json({"grid": {"lower": list(grid.lower), "upper": list(grid.upper), "shape": list(grid.shape)},
@@ -639,7 +699,7 @@ def _remesh_arguments(p) -> None:
 
 def _remesh(args) -> int:
     _check_output(args.output, _MESH_OUTPUTS)
-    mesh = _load_mesh(args.mesh)
+    mesh = _flip_or_refuse(_load_mesh(args.mesh), args.flip, need_outward=True)
     _setup_jax(False)
     import voxax
 

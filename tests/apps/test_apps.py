@@ -218,3 +218,13 @@ def test_rotation_matrices():
     # Derivatives flow through the angles.
     g = jax.grad(lambda a: apps.rotation_matrices(a)[0, 1])(jnp.array([0.3, 0.0, 0.0]))
     np.testing.assert_allclose(g, [-c, 0, 0], atol=1e-14)
+
+
+@pytest.mark.parametrize("app", ["resolve_self_intersections", "optimize_for_bandsaw", "optimize_for_molding"])
+def test_apps_refuse_an_inside_out_mesh_and_take_every_surface_form(app):
+    ball = voxax.data.icosphere(1, radius=0.5)
+    with pytest.raises(ValueError, match="inside out"):
+        getattr(voxax.apps, app)(voxax.Mesh(ball.vertices, ball.faces[:, ::-1]), resolution=8)
+    # vertices and faces as two arguments reach the same check
+    with pytest.raises(ValueError, match="inside out"):
+        getattr(voxax.apps, app)(ball.vertices, ball.faces[:, ::-1], resolution=8)

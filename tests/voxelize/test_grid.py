@@ -57,3 +57,16 @@ def test_around_fits_vertices():
     assert g2.shape == (10, 20, 30)
     with pytest.raises(ValueError, match="NaN"):
         Grid.around(np.array([[0.0, np.nan, 0.0]]), 8)
+
+
+def test_around_a_mesh_fits_the_vertices_its_faces_use():
+    """Unused vertices (here 100 far away) do not widen the grid, nor io.normalize's box."""
+    ball = voxax.data.icosphere(2, radius=0.6)
+    far = np.random.default_rng(0).normal(size=(100, 3)) * 50
+    padded = voxax.Mesh(np.vstack([ball.vertices, far]), ball.faces)
+    assert voxax.Grid.around(padded, 32) == voxax.Grid.around(ball, 32)
+    fitted, centre, scale = voxax.io.normalize(padded, return_transform=True)
+    _, centre0, scale0 = voxax.io.normalize(ball, return_transform=True)
+    np.testing.assert_array_equal(centre, centre0)
+    assert scale == scale0
+    np.testing.assert_allclose(np.abs(fitted.vertices[: ball.n_vertices]).max(), 0.8, rtol=1e-15)
