@@ -35,12 +35,8 @@ from . import _kernels  # noqa: F401  (registers the kernels with XLA)
 from ._grid import Grid
 from ._mesh import Mesh
 from ._voxelize import use_host_callback, voxelize, voxelize_corner_gradients
-from . import baselines, curves, data, energies, io, plot, reference
-from . import apps, fabricate
-from . import cvt
 from ._voxelize import Box, Gaussian, Kernel, box_filter, voxelize_mc, voxelize_mc_tangent
 from ._spatial import winding_number
-from ._optimize import MinimizeResult, StopReason, StopRules, minimize
 from ._isosurface import IsoMesh, isosurface, isosurface_fn, isosurface_topology, isosurface_vertices
 from ._spatial import (
     BVH,
@@ -53,15 +49,39 @@ from ._spatial import (
     first_hits,
     nearest_neighbors,
 )
-from . import fields, metrics, raster
-from . import fc
-from . import esi, nesi
 from ._kernels.export import export_safety_checks, ffi_targets
-from ._optimize import LeastSquaresResult, least_squares
 from ._voxelize import slab_grids, voxelize_sharded, voxelize_slab
 from ._spatial import Intersections, intersections
 
 __version__ = "0.1.0"
+
+# The systems and the optimization drivers load on first use (PEP 562), so that
+# `import voxax` (and every command-line call) does not pay for optimistix, equinox,
+# trimesh or manifold3d until they are needed.
+_LAZY_MODULES = frozenset({
+    "apps", "baselines", "curves", "cvt", "data", "energies", "esi", "fabricate", "fc", "fields", "io",
+    "metrics", "nesi", "plot", "raster", "reference",
+})
+_LAZY_NAMES = {
+    "minimize": "_optimize", "MinimizeResult": "_optimize", "StopReason": "_optimize", "StopRules": "_optimize",
+    "least_squares": "_optimize", "LeastSquaresResult": "_optimize",
+}
+
+
+def __getattr__(name: str):
+    import importlib
+
+    if name in _LAZY_MODULES:
+        return importlib.import_module(f".{name}", __name__)
+    if name in _LAZY_NAMES:
+        value = getattr(importlib.import_module(f".{_LAZY_NAMES[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'voxax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | _LAZY_MODULES | set(_LAZY_NAMES))
 
 __all__ = [
     "Grid",
