@@ -211,13 +211,13 @@ def test_the_same_mistake_gives_the_same_message(name):
 
 def test_key_and_kernel_messages():
     square = SQUARE
-    with pytest.raises(TypeError, match="^voxelize_mc: `key` must be a JAX PRNG key"):
+    with pytest.raises(TypeError, match="^voxax.voxelize_mc: `key` must be a JAX PRNG key"):
         voxax.voxelize_mc(square, GRID2, Box(1.0), 0)
-    with pytest.raises(TypeError, match="^voxelize_mc: `kernel` must implement the voxax.Kernel protocol"):
+    with pytest.raises(TypeError, match="^voxax.voxelize_mc: `kernel` must implement the voxax.Kernel protocol"):
         voxax.voxelize_mc(square, GRID2, "box", jax.random.key(0))
-    with pytest.raises(ValueError, match="^voxelize_mc: `samples` must be at least 1, got 0$"):
+    with pytest.raises(ValueError, match="^voxax.voxelize_mc: `samples` must be at least 1, got 0$"):
         voxax.voxelize_mc(square, GRID2, Box(1.0), jax.random.key(0), samples=0)
-    with pytest.raises(TypeError, match="^voxelize_mc: `kernel` must be hashable"):
+    with pytest.raises(TypeError, match="^voxax.voxelize_mc: `kernel` must be hashable"):
         voxax.voxelize_mc(square, GRID2, _Unhashable(), jax.random.key(0))
 
 

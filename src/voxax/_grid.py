@@ -17,7 +17,7 @@ def _as_float_tuple(x, name: str) -> tuple[float, ...]:
     try:
         values = tuple(float(v) for v in np.asarray(x, dtype=np.float64).reshape(-1))
     except (TypeError, ValueError) as err:
-        raise TypeError(f"Grid: `{name}` must be a sequence of numbers, got {x!r}") from err
+        raise TypeError(f"voxax.Grid: `{name}` must be a sequence of numbers, got {x!r}") from err
     return values
 
 
@@ -60,27 +60,27 @@ class Grid:
         try:
             shape = tuple(int(operator_index(s)) for s in np.asarray(self.shape).reshape(-1))
         except TypeError as err:
-            raise TypeError(f"Grid: `shape` must be a sequence of integers, got {self.shape!r}") from err
+            raise TypeError(f"voxax.Grid: `shape` must be a sequence of integers, got {self.shape!r}") from err
         d = len(shape)
         if d not in (2, 3):
-            raise ValueError(f"Grid: only 2D and 3D grids are supported, got shape {shape}")
+            raise ValueError(f"voxax.Grid: only 2D and 3D grids are supported, got shape {shape}")
         if len(lower) != d or len(upper) != d:
             raise ValueError(
-                f"Grid: `lower`, `upper` and `shape` must have the same length, "
+                f"voxax.Grid: `lower`, `upper` and `shape` must have the same length, "
                 f"got {len(lower)}, {len(upper)} and {d}"
             )
         if any(s < 1 for s in shape):
-            raise ValueError(f"Grid: every entry of `shape` must be >= 1, got {shape}")
+            raise ValueError(f"voxax.Grid: every entry of `shape` must be >= 1, got {shape}")
         if not all(math.isfinite(v) for v in lower + upper):
-            raise ValueError(f"Grid: corners must be finite, got lower={lower}, upper={upper}")
+            raise ValueError(f"voxax.Grid: corners must be finite, got lower={lower}, upper={upper}")
         if any(u <= lo for lo, u in zip(lower, upper)):
-            raise ValueError(f"Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
+            raise ValueError(f"voxax.Grid: need upper > lower on every axis, got lower={lower}, upper={upper}")
         if any(not math.isfinite((u - lo) / n) or (u - lo) / n <= 0 for lo, u, n in zip(lower, upper, shape)):
-            raise ValueError("Grid: the cell size underflows or overflows on some axis")
+            raise ValueError("voxax.Grid: the cell size underflows or overflows on some axis")
         volume = math.prod((u - lo) / n for lo, u, n in zip(lower, upper, shape))
         if not (MIN_CELL_VOLUME <= volume <= MAX_CELL_VOLUME):
             raise ValueError(
-                f"Grid: the cell volume {volume:.3g} is outside [{MIN_CELL_VOLUME:g}, {MAX_CELL_VOLUME:g}]; rescale the problem "
+                f"voxax.Grid: the cell volume {volume:.3g} is outside [{MIN_CELL_VOLUME:g}, {MAX_CELL_VOLUME:g}]; rescale the problem "
                 "(the kernels divide by the cell volume in double precision)"
             )
         object.__setattr__(self, "lower", lower)
@@ -146,11 +146,11 @@ class Grid:
             vertices = v[np.unique(faces)] if faces.size and v.ndim == 2 else v
         v = np.asarray(vertices, dtype=np.float64)
         if v.ndim < 2 or v.shape[-1] not in (2, 3) or v.shape[-2] == 0:
-            raise ValueError(f"Grid.around: expected vertices of shape (..., V, 2|3) with V > 0, got {v.shape}")
+            raise ValueError(f"voxax.Grid.around: expected vertices of shape (..., V, 2|3) with V > 0, got {v.shape}")
         if not np.all(np.isfinite(v)):
-            raise ValueError("Grid.around: vertices contain NaN or Inf")
+            raise ValueError("voxax.Grid.around: vertices contain NaN or Inf")
         if pad < 0:
-            raise ValueError(f"Grid.around: pad must be >= 0, got {pad}")
+            raise ValueError(f"voxax.Grid.around: pad must be >= 0, got {pad}")
         d = v.shape[-1]
         pts = v.reshape(-1, d)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -161,7 +161,7 @@ class Grid:
         lo, hi = lo - margin, hi + margin
         if cubic_cells:
             if not isinstance(n, (int, np.integer)):
-                raise TypeError("Grid.around: with cubic_cells=True, `n` must be a single int")
+                raise TypeError("voxax.Grid.around: with cubic_cells=True, `n` must be a single int")
             h = (extent + 2 * margin) / int(n)
             counts = np.maximum(1, np.ceil((hi - lo) / h - 1e-9)).astype(int)
             centre = 0.5 * (lo + hi)
@@ -230,7 +230,7 @@ class Grid:
             (x0, x1, nx), first = (self.lower[0], self.upper[0], n), 0
         start, stop = operator_index(start), operator_index(stop)
         if not 0 <= start < stop <= n:
-            raise ValueError(f"Grid.slab: need 0 <= start < stop <= {n}, got start={start}, stop={stop}")
+            raise ValueError(f"voxax.Grid.slab: need 0 <= start < stop <= {n}, got start={start}, stop={stop}")
         edges = self.edges(0)
         return SlabGrid(
             lower=(float(edges[start]),) + tuple(self.lower[1:]),
@@ -273,12 +273,12 @@ def operator_index(x) -> int:
 
 def _broadcast_shape(n, dim: int) -> tuple[int, ...]:
     if dim not in (2, 3):
-        raise ValueError(f"Grid: dim must be 2 or 3, got {dim}")
+        raise ValueError(f"voxax.Grid: dim must be 2 or 3, got {dim}")
     if isinstance(n, (int, np.integer)):
         return (int(n),) * dim
     shape = tuple(int(operator_index(s)) for s in n)
     if len(shape) != dim:
-        raise ValueError(f"Grid: expected {dim} cell counts, got {shape}")
+        raise ValueError(f"voxax.Grid: expected {dim} cell counts, got {shape}")
     return shape
 
 

@@ -43,7 +43,7 @@ def interpolate(W, grid: Grid, points) -> jax.Array:
     points = jnp.asarray(points, W.dtype)
     d = grid.dim
     if W.shape != grid.shape or points.shape[-1] != d:
-        raise ValueError(f"interpolate: need W of shape {grid.shape} and points (..., {d})")
+        raise ValueError(f"voxax.baselines.interpolate: need W of shape {grid.shape} and points (..., {d})")
     lead = points.shape[:-1]
     x = points.reshape(-1, d)
     Wp = jnp.pad(W, 1)  # zero ring: index i of W is i + 1 of Wp
@@ -92,7 +92,7 @@ def point_sampled(vertices, faces=None, grid: Grid | None = None, *, supersample
     **Returns:** `batch + grid.shape` array (or `batch + points.shape[:-1]` with `points`),
     `batch` the broadcast batch axes of the mesh (none for one mesh).
     """
-    where = "point_sampled"
+    where = "voxax.baselines.point_sampled"
     vertices, faces, (grid,) = _validate.unpack_mesh(where, vertices, faces, grid)
     grid = _validate.grid(where, grid)
     s = _validate.positive_int(where, "supersample", supersample)

@@ -246,7 +246,7 @@ def voxelize_curve_mc(
 
     **Returns:** `grid.shape` array.
     """
-    where = "voxelize_curve_mc"
+    where = "voxax.curves.voxelize_curve_mc"
     _validate.grid(where, grid, dim=2)
     st = _filters.mc_settings(grid, kernel, samples, strata, 1, where)
     params = _float(params)

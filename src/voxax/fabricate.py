@@ -444,6 +444,7 @@ class BandsawTemplates(ValueEquality):
     mm_per_unit: float
 
 
+@_validate.surface_first
 def bandsaw_templates(
     mesh: Any,
     out_dir: str | os.PathLike,

@@ -28,6 +28,7 @@ __all__ = ["load", "save", "normalize", "as_arrays", "is_watertight"]
 # --------------------------------------------------------------------------------------
 
 
+@_validate.surface_first
 def as_arrays(mesh: Any) -> tuple[Any, Any]:
     """Return `(vertices, faces)` from a voxax `Mesh`, a `trimesh.Trimesh` or a pair.
 
@@ -45,7 +46,8 @@ def as_arrays(mesh: Any) -> tuple[Any, Any]:
 
     **Arguments:**
 
-    - `mesh`: `Mesh`, `trimesh.Trimesh`, or `(vertices (..., V, d), faces (F, d))`.
+    - `mesh`: `Mesh`, `trimesh.Trimesh`, or `(vertices (..., V, d), faces (F, d))` (or
+      `vertices, faces` as two arguments).
 
     **Returns:** `(vertices (..., V, d), faces (F, d))`.
 
@@ -57,7 +59,7 @@ def as_arrays(mesh: Any) -> tuple[Any, Any]:
     >>> v.dtype, f.dtype, f.shape
     (dtype('float64'), dtype('int32'), (3, 2))
     """
-    return _validate.mesh_like("as_arrays", mesh)
+    return _validate.mesh_like("voxax.io.as_arrays", mesh)
 
 
 # --------------------------------------------------------------------------------------
@@ -96,9 +98,8 @@ def is_watertight(vertices: Any, faces: Any = None, *, strict: bool = False) -> 
     >>> is_watertight(m.vertices, m.faces), is_watertight(m.vertices, m.faces[1:])
     (True, False)
     """
-    where = "is_watertight"
-    if _validate.is_mesh_object(vertices) and faces is None:
-        vertices, faces = _validate.mesh_object_arrays(where, vertices)
+    where = "voxax.io.is_watertight"
+    vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     faces = np.asarray(faces)
     if faces.size == 0 and faces.ndim < 2:
         faces = faces.astype(np.int32).reshape(0, 3 if vertices is None else np.shape(vertices)[-1])
@@ -151,6 +152,7 @@ def is_watertight(vertices: Any, faces: Any = None, *, strict: bool = False) -> 
 # --------------------------------------------------------------------------------------
 
 
+@_validate.surface_first
 def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False):
     """Centre the bounding box at the origin and scale uniformly so that `max |v| == max_abs`.
 
@@ -173,7 +175,7 @@ def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     >>> m.bounds.tolist(), centre.tolist(), scale
     ([[-1.0, -0.5, -0.5], [1.0, 0.5, 0.5]], [1.0, 0.5, 0.5], 1.0)
     """
-    m = mesh if isinstance(mesh, Mesh) else Mesh(*as_arrays(mesh))
+    m = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like("voxax.io.normalize", mesh))
     vertices, centre, scale = fit(m.vertices, float(max_abs), m.faces)
     out = Mesh(vertices, m.faces, m.info)
     return (out, centre, scale) if return_transform else out
@@ -294,6 +296,7 @@ def _write_ply64(vertices: np.ndarray, faces: np.ndarray, path: str) -> None:
         fh.write(packed.tobytes())
 
 
+@_validate.surface_first
 def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     """Write a 3D triangle mesh to a file; the format follows the file extension.
 
@@ -312,7 +315,7 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     >>> from voxax import data
     >>> save(data.torus(), os.path.join(tempfile.mkdtemp(), "torus.obj"))
     """
-    vertices, faces = as_arrays(mesh)
+    vertices, faces = _validate.mesh_like("voxax.io.save", mesh)
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:

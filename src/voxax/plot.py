@@ -395,7 +395,7 @@ def _shading(tri: np.ndarray, light=(0.4, -0.6, 0.7)) -> np.ndarray:
 
 def mesh(
     vertices,
-    faces,
+    faces=None,
     values=None,
     *,
     ax=None,
@@ -456,7 +456,8 @@ def mesh(
     import matplotlib.colors as mcolors
 
     plt = pyplot()
-    v, f = _mesh_arrays(vertices, faces, "mesh")
+    vertices, faces, (values,) = _validate.unpack_mesh("voxax.plot.mesh", vertices, faces, values)
+    v, f = _mesh_arrays(vertices, faces, "voxax.plot.mesh")
     dim = v.shape[1]
     fig, ax = _new_axes(plt, dim, ax)
     face_q = None
@@ -506,8 +507,8 @@ def mesh(
 
 def gradient_field(
     vertices,
-    faces,
-    gradient,
+    faces=None,
+    gradient=None,
     W=None,
     grid=None,
     *,
@@ -552,7 +553,12 @@ def gradient_field(
     ```
     """
     plt = pyplot()
-    v, f = _mesh_arrays(vertices, faces, "gradient_field")
+    vertices, faces, (gradient, W, grid) = _validate.unpack_mesh(
+        "voxax.plot.gradient_field", vertices, faces, gradient, W, grid
+    )
+    if gradient is None:
+        raise TypeError("voxax.plot.gradient_field: missing `gradient` (V, d)")
+    v, f = _mesh_arrays(vertices, faces, "voxax.plot.gradient_field")
     g = np.asarray(gradient, dtype=np.float64)
     if g.shape != v.shape:
         raise ValueError(f"gradient_field: gradient must have the vertices' shape {v.shape}, got {g.shape}")
@@ -709,7 +715,7 @@ def history(
 
 def mesh_plotly(
     vertices,
-    faces,
+    faces=None,
     values=None,
     *,
     colorscale: str = "Viridis",
@@ -758,7 +764,8 @@ def mesh_plotly(
             "`pip install \"voxax[plot]\"` (or `pip install plotly`), or use voxax.plot.mesh for "
             "a matplotlib rendering"
         ) from err
-    v, f = _mesh_arrays(vertices, faces, "mesh_plotly")
+    vertices, faces, (values,) = _validate.unpack_mesh("voxax.plot.mesh_plotly", vertices, faces, values)
+    v, f = _mesh_arrays(vertices, faces, "voxax.plot.mesh_plotly")
     if v.shape[1] != 3:
         raise ValueError("mesh_plotly: needs a 3D triangle mesh; use voxax.plot.mesh for 2D polylines")
     kwargs = {}

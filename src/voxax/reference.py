@@ -279,9 +279,9 @@ def voxelize(vertices, faces=None, grid: Grid | None = None) -> np.ndarray:
 
     `(*grid.shape)` float64, the voxel averages `W[i, j, k]` (x, then y, then z).
     """
-    vertices, faces, (grid,) = _validate.unpack_mesh("voxelize", vertices, faces, grid)
-    grid = _check_grid(grid, "voxelize")
-    v, f = _check_mesh(vertices, faces, grid.dim, "voxelize")
+    vertices, faces, (grid,) = _validate.unpack_mesh("voxax.reference.voxelize", vertices, faces, grid)
+    grid = _check_grid(grid, "voxax.reference.voxelize")
+    v, f = _check_mesh(vertices, faces, grid.dim, "voxax.reference.voxelize")
     if grid.dim == 3:
         return _voxelize_3d(v, f, grid)
     return _voxelize_2d(v, f, grid)
@@ -385,12 +385,12 @@ def voxelize_backward(vertices, faces=None, grid: Grid | None = None, cotangent=
 
     `(V, 3)` float64 (or `(V, 2)`), `dL / d vertices`.
     """
-    vertices, faces, (grid, cotangent) = _validate.unpack_mesh("voxelize_backward", vertices, faces, grid, cotangent)
-    grid = _check_grid(grid, "voxelize_backward")
-    v, f = _check_mesh(vertices, faces, grid.dim, "voxelize_backward")
+    vertices, faces, (grid, cotangent) = _validate.unpack_mesh("voxax.reference.voxelize_backward", vertices, faces, grid, cotangent)
+    grid = _check_grid(grid, "voxax.reference.voxelize_backward")
+    v, f = _check_mesh(vertices, faces, grid.dim, "voxax.reference.voxelize_backward")
     g = np.asarray(cotangent, dtype=np.float64)
     if g.shape != grid.shape:
-        raise ValueError(f"voxelize_backward: `cotangent` must have shape {grid.shape}, got {g.shape}")
+        raise ValueError(f"voxax.reference.voxelize_backward: `cotangent` must have shape {grid.shape}, got {g.shape}")
     if grid.dim == 3:
         return _backward_3d(v, f, grid, g)
     return _backward_2d(v, f, grid, g)
@@ -416,8 +416,8 @@ def signed_volume(vertices, faces=None) -> float:
 
     float, the signed volume (area).
     """
-    vertices, faces, _ = _validate.unpack_mesh("signed_volume", vertices, faces)
-    v, f = _check_mesh(vertices, faces, None, "signed_volume")
+    vertices, faces, _ = _validate.unpack_mesh("voxax.reference.signed_volume", vertices, faces)
+    v, f = _check_mesh(vertices, faces, None, "voxax.reference.signed_volume")
     if v.shape[1] == 3:
         a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
         return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
@@ -441,8 +441,8 @@ def volume_gradient(vertices, faces=None) -> np.ndarray:
 
     `(V, 3)` float64 (or `(V, 2)`).
     """
-    vertices, faces, _ = _validate.unpack_mesh("volume_gradient", vertices, faces)
-    v, f = _check_mesh(vertices, faces, None, "volume_gradient")
+    vertices, faces, _ = _validate.unpack_mesh("voxax.reference.volume_gradient", vertices, faces)
+    v, f = _check_mesh(vertices, faces, None, "voxax.reference.volume_gradient")
     grad = np.zeros_like(v)
     if v.shape[1] == 3:
         a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -489,12 +489,12 @@ def winding_number_ray(vertices, faces=None, points=None) -> np.ndarray:
 
     `(P,)` float64, the crossing counts.
     """
-    vertices, faces, (points,) = _validate.unpack_mesh("winding_number_ray", vertices, faces, points)
-    v, f = _check_mesh(vertices, faces, None, "winding_number_ray")
+    vertices, faces, (points,) = _validate.unpack_mesh("voxax.reference.winding_number_ray", vertices, faces, points)
+    v, f = _check_mesh(vertices, faces, None, "voxax.reference.winding_number_ray")
     d = v.shape[1]
     q = np.asarray(points, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != d:
-        raise ValueError(f"winding_number_ray: `points` must have shape (P, {d}), got {q.shape}")
+        raise ValueError(f"voxax.reference.winding_number_ray: `points` must have shape (P, {d}), got {q.shape}")
     w = np.zeros(len(q))
     if d == 2:
         for a, b in v[f]:

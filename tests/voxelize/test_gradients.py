@@ -514,16 +514,16 @@ def test_deterministic_across_thread_counts(tmp_path):
     Each subprocess reports its pool size (threads named `tf_XLAEigen`), so the test
     checks that the setting took effect.
     """
-    tests_dir = str(Path(__file__).resolve().parents[1])
+    tests_dirs = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]
     pkg_root = str(Path(voxax.__file__).resolve().parent.parent)
     procs = {}
     for nproc in ("1", "4"):
         env = dict(os.environ)
         env.pop("PJRT_NPROC", None)
         env["NPROC"] = nproc
-        env["PYTHONPATH"] = os.pathsep.join([pkg_root, tests_dir, env.get("PYTHONPATH", "")])
+        env["PYTHONPATH"] = os.pathsep.join([pkg_root, *tests_dirs, env.get("PYTHONPATH", "")])
         path = str(tmp_path / f"nproc{nproc}.npz")
-        code = _SUBPROCESS_DETERMINISM.format(tests=tests_dir, path=path)
+        code = _SUBPROCESS_DETERMINISM.format(tests=tests_dirs[0], path=path)
         proc = subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         procs[nproc] = (proc, path)

@@ -143,7 +143,7 @@ def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None 
 
     ```
     """
-    where = "winding_number"
+    where = "voxax.winding_number"
     vertices, faces, (points,) = _validate.unpack_mesh(where, vertices, faces, points)
     vertices, faces = _validate.mesh(where, vertices, faces, batch=True)
     d = vertices.shape[-1]

@@ -84,7 +84,7 @@ def voxelize(vertices, faces=None, grid: Grid | None = None) -> jax.Array:
 # -- validation ----------------------------------------------------------------------------
 
 
-def _check(vertices, faces, grid, where="voxelize"):
+def _check(vertices, faces, grid, where="voxax.voxelize"):
     grid = _validate.grid(where, grid)
     vertices, faces = _validate.mesh(where, vertices, faces, dim=grid.dim, batch=True)
     vdtype = np.dtype(vertices.dtype)
@@ -125,7 +125,7 @@ def _check_memory(grid: Grid, batch, dtype) -> None:
     available = _available_memory()
     if nbytes > available:
         raise MemoryError(
-            f"voxelize: the output of shape {tuple(batch) + grid.shape} needs {nbytes / 2**30:.1f} GiB, "
+            f"voxax.voxelize: the output of shape {tuple(batch) + grid.shape} needs {nbytes / 2**30:.1f} GiB, "
             f"more than the {available / 2**30:.1f} GiB of memory available; use a coarser grid or smaller batches"
         )
 
@@ -187,7 +187,7 @@ def voxelize_corner_gradients(vertices, faces=None, grid: Grid | None = None, co
 
     `(..., F, d, d)` array: `out[..., f, c, :]` is the gradient for corner `c` of face `f`.
     """
-    where = "voxelize_corner_gradients"
+    where = "voxax.voxelize_corner_gradients"
     vertices, faces, (grid, cotangent) = _validate.unpack_mesh(where, vertices, faces, grid, cotangent)
     if cotangent is None:
         raise TypeError(f"{where}: missing `cotangent`")

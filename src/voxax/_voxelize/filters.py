@@ -97,7 +97,7 @@ class Box:
     def __post_init__(self):
         r = float(self.radius)
         if not (math.isfinite(r) and r > 0):
-            raise ValueError(f"Box: radius must be a positive number of voxels, got {self.radius!r}")
+            raise ValueError(f"voxax.Box: radius must be a positive number of voxels, got {self.radius!r}")
         object.__setattr__(self, "radius", r)
 
     @property
@@ -140,9 +140,9 @@ class Gaussian:
     def __post_init__(self):
         s, t = float(self.sigma), float(self.truncate)
         if not (math.isfinite(s) and s > 0):
-            raise ValueError(f"Gaussian: sigma must be a positive number of voxels, got {self.sigma!r}")
+            raise ValueError(f"voxax.Gaussian: sigma must be a positive number of voxels, got {self.sigma!r}")
         if not (math.isfinite(t) and t > 0):
-            raise ValueError(f"Gaussian: truncate must be positive, got {self.truncate!r}")
+            raise ValueError(f"voxax.Gaussian: truncate must be positive, got {self.truncate!r}")
         object.__setattr__(self, "sigma", s)
         object.__setattr__(self, "truncate", t)
 
@@ -446,7 +446,7 @@ def _mc_jit(vertices, faces, key, st):
     return fn(vertices, faces)
 
 
-def mc_settings(grid, kernel, samples, strata, surface_samples, where="voxelize_mc") -> MCSettings:
+def mc_settings(grid, kernel, samples, strata, surface_samples, where="voxax.voxelize_mc") -> MCSettings:
     """Checks the grid, kernel and sample counts; returns the static `MCSettings`."""
     grid = _validate.grid(where, grid)
     d = grid.dim
@@ -539,7 +539,7 @@ def voxelize_mc(
 
     ```
     """
-    where = "voxelize_mc"
+    where = "voxax.voxelize_mc"
     vertices, faces, (grid, kernel, key) = _validate.unpack_mesh(where, vertices, faces, grid, kernel, key)
     st = mc_settings(grid, kernel, samples, strata, surface_samples)
     vertices, faces = _mesh_in(where, vertices, faces, st.grid)
@@ -586,7 +586,7 @@ def voxelize_mc_tangent(
 
     **Returns:** `(..., *grid.shape)` array.
     """
-    where = "voxelize_mc_tangent"
+    where = "voxax.voxelize_mc_tangent"
     vertices, faces, (grid, kernel, key, tangent) = _validate.unpack_mesh(
         where, vertices, faces, grid, kernel, key, tangent
     )
@@ -636,16 +636,16 @@ def box_filter(W, factor: int, *, dim: int | None = None) -> jax.Array:
     """
     W = jnp.asarray(W)
     if not jnp.issubdtype(W.dtype, jnp.floating):
-        raise TypeError(f"box_filter: W must be a float array, got {W.dtype}")
+        raise TypeError(f"voxax.box_filter: W must be a float array, got {W.dtype}")
     if isinstance(factor, (bool, float)) or int(factor) != factor or int(factor) < 1:
-        raise ValueError(f"box_filter: factor must be an integer >= 1, got {factor!r}")
+        raise ValueError(f"voxax.box_filter: factor must be an integer >= 1, got {factor!r}")
     s = int(factor)
     if dim is None:
         if W.ndim not in (2, 3):
-            raise ValueError(f"box_filter: cannot tell the grid axes of a {W.ndim}-D array; pass dim=2 or dim=3")
+            raise ValueError(f"voxax.box_filter: cannot tell the grid axes of a {W.ndim}-D array; pass dim=2 or dim=3")
         dim = W.ndim
     if dim not in (2, 3) or W.ndim < dim:
-        raise ValueError(f"box_filter: dim must be 2 or 3 and at most W.ndim, got dim={dim}, W.ndim={W.ndim}")
+        raise ValueError(f"voxax.box_filter: dim must be 2 or 3 and at most W.ndim, got dim={dim}, W.ndim={W.ndim}")
     if s == 1:
         return W
     nb = W.ndim - dim

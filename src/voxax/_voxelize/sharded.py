@@ -9,6 +9,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from .. import _validate
 from .._grid import Grid
 from .api import voxelize
 
@@ -31,19 +32,20 @@ def slab_grids(grid: Grid, count: int) -> list[Grid]:
     A list of `count` `voxax.Grid`s.
     """
     if not isinstance(grid, Grid):
-        raise TypeError(f"slab_grids: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(f"voxax.slab_grids: `grid` must be a voxax.Grid, got {type(grid).__name__}")
     count = int(count)
     nx = grid.shape[0]
     if count < 1 or nx % count:
         raise ValueError(
-            f"voxelize_sharded: {count} devices along the sharded axis do not divide the grid's "
+            f"voxax.voxelize_sharded: {count} devices along the sharded axis do not divide the grid's "
             f"{nx} cells along x; choose a grid whose x resolution is a multiple of the device count"
         )
     m = nx // count
     return [grid.slab(k * m, (k + 1) * m) for k in range(count)]
 
 
-def voxelize_sharded(vertices, faces, grid: Grid, mesh: Mesh, axis_name: str):
+def voxelize_sharded(vertices, faces=None, grid: Grid | None = None, mesh: Mesh | None = None,
+                     axis_name: str | None = None):
     """Voxelizes on a grid distributed across the devices of `mesh` along x.
 
     Every device along `axis_name` voxelizes its own slab of the grid (the cells
@@ -80,14 +82,17 @@ def voxelize_sharded(vertices, faces, grid: Grid, mesh: Mesh, axis_name: str):
     without the named axis or a device count that does not divide `grid.shape[0]`, and
     what `voxelize` raises for bad vertices or faces.
     """
+    vertices, faces, (grid, mesh, axis_name) = _validate.unpack_mesh(
+        "voxax.voxelize_sharded", vertices, faces, grid, mesh, axis_name
+    )
     if not isinstance(mesh, Mesh):
-        raise TypeError(f"voxelize_sharded: `mesh` must be a jax.sharding.Mesh, got {type(mesh).__name__}")
+        raise TypeError(f"voxax.voxelize_sharded: `mesh` must be a jax.sharding.Mesh, got {type(mesh).__name__}")
     if axis_name not in mesh.axis_names:
         raise ValueError(
-            f"voxelize_sharded: the device mesh has axes {tuple(mesh.axis_names)} and no axis named {axis_name!r}"
+            f"voxax.voxelize_sharded: the device mesh has axes {tuple(mesh.axis_names)} and no axis named {axis_name!r}"
         )
     if not isinstance(grid, Grid):
-        raise TypeError(f"voxelize_sharded: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(f"voxax.voxelize_sharded: `grid` must be a voxax.Grid, got {type(grid).__name__}")
     count = int(mesh.shape[axis_name])
     slabs = tuple(slab_grids(grid, count))
     nb = max(np.ndim(vertices), np.ndim(faces)) - 2
@@ -96,7 +101,7 @@ def voxelize_sharded(vertices, faces, grid: Grid, mesh: Mesh, axis_name: str):
     return fn(vertices, faces)
 
 
-def voxelize_slab(vertices, faces, grid: Grid, axis_name: str):
+def voxelize_slab(vertices, faces=None, grid: Grid | None = None, axis_name: str | None = None):
     """Inside `jax.shard_map`: this device's slab of `voxelize(vertices, faces, grid)`.
 
     The device with index `k` along `axis_name` (of `n` devices) gets the cells
@@ -116,13 +121,14 @@ def voxelize_slab(vertices, faces, grid: Grid, axis_name: str):
 
     `(..., grid.shape[0] / n, *grid.shape[1:])` array.
     """
+    vertices, faces, (grid, axis_name) = _validate.unpack_mesh("voxax.voxelize_slab", vertices, faces, grid, axis_name)
     if not isinstance(grid, Grid):
-        raise TypeError(f"voxelize_slab: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(f"voxax.voxelize_slab: `grid` must be a voxax.Grid, got {type(grid).__name__}")
     try:
         count = int(jax.lax.axis_size(axis_name))
     except (NameError, ValueError, KeyError) as err:
         raise ValueError(
-            f"voxelize_slab: no mesh axis named {axis_name!r} here; call it inside jax.shard_map over that axis"
+            f"voxax.voxelize_slab: no mesh axis named {axis_name!r} here; call it inside jax.shard_map over that axis"
         ) from err
     slabs = slab_grids(grid, count)
     vertices = jax.lax.pcast(jax.numpy.asarray(vertices), (axis_name,), to="varying")

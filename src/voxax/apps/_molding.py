@@ -93,7 +93,7 @@ def optimize_for_molding(
     **Returns:** `(mesh, report)`: the deformed `Mesh` (same faces, input frame) and a
     [`MoldingReport`][voxax.apps.MoldingReport].
     """
-    where = "optimize_for_molding"
+    where = "voxax.apps.optimize_for_molding"
     source = _common.as_mesh(where, mesh)
     _common.warn_if_open(source, where)
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or int(axis) not in (0, 1, 2):

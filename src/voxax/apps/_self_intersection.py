@@ -234,7 +234,7 @@ def resolve_self_intersections(
     round_steps = int(round_steps)
     local_cells = _common.check_resolution("resolve_self_intersections", local_cells, name="local_cells")
     if max_rounds < 0 or round_steps < 1:
-        raise ValueError(f"resolve_self_intersections: need max_rounds >= 0 and round_steps >= 1, got {max_rounds}, {round_steps}")
+        raise ValueError(f"voxax.apps.resolve_self_intersections: need max_rounds >= 0 and round_steps >= 1, got {max_rounds}, {round_steps}")
     if time_budget is not None:
         time_budget = _common.check_positive("resolve_self_intersections", time_budget, "time_budget")
     if volume_tolerance is not None:

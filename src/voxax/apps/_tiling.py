@@ -272,7 +272,7 @@ def optimize_tiling(
             vol = m.signed_volume()
             if not vol > 0:
                 raise ValueError(
-                    "optimize_tiling: a mesh has non-positive signed volume; it must be closed "
+                    "voxax.apps.optimize_tiling: a mesh has non-positive signed volume; it must be closed "
                     "and outward-oriented (or pass fill_volume=False)"
                 )
             s = (cell_volume / B / vol) ** (1.0 / 3.0)
