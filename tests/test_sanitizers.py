@@ -3,6 +3,8 @@
 Runs `tests/sanitize/run_sanitized.py` (which builds the kernels with `-DVOXAX_SANITIZE=ON`
 and runs `tests/sanitize/driver.py` with the sanitizer runtimes preloaded) once per
 session, in a subprocess. A few minutes on 2 cores, the build of every kernel included; `run_sanitized.py --inputs N` fuzzes longer.
+Marked `sanitize`: not in the default suite, but a step of its own in CI
+(`python -m pytest -m sanitize`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ SANITIZE = Path(__file__).resolve().parent / "sanitize"
 RUNNER = SANITIZE / "run_sanitized.py"
 REPORT = re.compile(r"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer|UndefinedBehaviorSanitizer")
 MIN_INPUTS = 450
+
+pytestmark = pytest.mark.sanitize
 
 
 def _runner_module():
