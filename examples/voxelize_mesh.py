@@ -34,7 +34,9 @@ def main(argv=None) -> int:
 
     # 1. A mesh: a built-in demo mesh or a file, centred and scaled into the grid.
     mesh = voxax.data.get(args.mesh) if args.mesh in voxax.data.names() else voxax.io.load(args.mesh)
-    mesh = voxax.io.normalize(mesh, max_abs=0.8)
+    mesh, _, scale = voxax.io.normalize(mesh, max_abs=0.8, return_transform=True)
+    print(f"scaled by {scale:.6g} into [-0.8, 0.8]^3 (volumes below are of the scaled mesh; divide by "
+          f"{scale**3:.6g} for the file's units)")
     if not voxax.io.is_watertight(mesh.vertices, mesh.faces):
         print("warning: the mesh is not closed; its voxelization depends on the ray direction")
     grid = voxax.Grid.cube(args.resolution)  # [-1, 1]^3, n cells per axis
@@ -48,7 +50,8 @@ def main(argv=None) -> int:
     volume_grid = float(W.sum() * grid.voxel_volume)
     volume_exact = mesh.signed_volume()
     print(f"{args.mesh}: {mesh.n_vertices} vertices, {mesh.n_faces} faces on {grid.shape} ({elapsed * 1e3:.1f} ms)")
-    print(f"  volume from the grid {volume_grid:.12f}, exact {volume_exact:.12f}")
+    print(f"  volume of the scaled mesh from the grid {volume_grid:.12f}, exact (divergence theorem) "
+          f"{volume_exact:.12f}")
 
     # 3. Differentiate: d volume / d vertices through the voxelization equals the exact
     #    gradient of the enclosed volume, sum over faces around v of area * normal / 3.

@@ -126,11 +126,16 @@ def test_bandsaw(tmp_path):
     assert 0 <= report["exact_waste_fraction_optimized"] < 1
 
 
-def test_tile(tmp_path):
+def test_tile(tmp_path, capsys):
     argv = ["tile", "icosphere", "cube", "--instances", "2", "1", "-n", "24", "--max-steps", "3",
             "--out", str(tmp_path), "-q", "--separate"]
-    assert main(argv) == 0
+    code = main(argv)
     report = json.loads((tmp_path / "report.json").read_text())
+    # A tiling whose instances still intersect is reported as such and is not a success.
+    assert code == (1 if report["instances_intersect"] else 0)
+    out, err = capsys.readouterr()
+    assert ("instance pairs still intersect" in out) == report["instances_intersect"]
+    assert ("not a valid tiling" in err) == report["instances_intersect"]
     assert report["instances"] == 3 and report["mesh_index"] == [0, 0, 1]
     assert np.asarray(report["translations"]).shape == (3, 3)
     assert np.load(tmp_path / "cell.npy").shape == (8, 8, 8)

@@ -554,10 +554,15 @@ def _tile(args) -> int:
         _close(report.plot_history(os.path.join(args.out, "history.png")))
         n = report.cell.shape[0]
         cell_grid = voxax.Grid((report.cell_lower,) * 3, (report.cell_upper,) * 3, (n, n, n))
+        crossing = f", {report.intersecting_instance_pairs} instance pairs intersect" if report.instances_intersect else ""
         _close(voxax.plot.slices(report.cell, cell_grid, axis=2, count=4,
-                                 title=f"periodic cell: {report.coverage_final:.1%} covered once",
+                                 title=f"periodic cell: {report.coverage_final:.1%} covered once{crossing}",
                                  path=os.path.join(args.out, "cell.png")))
     print(f"wrote {args.out}/")
+    if report.instances_intersect:
+        _warn(f"the instances still intersect ({report.intersecting_instance_pairs} instance pairs by the exact "
+              "triangle test): not a valid tiling; try a finer --resolution or more --max-steps")
+        return 1
     return 0
 
 

@@ -86,6 +86,18 @@ class TilingReport(_common.Report):
     instances_intersect: bool
     intersecting_instance_pairs: int
 
+    def summary(self) -> str:
+        """The report's scalar fields, and a note when the voxel coverage and the exact
+        intersection test disagree (overlaps thinner than a voxel)."""
+        text = super().summary()
+        if self.instances_intersect:
+            text += (
+                f"\n  note: {self.intersecting_instance_pairs} instance pairs still intersect by the exact "
+                f"triangle test, although {self.coverage_final:.1%} of the cell's voxels are covered once: "
+                "the overlaps are thinner than a voxel (a finer resolution or more steps resolves them)"
+            )
+        return text
+
 
 def _instance_intersections(meshes: list, period: float) -> int:
     """Intersecting (instance, instance, period shift) combinations, exactly."""
