@@ -264,6 +264,9 @@ ERRORS = [
     (["bandsaw", "{tmp}/inside_out.ply", "-o", "{tmp}/b"], "pass --flip"),
     (["tile", "{tmp}/inside_out.ply", "-o", "{tmp}/t"], "inside out"),
     (["mesh", "{tmp}/negative.npz", "-o", "{tmp}/m.ply"], "inside-out mesh"),
+    (["mesh", "{tmp}/float_shape.npz", "-o", "{tmp}/m.ply"], "'shape' must be 3 integers"),
+    (["mesh", "{tmp}/negative.npz", "--level", "7", "-o", "{tmp}/m.ply"], "does not cross the field"),
+    (["voxelize", "{tmp}/nan.ply"], "NaN or Inf"),
 ]
 
 
@@ -317,6 +320,10 @@ def error_runs(tmp_path_factory):
     grid = voxax.Grid.cube(8)
     negative = -np.asarray(voxax.voxelize(ball, grid))
     np.savez(tmp / "negative.npz", W=negative, lower=grid.lower, upper=grid.upper, shape=grid.shape)
+    np.savez(tmp / "float_shape.npz", W=negative, lower=grid.lower, upper=grid.upper, shape=[8.0, 8.5, 8.0])
+    (tmp / "nan.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                 "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                 "end_header\n0 0 0\nnan 1 0\n0 0 1\n3 0 1 2\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
     cases = [[a.replace("{tmp}", str(tmp)) for a in argv] for argv, _ in ERRORS]

@@ -600,10 +600,17 @@ def _read_grid(path: str):
         raise UsageError(f"cannot read {path!r} as a .npz grid: {err}") from None
     if not hasattr(data, "files") or not {"W", "lower", "upper", "shape"} <= set(data.files):
         raise UsageError(f"{path!r} must be a .npz with arrays W, lower, upper, shape (as 'voxax voxelize' writes)")
-    W = np.asarray(data["W"])
-    if W.ndim != 3 or tuple(int(n) for n in data["shape"]) != W.shape:
+    W, shape = np.asarray(data["W"]), np.asarray(data["shape"])
+    if W.dtype.kind != "f":
+        raise UsageError(f"{path!r}: W must hold floats, got {W.dtype}")
+    if shape.dtype.kind not in "iu" or shape.shape != (3,):
+        raise UsageError(f"{path!r}: 'shape' must be 3 integers, got {shape.tolist()!r} ({shape.dtype})")
+    if W.ndim != 3 or tuple(int(n) for n in shape) != W.shape:
         raise UsageError(f"{path!r}: W must be a 3D grid matching 'shape', got W {W.shape}")
-    grid = voxax.Grid(lower=tuple(data["lower"].tolist()), upper=tuple(data["upper"].tolist()), shape=W.shape)
+    try:
+        grid = voxax.Grid(lower=tuple(data["lower"].tolist()), upper=tuple(data["upper"].tolist()), shape=W.shape)
+    except (TypeError, ValueError) as err:
+        raise UsageError(f"{path!r}: not a valid grid: {err}") from None
     return W, grid
 
 

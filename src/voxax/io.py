@@ -250,7 +250,9 @@ def load(
 
     **Returns:** `Mesh` with float64 `vertices (V, 3)` and int32 `faces (F, 3)`.
 
-    **Raises:** `ValueError` if the file contains no triangles.
+    **Raises:** `FileNotFoundError` for a missing file; `ValueError` if the file cannot be
+    read, contains no triangles, has faces that index past its vertices, or vertex
+    coordinates that are NaN, infinite or beyond the accepted 1e75.
 
     >>> import os, tempfile
     >>> from voxax import data
@@ -261,13 +263,21 @@ def load(
     """
     import trimesh
 
-    obj = trimesh.load(os.fspath(path), process=process, **kwargs)
-    vertices, faces = _geometry_arrays(obj)
+    where = "voxax.io.load"
+    name = os.fspath(path)
+    if not os.path.exists(name):
+        raise FileNotFoundError(f"{where}: no such file: {name!r}")
+    try:
+        obj = trimesh.load(name, process=process, **kwargs)
+        vertices, faces = _geometry_arrays(obj)
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, MemoryError) as err:
+        # trimesh raises many kinds for unreadable or truncated files
+        raise ValueError(f"{where}: cannot read {name!r}: {type(err).__name__}: {err}") from err
     if len(faces) == 0:
         raise ValueError(
-            f"{os.fspath(path)!r} contains no triangles (loaded a {type(obj).__name__}); "
-            "voxax needs a triangle mesh"
+            f"{where}: {name!r} contains no triangles (loaded a {type(obj).__name__}); voxax needs a triangle mesh"
         )
+    _validate.mesh(f"{where}: {name!r}", vertices, faces, dim=3)
     if merge is None:
         merge = len(np.unique(faces)) == faces.size  # every face has its own vertices
     if merge:
@@ -316,6 +326,7 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     >>> save(data.torus(), os.path.join(tempfile.mkdtemp(), "torus.obj"))
     """
     vertices, faces = _validate.mesh_like("voxax.io.save", mesh)
+    _validate.mesh("voxax.io.save", vertices, faces, allow_empty=True)  # finite, in range: a file holds no NaN
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
