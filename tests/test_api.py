@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import pickle
+import re
 import subprocess
 import sys
 
@@ -194,7 +195,10 @@ def _callers():
 @pytest.mark.parametrize("name", sorted(_callers()))
 def test_the_same_mistake_gives_the_same_message(name):
     fn = _callers()[name]
-    short = name.split(".")[-1]
+    short = {"point_sampled": "baselines.point_sampled", "as_arrays": "io.as_arrays",
+             "resolve_self_intersections": "apps.resolve_self_intersections",
+             "silhouette_polygons": "fabricate.silhouette_polygons"}.get(name, name)
+    short = re.escape(f"voxax.{short}")
     m = data.cube()
     with pytest.raises(ValueError, match=rf"^{short}: face indices out of range: they must lie in \[0, 8\), got \[0, 8\]$"):
         fn(m.vertices, np.where(m.faces == 7, 8, m.faces))
@@ -211,8 +215,11 @@ def test_the_same_mistake_gives_the_same_message(name):
 
 def test_key_and_kernel_messages():
     square = SQUARE
-    with pytest.raises(TypeError, match="^voxax.voxelize_mc: `key` must be a JAX PRNG key"):
-        voxax.voxelize_mc(square, GRID2, Box(1.0), 0)
+    with pytest.raises(TypeError, match="^voxax.voxelize_mc: `key` must be an int or a JAX PRNG key"):
+        voxax.voxelize_mc(square, GRID2, Box(1.0), 0.5)
+    # an int key is jax.random.key(int)
+    np.testing.assert_array_equal(voxax.voxelize_mc(square, GRID2, Box(1.0), 3, samples=4),
+                                  voxax.voxelize_mc(square, GRID2, Box(1.0), jax.random.key(3), samples=4))
     with pytest.raises(TypeError, match="^voxax.voxelize_mc: `kernel` must implement the voxax.Kernel protocol"):
         voxax.voxelize_mc(square, GRID2, "box", jax.random.key(0))
     with pytest.raises(ValueError, match="^voxax.voxelize_mc: `samples` must be at least 1, got 0$"):

@@ -73,7 +73,7 @@ class Mesh:
         faces_in = np.asarray(self.faces)
         if faces_in.size == 0 and vertices.ndim == 2:  # e.g. np.zeros((0, 3)) or []: an empty mesh
             faces_in = np.zeros((0, vertices.shape[1]), dtype=np.int32)
-        vertices, faces_in = _validate.mesh("Mesh", vertices, faces_in, allow_empty=True, finite=False)
+        vertices, faces_in = _validate.mesh("voxax.Mesh", vertices, faces_in, allow_empty=True, finite=False)
         object.__setattr__(self, "vertices", _readonly_array(vertices))
         object.__setattr__(self, "faces", _readonly_array(faces_in.astype(np.int32)))
         object.__setattr__(self, "info", _FrozenDict(self.info))

@@ -235,6 +235,11 @@ def mesh(
             f"{where}: `faces` of shape {tuple(faces.shape)} do not match the vertices: "
             f"{d}D vertices need {kind}"
         )
+    if not all(isinstance(n, (int, np.integer)) for n in (*vertices.shape, *faces.shape)):
+        raise ValueError(
+            f"{where}: symbolic shapes (jax.export with shape polymorphism) are not supported; export with concrete "
+            "vertex and face counts (pad meshes with degenerate faces to share one shape)"
+        )
     nv, nf = vertices.shape[-2], faces.shape[-2]
     if not allow_empty and (nv == 0 or nf == 0):
         raise ValueError(f"{where}: empty mesh ({nv} vertices, {nf} faces)")
@@ -375,9 +380,11 @@ def numpy_rng(where: str, value) -> np.random.Generator:
 
 def jax_key(where: str, value):
     """A JAX PRNG key from `key`: an int seed (`jax.random.key(int)`) or a JAX PRNG key."""
-    if isinstance(value, (int, np.integer, bool)) or value is None:
-        import jax
+    import jax
 
+    if value is None or isinstance(value, (bool, float, np.floating, str)):
+        raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(value).__name__}")
+    if isinstance(value, (int, np.integer)):
         return jax.random.key(_int_key(where, value))
     return key(where, value)
 

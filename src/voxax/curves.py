@@ -250,7 +250,7 @@ def voxelize_curve_mc(
     _validate.grid(where, grid, dim=2)
     st = _filters.mc_settings(grid, kernel, samples, strata, 1, where)
     params = _float(params)
-    key = _validate.key(where, key)
+    key = _validate.jax_key(where, key)
     segments = _validate.positive_int(where, "segments", segments, minimum=3)
     curve_samples = _validate.positive_int(where, "curve_samples", curve_samples)
     return _curve_mc_jit(curve, params, key, st, segments, curve_samples)

@@ -191,7 +191,7 @@ def silhouette_polygons(shape: Any, axis: int | None = None, *, grid: Grid | Non
     `axis=None`, a tuple of three such lists (along x, y, z).
     """
     axes = (0, 1, 2) if axis is None else (_check_axis(axis),)
-    sections = _cross_sections(shape, axes, grid, threshold, "silhouette_polygons")
+    sections = _cross_sections(shape, axes, grid, threshold, "voxax.fabricate.silhouette_polygons")
     polys = [[np.asarray(p, dtype=np.float64) for p in cs.to_polygons()] for cs in sections]
     return tuple(polys) if axis is None else polys[0]
 
@@ -260,7 +260,7 @@ def cut_solid(shape: Any, *, grid: Grid | None = None, threshold: float = 0.5, b
     ):
         sections = [_polygons_cross_section(s) for s in shape]
     else:
-        sections = _cross_sections(shape, (0, 1, 2), grid, threshold, "cut_solid")
+        sections = _cross_sections(shape, (0, 1, 2), grid, threshold, "voxax.fabricate.cut_solid")
     if any(cs.is_empty() for cs in sections):
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
     box = _polygon_bounds(sections) if bounds is None else np.asarray(bounds, dtype=np.float64).reshape(2, 3)
@@ -477,7 +477,7 @@ def bandsaw_templates(
     """
     from .io import save
 
-    vertices, faces = _mesh_arrays(mesh, "bandsaw_templates")
+    vertices, faces = _mesh_arrays(mesh, "voxax.fabricate.bandsaw_templates")
     shape = Mesh(vertices, faces)
     os.makedirs(out_dir, exist_ok=True)
     bounds = shape.bounds

@@ -217,7 +217,7 @@ def test_batches_dtypes_and_bad_input():
     w32 = voxelize_mc(STAR.vertices.astype(np.float32), STAR.faces, GRID2, Gaussian(1.0), jax.random.PRNGKey(0), samples=16)
     assert w32.dtype == jnp.float32 and np.all(np.isfinite(w32))
     with pytest.raises(TypeError, match="key"):
-        voxelize_mc(STAR.vertices, STAR.faces, GRID2, Box(1.0), 0)
+        voxelize_mc(STAR.vertices, STAR.faces, GRID2, Box(1.0), 0.5)
     with pytest.raises(TypeError, match="kernel"):
         voxelize_mc(STAR.vertices, STAR.faces, GRID2, "box", key)
     with pytest.raises(ValueError, match="radius"):

@@ -519,7 +519,8 @@ def voxelize_mc(
     - `grid`: the `voxax.Grid`.
     - `kernel`: any [`Kernel`][voxax.Kernel]: `voxax.Box(radius)`,
       `voxax.Gaussian(sigma, truncate=3)` (sizes in voxels) or your own.
-    - `key`: a JAX PRNG key (`jax.random.key(0)` or `jax.random.PRNGKey(0)`).
+    - `key`: a JAX PRNG key (`jax.random.key(0)` or `jax.random.PRNGKey(0)`) or an int
+      (`jax.random.key(int)`).
     - `samples`: samples per voxel for the forward; rounded up to a multiple of `strata^d`.
     - `surface_samples`: samples per face for the backward (rounded up to a square in 3D).
     - `strata`: strata per axis; by default the largest m with `m^d <= samples`.
@@ -543,7 +544,7 @@ def voxelize_mc(
     vertices, faces, (grid, kernel, key) = _validate.unpack_mesh(where, vertices, faces, grid, kernel, key)
     st = mc_settings(grid, kernel, samples, strata, surface_samples)
     vertices, faces = _mesh_in(where, vertices, faces, st.grid)
-    key = _validate.key(where, key)
+    key = _validate.jax_key(where, key)
     return _mc_jit(vertices, faces, key, st)
 
 
@@ -600,7 +601,7 @@ def voxelize_mc_tangent(
             f"{where}: `tangent` must have the shape (..., V, d) of `vertices`, "
             f"got {tuple(tangent.shape)} and {tuple(vertices.shape)}"
         )
-    return _tangent_jit(vertices, faces, _validate.key(where, key), tangent, st)
+    return _tangent_jit(vertices, faces, _validate.jax_key(where, key), tangent, st)
 
 
 # -- integer box filters by discrete convolution ----------------------------------------------

@@ -126,17 +126,17 @@ def optimize_for_bandsaw(
 
     ```
     """
-    source = _common.as_mesh("optimize_for_bandsaw", mesh)
-    _common.warn_if_open(source, "optimize_for_bandsaw")
-    resolution = _common.check_resolution("optimize_for_bandsaw", resolution)
-    w = _common.check_positive("optimize_for_bandsaw", w, "w")
-    alpha = _common.check_positive("optimize_for_bandsaw", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("optimize_for_bandsaw", learning_rate, "learning_rate")
+    source = _common.as_mesh("voxax.apps.optimize_for_bandsaw", mesh)
+    _common.warn_if_open(source, "voxax.apps.optimize_for_bandsaw")
+    resolution = _common.check_resolution("voxax.apps.optimize_for_bandsaw", resolution)
+    w = _common.check_positive("voxax.apps.optimize_for_bandsaw", w, "w")
+    alpha = _common.check_positive("voxax.apps.optimize_for_bandsaw", arap_weight, "arap_weight", allow_zero=True)
+    learning_rate = _common.check_positive("voxax.apps.optimize_for_bandsaw", learning_rate, "learning_rate")
     if min_step is not None:
-        min_step = _common.check_positive("optimize_for_bandsaw", min_step, "min_step")
+        min_step = _common.check_positive("voxax.apps.optimize_for_bandsaw", min_step, "min_step")
     grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "optimize_for_bandsaw")
-    dt = _common.float_dtype("optimize_for_bandsaw", dtype)
+    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "voxax.apps.optimize_for_bandsaw")
+    dt = _common.float_dtype("voxax.apps.optimize_for_bandsaw", dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
 

@@ -223,25 +223,25 @@ def resolve_self_intersections(
 
     ```
     """
-    source = _common.as_mesh("resolve_self_intersections", mesh)
-    _common.warn_if_open(source, "resolve_self_intersections")
-    resolution = _common.check_resolution("resolve_self_intersections", resolution)
-    eps = _common.check_positive("resolve_self_intersections", eps, "eps", allow_zero=True)
-    alpha = _common.check_positive("resolve_self_intersections", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("resolve_self_intersections", learning_rate, "learning_rate")
-    beta = _common.check_positive("resolve_self_intersections", volume_weight, "volume_weight", allow_zero=True) if keep_volume else 0.0
+    source = _common.as_mesh("voxax.apps.resolve_self_intersections", mesh)
+    _common.warn_if_open(source, "voxax.apps.resolve_self_intersections")
+    resolution = _common.check_resolution("voxax.apps.resolve_self_intersections", resolution)
+    eps = _common.check_positive("voxax.apps.resolve_self_intersections", eps, "eps", allow_zero=True)
+    alpha = _common.check_positive("voxax.apps.resolve_self_intersections", arap_weight, "arap_weight", allow_zero=True)
+    learning_rate = _common.check_positive("voxax.apps.resolve_self_intersections", learning_rate, "learning_rate")
+    beta = _common.check_positive("voxax.apps.resolve_self_intersections", volume_weight, "volume_weight", allow_zero=True) if keep_volume else 0.0
     max_rounds = int(max_rounds)
     round_steps = int(round_steps)
-    local_cells = _common.check_resolution("resolve_self_intersections", local_cells, name="local_cells")
+    local_cells = _common.check_resolution("voxax.apps.resolve_self_intersections", local_cells, name="local_cells")
     if max_rounds < 0 or round_steps < 1:
         raise ValueError(f"voxax.apps.resolve_self_intersections: need max_rounds >= 0 and round_steps >= 1, got {max_rounds}, {round_steps}")
     if time_budget is not None:
-        time_budget = _common.check_positive("resolve_self_intersections", time_budget, "time_budget")
+        time_budget = _common.check_positive("voxax.apps.resolve_self_intersections", time_budget, "time_budget")
     if volume_tolerance is not None:
-        volume_tolerance = _common.check_positive("resolve_self_intersections", volume_tolerance, "volume_tolerance")
+        volume_tolerance = _common.check_positive("voxax.apps.resolve_self_intersections", volume_tolerance, "volume_tolerance")
     grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "resolve_self_intersections")
-    dt = _common.float_dtype("resolve_self_intersections", dtype)
+    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "voxax.apps.resolve_self_intersections")
+    dt = _common.float_dtype("voxax.apps.resolve_self_intersections", dtype)
     faces_np = np.asarray(work.faces)
     faces = jnp.asarray(faces_np)
     rest = _common.to_jax(work.vertices, dt)

@@ -137,13 +137,13 @@ def _is_mesh_like(m) -> bool:
 def _mesh_list(meshes) -> list[Mesh]:
     """One mesh, or a list of meshes (a `(vertices, faces)` pair counts as one mesh)."""
     if _is_mesh_like(meshes) or not isinstance(meshes, (list, tuple)):
-        return [_common.as_mesh("optimize_tiling", meshes)]
+        return [_common.as_mesh("voxax.apps.optimize_tiling", meshes)]
     if not meshes:
         raise ValueError("optimize_tiling needs at least one mesh")
     first = meshes[0]
     if len(meshes) == 2 and not _is_mesh_like(first) and np.ndim(first) == 2:
-        return [_common.as_mesh("optimize_tiling", meshes)]  # a single (vertices, faces) pair
-    return [_common.as_mesh("optimize_tiling", m) for m in meshes]
+        return [_common.as_mesh("voxax.apps.optimize_tiling", meshes)]  # a single (vertices, faces) pair
+    return [_common.as_mesh("voxax.apps.optimize_tiling", m) for m in meshes]
 
 
 def _counts(instances, k: int) -> list[int]:
@@ -252,16 +252,16 @@ def optimize_tiling(
     """
     sources = _mesh_list(meshes)
     for m in sources:
-        _common.warn_if_open(m, "optimize_tiling")
+        _common.warn_if_open(m, "voxax.apps.optimize_tiling")
     if isinstance(blocks, bool) or not isinstance(blocks, (int, np.integer)) or blocks < 1:
         raise ValueError(f"blocks must be a positive int, got {blocks!r}")
     blocks = int(blocks)
     key = _validate.key_or_seed("voxax.apps.optimize_tiling", key, seed)
-    resolution = _common.check_resolution("optimize_tiling", resolution, blocks)
-    alpha = _common.check_positive("optimize_tiling", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("optimize_tiling", learning_rate, "learning_rate")
+    resolution = _common.check_resolution("voxax.apps.optimize_tiling", resolution, blocks)
+    alpha = _common.check_positive("voxax.apps.optimize_tiling", arap_weight, "arap_weight", allow_zero=True)
+    learning_rate = _common.check_positive("voxax.apps.optimize_tiling", learning_rate, "learning_rate")
     if min_step is not None:
-        min_step = _common.check_positive("optimize_tiling", min_step, "min_step")
+        min_step = _common.check_positive("voxax.apps.optimize_tiling", min_step, "min_step")
     if init not in ("random", "lattice"):
         raise ValueError(f"init must be 'random' or 'lattice', got {init!r}")
     counts = _counts(instances, len(sources))
@@ -273,7 +273,7 @@ def optimize_tiling(
     lower = -1.0 + (blocks // 2) * period
     upper = lower + period
     cell_volume = period**3
-    dt = _common.float_dtype("optimize_tiling", dtype)
+    dt = _common.float_dtype("voxax.apps.optimize_tiling", dtype)
 
     # Rest shapes: centred at the vertex mean, optionally scaled to fill the cell.
     rests, scales = [], []
