@@ -175,6 +175,7 @@ def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     >>> m.bounds.tolist(), centre.tolist(), scale
     ([[-1.0, -0.5, -0.5], [1.0, 0.5, 0.5]], [1.0, 0.5, 0.5], 1.0)
     """
+    max_abs = _validate.positive_float("voxax.io.normalize", "max_abs", max_abs)
     m = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like("voxax.io.normalize", mesh))
     vertices, centre, scale = fit(m.vertices, float(max_abs), m.faces)
     out = Mesh(vertices, m.faces, m.info)

@@ -76,7 +76,7 @@ def voxelize(vertices, faces=None, grid: Grid | None = None) -> jax.Array:
     1.0
     ```
     """
-    vertices, faces, (grid,) = _validate.unpack_mesh("voxelize", vertices, faces, grid)
+    vertices, faces, (grid,) = _validate.unpack_mesh("voxax.voxelize", vertices, faces, grid)
     vertices, faces = _check(vertices, faces, grid)
     return _forward_call(vertices, faces, grid)
 

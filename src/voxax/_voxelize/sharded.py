@@ -93,6 +93,8 @@ def voxelize_sharded(vertices, faces=None, grid: Grid | None = None, mesh: Mesh 
         )
     if not isinstance(grid, Grid):
         raise TypeError(f"voxax.voxelize_sharded: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+    if _validate.is_concrete(vertices) and _validate.is_concrete(faces):
+        _validate.mesh("voxax.voxelize_sharded", vertices, faces, dim=grid.dim, batch=True)  # before any int32 cast
     count = int(mesh.shape[axis_name])
     slabs = tuple(slab_grids(grid, count))
     nb = max(np.ndim(vertices), np.ndim(faces)) - 2
