@@ -160,6 +160,104 @@ def _counts(instances, k: int) -> list[int]:
     return counts
 
 
+def _rest_shapes(sources: list, mesh_index: np.ndarray, fill_volume: bool, cell_volume: float):
+    """The instances' rest shapes: each mesh centred at its vertex mean and, with
+    `fill_volume`, scaled so that the instances fill the cell. Returns the rest vertices per
+    mesh, their scales, the padded rest vertices `(B, V, 3)` and the faces (shared, or
+    padded per instance with degenerate faces)."""
+    B = len(mesh_index)
+    rests, scales = [], []
+    for m in sources:
+        v = m.vertices - m.vertices.mean(axis=0)
+        s = 1.0
+        if fill_volume:
+            vol = m.signed_volume()
+            if not vol > 0:
+                raise ValueError(
+                    "voxax.apps.optimize_tiling: a mesh has non-positive signed volume; it must be closed "
+                    "and outward-oriented (or pass fill_volume=False)"
+                )
+            s = (cell_volume / B / vol) ** (1.0 / 3.0)
+        rests.append(v * s)
+        scales.append(s)
+    n_v = max(len(r) for r in rests)
+    n_f = max(m.n_faces for m in sources)
+    rest_pad = np.zeros((B, n_v, 3))
+    for b, c in enumerate(mesh_index):
+        rest_pad[b, : len(rests[c])] = rests[c]
+    if len(sources) == 1:
+        faces_all = jnp.asarray(sources[0].faces)  # shared by all instances
+    else:
+        fp = np.zeros((B, n_f, 3), dtype=np.int32)  # padding: degenerate (0, 0, 0) faces
+        for b, c in enumerate(mesh_index):
+            fp[b, : sources[c].n_faces] = sources[c].faces
+        faces_all = jnp.asarray(fp)
+    return rests, scales, rest_pad, faces_all
+
+
+def _initial_placement(rng, init: str, B: int, lower: float, upper: float, period: float, translations, angles):
+    """The instances' first translations and angles `(B, 3)`: random (uniformly distributed
+    rotations) or on a lattice, unless given."""
+    if init == "random":
+        t0 = rng.uniform(lower, upper, size=(B, 3))
+        a0 = np.stack(
+            [rng.uniform(-np.pi, np.pi, B), np.arcsin(rng.uniform(-1, 1, B)), rng.uniform(-np.pi, np.pi, B)],
+            axis=1,
+        )
+    else:
+        k = int(math.ceil(B ** (1.0 / 3.0) - 1e-9))
+        ticks = lower + (np.arange(k) + 0.5) * (period / k)
+        lattice = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+        t0 = lattice[np.sort(rng.permutation(len(lattice))[:B])]
+        a0 = np.zeros((B, 3))
+    if translations is not None:
+        t0 = np.asarray(translations, dtype=np.float64)
+        if t0.shape != (B, 3):
+            raise ValueError(f"voxax.apps.optimize_tiling: `translations` must have shape ({B}, 3), got {t0.shape}")
+    if angles is not None:
+        a0 = np.asarray(angles, dtype=np.float64)
+        if a0.shape != (B, 3):
+            raise ValueError(f"voxax.apps.optimize_tiling: `angles` must have shape ({B}, 3), got {a0.shape}")
+    return t0, a0
+
+
+def _report(result, resolution, mesh_index, y1, fills, cells, arap1, offsets1, deform, scales, box, coverages,
+            crossing) -> TilingReport:
+    """The tiling's report from the optimization's result and the measurements around it."""
+    fill0, fill1 = (float(f) for f in fills)
+    cell0, cell1 = cells
+    (lower, upper), (coverage_before, coverage_after) = box, coverages
+    ang1 = np.asarray(y1["angles"], dtype=np.float64)
+    return TilingReport(
+        **_common.result_fields(result),
+        resolution=resolution,
+        instances=len(mesh_index),
+        mesh_index=mesh_index,
+        translations=np.asarray(y1["translations"], dtype=np.float64),
+        angles=ang1,
+        rotations=np.asarray(rotation_matrices(jnp.asarray(ang1)), dtype=np.float64),
+        fill_initial=fill0,
+        fill_final=fill1,
+        relative_improvement=(1.0 - fill1 / fill0) if fill0 > 0 else 0.0,
+        coverage_initial=float(np.mean(np.abs(cell0 - 1.0) < COVERAGE_TOLERANCE)),
+        coverage_final=float(np.mean(np.abs(cell1 - 1.0) < COVERAGE_TOLERANCE)),
+        empty_final=float(np.mean(cell1 < 1.0 - COVERAGE_TOLERANCE)),
+        overlap_final=float(np.mean(cell1 > 1.0 + COVERAGE_TOLERANCE)),
+        arap_final=float(arap1),
+        max_offset=float(np.max(np.linalg.norm(offsets1, axis=-1))) if deform else 0.0,
+        scales=np.asarray(scales),
+        cell=cell1,
+        cell_lower=lower,
+        cell_upper=upper,
+        coverage_fine_initial=coverage_before["fine"],
+        coverage_fine_final=coverage_after["fine"],
+        coverage_shifted_initial=coverage_before["shifted"],
+        coverage_shifted_final=coverage_after["shifted"],
+        instances_intersect=crossing > 0,
+        intersecting_instance_pairs=crossing,
+    )
+
+
 def optimize_tiling(
     meshes: Any,
     *,
@@ -275,57 +373,10 @@ def optimize_tiling(
     cell_volume = period**3
     dt = _common.float_dtype("voxax.apps.optimize_tiling", dtype)
 
-    # Rest shapes: centred at the vertex mean, optionally scaled to fill the cell.
-    rests, scales = [], []
-    for m in sources:
-        v = m.vertices - m.vertices.mean(axis=0)
-        s = 1.0
-        if fill_volume:
-            vol = m.signed_volume()
-            if not vol > 0:
-                raise ValueError(
-                    "voxax.apps.optimize_tiling: a mesh has non-positive signed volume; it must be closed "
-                    "and outward-oriented (or pass fill_volume=False)"
-                )
-            s = (cell_volume / B / vol) ** (1.0 / 3.0)
-        rests.append(v * s)
-        scales.append(s)
-
-    n_v = max(len(r) for r in rests)
-    n_f = max(m.n_faces for m in sources)
-    rest_pad = np.zeros((B, n_v, 3))
-    for b, c in enumerate(mesh_index):
-        rest_pad[b, : len(rests[c])] = rests[c]
-    if len(sources) == 1:
-        faces_all = jnp.asarray(sources[0].faces)  # shared by all instances
-    else:
-        fp = np.zeros((B, n_f, 3), dtype=np.int32)  # padding: degenerate (0, 0, 0) faces
-        for b, c in enumerate(mesh_index):
-            fp[b, : sources[c].n_faces] = sources[c].faces
-        faces_all = jnp.asarray(fp)
-
-    # Initial placement.
+    rests, scales, rest_pad, faces_all = _rest_shapes(sources, mesh_index, fill_volume, cell_volume)
+    n_v = rest_pad.shape[1]
     rng = _validate.numpy_rng("voxax.apps.optimize_tiling", key)
-    if init == "random":
-        t0 = rng.uniform(lower, upper, size=(B, 3))
-        a0 = np.stack(
-            [rng.uniform(-np.pi, np.pi, B), np.arcsin(rng.uniform(-1, 1, B)), rng.uniform(-np.pi, np.pi, B)],
-            axis=1,
-        )  # uniformly distributed rotations
-    else:
-        k = int(math.ceil(B ** (1.0 / 3.0) - 1e-9))
-        ticks = lower + (np.arange(k) + 0.5) * (period / k)
-        lattice = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3)
-        t0 = lattice[np.sort(rng.permutation(len(lattice))[:B])]
-        a0 = np.zeros((B, 3))
-    if translations is not None:
-        t0 = np.asarray(translations, dtype=np.float64)
-        if t0.shape != (B, 3):
-            raise ValueError(f"translations must have shape ({B}, 3), got {t0.shape}")
-    if angles is not None:
-        a0 = np.asarray(angles, dtype=np.float64)
-        if a0.shape != (B, 3):
-            raise ValueError(f"angles must have shape ({B}, 3), got {a0.shape}")
+    t0, a0 = _initial_placement(rng, init, B, lower, upper, period, translations, angles)
 
     rest_j = _common.to_jax(rest_pad, dt)
     class_rows = []  # per mesh: (instance indices, vertex count, rest (V, 3), faces (F, 3))
@@ -409,36 +460,7 @@ def optimize_tiling(
     cell0 = np.asarray(cell0, dtype=np.float64)
     cell1 = np.asarray(cell1, dtype=np.float64)
     out = [Mesh(world1[b, : len(rests[c])], sources[c].faces) for b, c in enumerate(mesh_index)]
-    fill0, fill1 = float(fill0), float(fill1)
-    ang1 = np.asarray(y1["angles"], dtype=np.float64)
     coverage_after = {k: coverage_on(y1, g) for k, g in check_grids.items()}
-    crossing = _instance_intersections(out, period)
-    report = TilingReport(
-        **_common.result_fields(result),
-        resolution=resolution,
-        instances=B,
-        mesh_index=mesh_index,
-        translations=np.asarray(y1["translations"], dtype=np.float64),
-        angles=ang1,
-        rotations=np.asarray(rotation_matrices(jnp.asarray(ang1)), dtype=np.float64),
-        fill_initial=fill0,
-        fill_final=fill1,
-        relative_improvement=(1.0 - fill1 / fill0) if fill0 > 0 else 0.0,
-        coverage_initial=float(np.mean(np.abs(cell0 - 1.0) < COVERAGE_TOLERANCE)),
-        coverage_final=float(np.mean(np.abs(cell1 - 1.0) < COVERAGE_TOLERANCE)),
-        empty_final=float(np.mean(cell1 < 1.0 - COVERAGE_TOLERANCE)),
-        overlap_final=float(np.mean(cell1 > 1.0 + COVERAGE_TOLERANCE)),
-        arap_final=float(arap1),
-        max_offset=float(np.max(np.linalg.norm(offsets1, axis=-1))) if deform else 0.0,
-        scales=np.asarray(scales),
-        cell=cell1,
-        cell_lower=lower,
-        cell_upper=upper,
-        coverage_fine_initial=coverage_before["fine"],
-        coverage_fine_final=coverage_after["fine"],
-        coverage_shifted_initial=coverage_before["shifted"],
-        coverage_shifted_final=coverage_after["shifted"],
-        instances_intersect=crossing > 0,
-        intersecting_instance_pairs=crossing,
-    )
+    report = _report(result, resolution, mesh_index, y1, (fill0, fill1), (cell0, cell1), arap1, offsets1, deform,
+                     scales, (lower, upper), (coverage_before, coverage_after), _instance_intersections(out, period))
     return out, report
