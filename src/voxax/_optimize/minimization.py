@@ -372,6 +372,59 @@ def _compiled_eval(fn_aux, y, args):
     return fn_aux(y, args)
 
 
+def _steppers(kind, solver, fn_aux, bounds, lower, upper, rtol, atol, step_size_fn, f_struct, aux_struct,
+              options, stop, jit):
+    """`(init, step, failure)` of the chosen solver: `init(y, args) -> state`,
+    `step(y, state, args) -> (y_new, state, info, result)`, and `failure(result)`, the
+    message of a failed step."""
+    failure = None  # maps the step's `result` to a failure message
+
+    if kind == "optax":
+        lo, hi = (lower, upper) if bounds is not None else (None, None)
+        f_max = jnp.array(jnp.finfo(f_struct.dtype).max, f_struct.dtype)
+        stepper = _OptaxStep(fn_aux, solver, lo, hi, rtol, atol, step_size_fn, f_max)
+
+    elif kind == "lbfgsb":
+        jaxopt = require("jaxopt", 'minimize(solver="lbfgsb")')
+        lbfgsb = jaxopt.LBFGSB(fun=fn_aux, has_aux=True, tol=atol, maxiter=max(stop.max_steps, 1))
+        box = (lower, upper)
+
+        def _init(y, args):
+            return lbfgsb.init_state(y, box, args)
+
+        def _step(y, state, args):
+            y_new, state = lbfgsb.update(y, state, box, args)
+            done = state.error <= lbfgsb.tol
+            info = _info(state.value, state.aux, step_size_fn(y_new, y), jnp.array(True), done, state.failed_linesearch)
+            return y_new, state, info, jnp.array(0)
+
+        def failure(result):
+            return "the line search failed"
+
+    else:
+        if isinstance(solver, str):
+            solver = optx.BFGS(rtol=rtol, atol=atol) if solver == "bfgs" else optx.LBFGS(rtol=rtol, atol=atol)
+        stepper = _OptxStep(fn_aux, solver, options, f_struct, aux_struct, kind == "quasi_newton", step_size_fn)
+
+        def failure(result):
+            return str(optx.RESULTS[result])
+
+    if kind == "lbfgsb":
+        if jit:
+            _init = eqx.filter_jit(_init)
+            _step = eqx.filter_jit(_step)
+    elif jit:
+        def _init(y, args):
+            return _compiled_init(stepper, y, args)
+
+        def _step(y, state, args):
+            return _compiled_step(stepper, y, state, args)
+    else:
+        _init, _step = stepper.init, stepper
+
+    return _init, _step, failure
+
+
 def minimize(
     fn: Callable,
     y0,
@@ -481,6 +534,7 @@ def minimize(
         raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
                          "aux['max_w'] (e.g. W.max()) from `fn`")
 
+    lower = upper = None
     if bounds is not None:
         if kind in ("quasi_newton", "optimistix"):
             raise ValueError("minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
@@ -491,50 +545,8 @@ def minimize(
         lower = jtu.tree_map(lambda x: jnp.full(x.shape, -jnp.inf, x.dtype), y0)
         upper = jtu.tree_map(lambda x: jnp.full(x.shape, jnp.inf, x.dtype), y0)
 
-    failure = None  # maps the step's `result` to a failure message
-
-    if kind == "optax":
-        lo, hi = (lower, upper) if bounds is not None else (None, None)
-        f_max = jnp.array(jnp.finfo(f_struct.dtype).max, f_struct.dtype)
-        stepper = _OptaxStep(fn_aux, solver, lo, hi, rtol, atol, step_size_fn, f_max)
-
-    elif kind == "lbfgsb":
-        jaxopt = require("jaxopt", 'minimize(solver="lbfgsb")')
-        lbfgsb = jaxopt.LBFGSB(fun=fn_aux, has_aux=True, tol=atol, maxiter=max(stop.max_steps, 1))
-        box = (lower, upper)
-
-        def _init(y, args):
-            return lbfgsb.init_state(y, box, args)
-
-        def _step(y, state, args):
-            y_new, state = lbfgsb.update(y, state, box, args)
-            done = state.error <= lbfgsb.tol
-            info = _info(state.value, state.aux, step_size_fn(y_new, y), jnp.array(True), done, state.failed_linesearch)
-            return y_new, state, info, jnp.array(0)
-
-        def failure(result):
-            return "the line search failed"
-
-    else:
-        if isinstance(solver, str):
-            solver = optx.BFGS(rtol=rtol, atol=atol) if solver == "bfgs" else optx.LBFGS(rtol=rtol, atol=atol)
-        stepper = _OptxStep(fn_aux, solver, options, f_struct, aux_struct, kind == "quasi_newton", step_size_fn)
-
-        def failure(result):
-            return str(optx.RESULTS[result])
-
-    if kind == "lbfgsb":
-        if jit:
-            _init = eqx.filter_jit(_init)
-            _step = eqx.filter_jit(_step)
-    elif jit:
-        def _init(y, args):
-            return _compiled_init(stepper, y, args)
-
-        def _step(y, state, args):
-            return _compiled_step(stepper, y, state, args)
-    else:
-        _init, _step = stepper.init, stepper
+    _init, _step, failure = _steppers(kind, solver, fn_aux, bounds, lower, upper, rtol, atol, step_size_fn, f_struct,
+                                      aux_struct, options, stop, jit)
 
     state = _init(y0, args)
     y = y0
