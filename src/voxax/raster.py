@@ -17,40 +17,15 @@ solids on the lines.
 
 from __future__ import annotations
 
-import ctypes
 from typing import NamedTuple
 
 import numpy as np
 
-from . import _kernels
 from . import _validate as check
 from ._grid import Grid
+from ._kernels import raster as _kernel
 
 __all__ = ["Dexels", "line_crossings"]
-
-_SIGNATURES = {
-    "voxax_line_crossings": (
-        ctypes.c_int,
-        [
-            _kernels.D,
-            ctypes.c_int64,
-            _kernels.I32,
-            ctypes.c_int64,
-            ctypes.c_int32,
-            _kernels.D,
-            ctypes.c_int64,
-            _kernels.D,
-            ctypes.c_int64,
-            ctypes.c_int32,
-            ctypes.POINTER(_kernels.VP),
-            ctypes.c_char_p,
-            ctypes.c_int64,
-        ],
-    ),
-    "voxax_crossings_size": (ctypes.c_int64, [_kernels.VP]),
-    "voxax_crossings_copy": (None, [_kernels.VP, _kernels.I64, _kernels.D, _kernels.I8, _kernels.I32]),
-    "voxax_crossings_free": (None, [_kernels.VP]),
-}
 
 _LINES = ("centers", "nodes")
 
@@ -192,38 +167,5 @@ def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int32)
     kind, coords = _line_coords(grid, axis, lines)
-    lib = _kernels.declare(_SIGNATURES)
-    err = _kernels.error_buffer()
-    handle = _kernels.VP()
-    status = lib.voxax_line_crossings(
-        _kernels.pointer(v, _kernels.D),
-        len(v),
-        _kernels.pointer(f, _kernels.I32),
-        len(f),
-        axis,
-        _kernels.pointer(coords[0], _kernels.D),
-        len(coords[0]),
-        _kernels.pointer(coords[1], _kernels.D),
-        len(coords[1]),
-        _kernels.threads(threads),
-        ctypes.byref(handle),
-        err,
-        _kernels.ERRLEN,
-    )
-    _kernels.check(status, err)
-    try:
-        n = int(lib.voxax_crossings_size(handle))
-        offsets = np.empty(len(coords[0]) * len(coords[1]) + 1, np.int64)
-        depth = np.empty(n, np.float64)
-        sign = np.empty(n, np.int8)
-        face = np.empty(n, np.int32)
-        lib.voxax_crossings_copy(
-            handle,
-            _kernels.pointer(offsets, _kernels.I64),
-            _kernels.pointer(depth, _kernels.D),
-            _kernels.pointer(sign, _kernels.I8),
-            _kernels.pointer(face, _kernels.I32),
-        )
-    finally:
-        lib.voxax_crossings_free(handle)
+    offsets, depth, sign, face = _kernel.line_crossings(v, f, axis, coords[0], coords[1], threads)
     return Dexels(axis, kind, coords, offsets, depth, sign, face)

@@ -1154,6 +1154,7 @@ def run_line_crossings(rng, n_inputs):
     import ctypes
 
     from voxax import _kernels, raster
+    from voxax._kernels import raster as raster_kernel
 
     kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
     for i in range(n_inputs):
@@ -1197,7 +1198,7 @@ def run_line_crossings(rng, n_inputs):
         COUNTS["line_crossings"] += 1
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
     g = voxax.Grid.cube(4)
-    lib = _kernels.declare(raster._SIGNATURES)
+    lib = _kernels.declare(raster_kernel.SIGNATURES)
 
     def raw(nv, nf, axis, n0, n1, lines0=None):
         err = _kernels.error_buffer()
@@ -1232,6 +1233,7 @@ def run_fc(rng, n_inputs):
     import ctypes
 
     from voxax import _kernels, fc
+    from voxax._kernels import fc as fc_kernel
 
     kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
     for i in range(n_inputs):
@@ -1272,7 +1274,7 @@ def run_fc(rng, n_inputs):
             if rep.n_boundary_edges:
                 fail(f"{label}: a closed mesh on grid nodes decodes with a boundary")
         COUNTS["fc"] += 1
-    lib = _kernels.declare(fc._SIGNATURES)
+    lib = _kernels.declare(fc_kernel.SIGNATURES)
     v, f = np.ascontiguousarray(rng.uniform(-1, 1, (30, 3))), np.arange(30, dtype=np.int32).reshape(10, 3)
 
     def raw_encode(nv, nf, box, shape, params, flags=1, joined=None):
