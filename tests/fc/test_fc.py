@@ -138,7 +138,7 @@ def test_line_search_finds_the_lines_of_unevenly_spaced_coordinates():
 def test_edge_signs_are_winding_number_differences(name):
     m = voxax.data.get(name)
     g = voxax.Grid.around(m.vertices, 20, cubic_cells=False)
-    tok = fc.encode(m, g)
+    tok = fc.encode(m, g, anchors_per_cell=1)
     # Winding numbers at the lattice nodes the tokens' edges end at, from the independent
     # generalised winding number (bent_bar overlaps itself: winding number 2 inside).
     lo = tok.cells[:, None, :].astype(np.int64) + fc.EDGE_OFFSETS[None]
@@ -318,13 +318,40 @@ def test_two_sheets_closer_than_a_cell_merge_or_stay_apart():
 def test_two_cubes_sharing_an_edge_keep_it():
     a = voxax.data.cube(0.6).translated((-0.3, -0.3, 0.0))
     b = voxax.data.cube(0.6).translated((0.3, 0.3, 0.0))
-    out = fc.decode(fc.encode(voxax.Mesh.concatenate(a, b), voxax.Grid.cube(21)))
-    rep = metrics.manifold_report(out)
+    both = voxax.Mesh.concatenate(a, b)
+    one = fc.decode(fc.encode(both, voxax.Grid.cube(21), anchors_per_cell=1))
+    rep = metrics.manifold_report(one)
     assert rep.n_boundary_edges == 0 and rep.n_nonmanifold_edges > 0 and rep.n_components == 1
-    # The shared edge (x = y = 0, |z| <= 0.3) is on the output.
+    # One vertex per patch: the two cubes touch along the edge but stay two closed 2-manifolds.
+    out = fc.decode(fc.encode(both, voxax.Grid.cube(21)))
+    rep = metrics.manifold_report(out)
+    assert rep.watertight and rep.n_components == 2 and rep.euler_characteristic == 4
+    # The shared edge (x = y = 0, |z| <= 0.3) is on both outputs.
     z = np.linspace(-0.25, 0.25, 11)
     pts = np.stack([0 * z, 0 * z, z], 1)
-    assert voxax.closest_points(out, pts).distance.max() < 1e-3
+    for mesh in (one, out):
+        assert voxax.closest_points(mesh, pts).distance.max() < 1e-3
+
+
+@pytest.mark.parametrize("name, n", [("mug", 16), ("hand", 24)])
+def test_patches_decode_closed_meshes_to_closed_2_manifolds(name, n):
+    # Cells that two sheets cross (the mug's wall and handle, the hand's fingers) make one
+    # anchor per cell non-manifold; one anchor per patch keeps the input's topology.
+    m = voxax.data.get(name)
+    g = voxax.Grid.around(m, n)
+    one = fc.encode(m, g, anchors_per_cell=1)
+    assert metrics.manifold_report(fc.decode(one)).n_nonmanifold_edges > 0
+    tok = fc.encode(m, g)
+    rep = metrics.manifold_report(fc.decode(tok))
+    assert rep.watertight and rep.manifold and rep.euler_characteristic == metrics.euler_characteristic(m)
+    # The patch rows of a cell share its edge signs out: they sum to the cell's net signs.
+    assert np.array_equal(np.unique(tok.index), one.index) and len(tok) > len(one)
+    summed = np.zeros_like(one.edge_signs, dtype=np.int64)
+    np.add.at(summed, np.searchsorted(one.index, tok.index), tok.edge_signs)
+    assert np.array_equal(summed, one.edge_signs)
+    split = np.isin(tok.index, tok.index[tok.component > 0])
+    assert np.all(np.count_nonzero(tok.edge_signs[split], axis=1) >= 3)  # a patch has 3 edges or more
+    assert np.abs(tok.offsets).max() <= 0.5
 
 
 def test_components_tokens_decode_like_single_anchors_on_a_closed_mesh():
@@ -361,10 +388,11 @@ def test_components_close_a_cad_part():
     mm = (block - bore - cut).rotate([12.0, 21.0, 7.0]).to_mesh()
     part = voxax.Mesh(np.asarray(mm.vert_properties, np.float64)[:, :3], np.asarray(mm.tri_verts, np.int32))
     g = voxax.Grid.around(part.vertices, 32)
-    one = metrics.manifold_report(fc.decode(fc.encode(part, g)))
+    one = metrics.manifold_report(fc.decode(fc.encode(part, g, anchors_per_cell=1)))
     assert one.n_boundary_edges == 0 and one.n_nonmanifold_edges > 0  # sharp edges past cell corners
-    comp = metrics.manifold_report(fc.decode(fc.encode(part, g, anchors_per_cell="components")))
-    assert comp.closed and comp.oriented and comp.manifold and comp.euler_characteristic == 0  # genus 1
+    for mode in ("patches", "components"):
+        rep = metrics.manifold_report(fc.decode(fc.encode(part, g, anchors_per_cell=mode)))
+        assert rep.closed and rep.oriented and rep.manifold and rep.euler_characteristic == 0  # genus 1
 
 
 @pytest.mark.parametrize("fmt, width", [("fct19", 19), ("fct69", 69), ("fct18", 18)])
@@ -393,7 +421,7 @@ def test_token_arrays_round_trip(fmt, width):
 def test_dual_anchors_are_the_tokens_of_the_half_shifted_grid():
     m = voxax.data.torus()
     tok = fc.encode(m, ODD, layout="dual")
-    dual = fc.encode(m, fc.dual_grid(ODD))
+    dual = fc.encode(m, fc.dual_grid(ODD), anchors_per_cell=1)  # dual anchors: one per dual cell
     corners = tok.cells[:, None, :] + np.array(np.unravel_index(np.arange(8), (2, 2, 2))).T[None]
     world = np.asarray(ODD.lower) + (corners + tok.dual_offsets) * np.asarray(ODD.spacing)
     lookup = dict(zip(dual.index.tolist(), dual.anchors))

@@ -16,7 +16,10 @@ over the cell's pieces `i` (area `A_i`, area centroid `c_i`, the triangle's norm
 normals taken in local coordinates). When the minimizer leaves the cell, it is clamped to
 the cell and moved to the closest point of the cell's own pieces. Beyond the paper: open
 boundaries of the mesh add their lines to the QEF (`open_boundaries=True`), so open sheets
-keep their extent; with `anchors_per_cell="components"` every connected component of a
+keep their extent; by default (`anchors_per_cell="patches"`) a cell that several separate
+surface patches cross (decided from its edge signs alone, as marching cubes joins them) gets
+one anchor per patch, so closed meshes decode to closed 2-manifolds where one vertex per cell
+would glue the sheets of a thin part together; with `anchors_per_cell="components"` every connected component of a
 cell's pieces (faces joined by a mesh edge through the cell) gets its own anchor, so nearby
 sheets are no longer merged into one vertex; and the decoder joins anchors that no quad uses (sharp tips
 thinner than a cell) to the surface.

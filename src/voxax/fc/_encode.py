@@ -15,6 +15,7 @@ from .._kernels import fc as _kernel
 from .._mesh import face_normals
 from ._components import _component_tokens
 from ._lattice import _cells_around, _Crossings, _crossings, _edge_geometry, _group, _net_signs, _node_ids, dual_grid
+from ._patches import split_patches
 from ._tokens import Tokens
 
 
@@ -73,7 +74,8 @@ def _rows(
     return _kernel.encode_rows(where, V, F, grid.lower, grid.upper, grid.shape, params, flags, joined, threads)
 
 
-def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries):
+def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, mode, threads, boundaries):
+    components = mode == "components"
     index, comp, off, nrm, area, fcount, rfaces = _rows(
         where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, components, threads, boundaries
     )
@@ -96,7 +98,10 @@ def _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, clamp, c
             area = np.concatenate([area, np.zeros(len(missing))])[order]
             signs, missing, _ = _net_signs_host(grid, index, cr, threads)
             assert not len(missing)
-        return Tokens(grid, index, off, nrm, signs, comp, area)
+        tok = Tokens(grid, index, off, nrm, signs, comp, area)
+        if mode == "patches":
+            tok = split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads)
+        return tok
     # anchors_per_cell="components": every crossing counts for the rows of its own sheet,
     # so every crossing needs its cells.
     edge = cr.edge
@@ -140,7 +145,7 @@ def encode(
     lambda_d: float = 1e-3,
     weight_power: float = 1.0,
     clamp: bool = True,
-    anchors_per_cell=1,
+    anchors_per_cell="patches",
     open_boundaries: bool = True,
     threads=None,
 ) -> Tokens:
@@ -157,7 +162,13 @@ def encode(
       (`lambda_d > 0`, in cell units).
     - `weight_power`: `p` in the piece weights `A^p` (0: uniform).
     - `clamp`: move anchors that leave their cell back onto the cell's pieces.
-    - `anchors_per_cell`: `1`, or `"components"` for one anchor per connected component
+    - `anchors_per_cell`: `"patches"` (the default): one anchor per cell, and one per surface
+      patch in the cells that several separate patches cross (a part thinner than a cell,
+      two parts closer than one), the patches decided from the cell's edge signs alone as
+      marching cubes joins them, so that a closed mesh decodes to a closed 2-manifold (a
+      patch's anchor minimizes the QEF over the pieces of the faces that cross its edges). `1`: exactly one anchor per cell (the paper's; sheets that
+      share a cell share its vertex, and their edges get four faces). `"components"`: one
+      anchor per connected component
       of the cell's pieces (pieces of faces that share a mesh edge passing through the
       cell are joined), so that nearby sheets, and the two faces of a sharp edge that
       passes just outside the cell, get a vertex each. A cell keeps one anchor where its
@@ -176,17 +187,19 @@ def encode(
     V, F, grid = _mesh_args(where, vertices, faces, grid)
     if layout not in ("primal", "dual"):
         raise ValueError(f"{where}: `layout` must be 'primal' or 'dual', got {layout!r}")
-    if anchors_per_cell not in (1, "components") or isinstance(anchors_per_cell, bool):
-        raise ValueError(f"{where}: `anchors_per_cell` must be 1 or 'components', got {anchors_per_cell!r}")
+    if isinstance(anchors_per_cell, bool) or anchors_per_cell not in (1, "patches", "components"):
+        raise ValueError(
+            f"{where}: `anchors_per_cell` must be 1, 'patches' or 'components', got {anchors_per_cell!r}"
+        )
     lambda_n = check.positive_float(where, "lambda_n", lambda_n, allow_zero=True)
     lambda_d = check.positive_float(where, "lambda_d", lambda_d)
     weight_power = check.positive_float(where, "weight_power", weight_power, allow_zero=True)
     if weight_power > 16:
         raise ValueError(f"{where}: `weight_power` must lie in [0, 16], got {weight_power}")
     _kernels.threads(threads)
-    components = anchors_per_cell == "components"
+    mode = {1: "one", "patches": "patches", "components": "components"}[anchors_per_cell]
     b = bool(open_boundaries)
-    tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), components, threads, b)
+    tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), mode, threads, b)
     if layout == "dual":
         tok = _add_dual(where, tok, V, F, lambda_n, lambda_d, weight_power, bool(clamp), threads, b)
     return tok
