@@ -656,12 +656,14 @@ def _fc_arguments(p) -> None:
     _add_mesh_argument(p, "torus")
     p.add_argument("--resolution", "-n", "-r", type=_resolution(least=2), default=512, metavar="N",
                    help="cells along the longest side of a grid around the mesh (default 512)")
-    p.add_argument("--components", action="store_true",
-                   help="one anchor per connected component of a cell's pieces (keeps nearby sheets apart)")
+    p.add_argument("--anchors", choices=("patches", "one", "components"), default="patches",
+                   help="anchors per cell: one per surface patch where several cross a cell (default; closed "
+                        "meshes stay closed 2-manifolds), exactly one, or one per component of its pieces")
+    p.add_argument("--components", action="store_true", help="the same as --anchors components")
     p.add_argument("--lambda-d", type=_positive, default=1e-3, metavar="X",
                    help="weight of the centroids in the anchors' QEF, in cell units (default 1e-3)")
     p.add_argument("--report", metavar="FILE.json", default=None,
-                   help="also measure the result (Hausdorff, Chamfer, F-score) and write it as JSON")
+                   help="also measure the result (Hausdorff, Chamfer, F-score, edge topology) and write it as JSON")
     p.add_argument("--output", "-o", default="fc.ply", metavar="FILE",
                    help="output mesh file, any format trimesh writes (default fc.ply)")
 
@@ -675,28 +677,43 @@ def _fc(args) -> int:
 
     import voxax
 
-    options = dict(lambda_d=args.lambda_d, anchors_per_cell="components" if args.components else 1)
+    anchors = "components" if args.components else args.anchors
+    options = dict(lambda_d=args.lambda_d, anchors_per_cell=1 if anchors == "one" else anchors)
     grid = voxax.Grid.around(mesh, args.resolution)
     if args.report:
-        out, rep = voxax.fc.roundtrip(mesh, grid=grid, **options)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # said below, in command-line words
+            out, rep = voxax.fc.roundtrip(mesh, grid=grid, progress=False, **options)
+        topo, topo_in = rep.manifold, rep.input
         _write_json({"grid": {"lower": list(grid.lower), "upper": list(grid.upper), "shape": list(grid.shape)},
                      "tokens": rep.tokens, "encode_seconds": rep.encode_seconds,
-                     "decode_seconds": rep.decode_seconds, "hausdorff": rep.hausdorff,
-                     "chamfer_g2p": rep.chamfer_g2p, "f_score": rep.f_score, "threshold": rep.threshold,
-                     "euler_characteristic": rep.manifold.euler_characteristic,
-                     "boundary_loops": rep.manifold.n_boundary_loops}, args.report)
+                     "decode_seconds": rep.decode_seconds, "measure_seconds": rep.measure_seconds,
+                     "hausdorff": rep.hausdorff, "chamfer_g2p": rep.chamfer_g2p, "f_score": rep.f_score,
+                     "threshold": rep.threshold, "euler_characteristic": topo.euler_characteristic,
+                     "boundary_loops": topo.n_boundary_loops, "boundary_edges": topo.n_boundary_edges,
+                     "nonmanifold_edges": topo.n_nonmanifold_edges, "misoriented_edges": topo.n_misoriented_edges,
+                     "components": topo.n_components, "closed": topo.closed, "oriented": topo.oriented,
+                     "input_closed": topo_in.closed and topo_in.oriented}, args.report)
         tokens, seconds = rep.tokens, rep.encode_seconds + rep.decode_seconds
     else:
         t0 = time.perf_counter()
         tok = voxax.fc.encode(mesh, grid, **options)
         out = voxax.fc.decode(tok)
         tokens, seconds = len(tok), time.perf_counter() - t0
+        topo, topo_in = voxax.fc.edge_topology(out), voxax.fc.edge_topology(mesh)
     if out.n_faces == 0:
         raise UsageError("the mesh has no surface inside the grid: nothing to write")
     voxax.io.save(out, args.output)
     print(f"wrote {args.output}: {out.n_vertices} vertices, {out.n_faces} faces from {tokens} tokens "
-          f"on {grid.shape} in {seconds:.2f} s")
+          f"on {grid.shape} in {seconds:.2f} s; {topo.n_nonmanifold_edges} non-manifold, "
+          f"{topo.n_misoriented_edges} misoriented and {topo.n_boundary_edges} boundary edges, "
+          f"Euler characteristic {topo.euler_characteristic}")
+    if topo_in.closed and topo_in.oriented and not (topo.closed and topo.oriented):
+        _warn("the input is a closed 2-manifold but the output is not"
+              + (" (--anchors patches, the default, keeps it closed)" if anchors == "one" else ""))
     return 0
+
+
 def _remesh_arguments(p) -> None:
     _add_mesh_argument(p, "hand")
     p.add_argument("--seeds", type=_at_least(4), default=20000, metavar="N",

@@ -1,6 +1,8 @@
 """Faithful Contouring: the exact partition of triangles into cell pieces, the QEF anchors,
 the edge signs against winding numbers, dual contouring and the token layouts."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -455,9 +457,69 @@ def test_select_and_merge():
 
 
 def test_roundtrip_report():
-    out, rep = fc.roundtrip(voxax.data.torus(), 48, samples=5000)
+    out, rep = fc.roundtrip(voxax.data.torus(), 48, samples=5000, progress=False)
     assert rep.tokens > 0 and rep.hausdorff < 0.5 * max(rep.grid.spacing)
     assert rep.f_score > 0.999 and out.n_faces > 0 and rep.manifold.n_components == 1
+    # The measures are the metrics' own (same samples, same exact distances), from one
+    # BVH per mesh.
+    ref = voxax.data.torus()
+    assert rep.hausdorff == metrics.hausdorff(out, ref, n=5000)
+    assert rep.chamfer_g2p == metrics.chamfer(out, ref, convention="g2p", n=5000, to_surface=True)
+    assert rep.f_score == metrics.f_score(out, ref, rep.threshold, n=5000, to_surface=True)
+    assert rep.manifold.closed and rep.manifold.oriented and rep.input == fc.edge_topology(ref)
+
+
+def test_roundtrip_call_forms_agree():
+    m = voxax.data.cube(1.2)
+    g = voxax.Grid.around(m, 12)
+    forms = [
+        lambda: fc.roundtrip(m, 12, samples=500, progress=False),
+        lambda: fc.roundtrip(m, resolution=12, samples=500, progress=False),
+        lambda: fc.roundtrip(m, g, samples=500, progress=False),
+        lambda: fc.roundtrip(m.vertices, m.faces, g, samples=500, progress=False),
+        lambda: fc.roundtrip((m.vertices, m.faces), grid=g, samples=500, progress=False, threads=1),
+    ]
+    reps = [f()[1] for f in forms]
+    timed = ("encode_seconds", "decode_seconds", "measure_seconds")
+    for r in reps[1:]:
+        assert dataclasses.replace(r, **dict.fromkeys(timed, 0.0)) == dataclasses.replace(
+            reps[0], **dict.fromkeys(timed, 0.0)
+        )
+
+
+def test_roundtrip_warns_when_a_closed_input_decodes_non_manifold():
+    with pytest.warns(RuntimeWarning, match="non-manifold"):
+        _, rep = fc.roundtrip(voxax.data.mug(), 16, samples=500, progress=False, anchors_per_cell=1)
+    assert rep.manifold.n_nonmanifold_edges > 0 and rep.manifold.n_misoriented_edges > 0
+
+
+def _soups():
+    cube = voxax.data.cube(1.0)
+    F = np.asarray(cube.faces)
+    flipped = F.copy()
+    flipped[0] = flipped[0, ::-1]
+    fin = np.concatenate([F, [[0, 1, 1]], F[:1]])  # a self-loop edge and a repeated face
+    a, b = voxax.data.cube(0.6).translated((-0.3, -0.3, 0.0)), voxax.data.cube(0.6).translated((0.3, 0.3, 0.0))
+    nm = fc.decode(fc.encode(voxax.Mesh.concatenate(a, b), voxax.Grid.cube(21), anchors_per_cell=1))
+    return {
+        "torus": voxax.data.torus(),
+        "open": voxax.Mesh(cube.vertices, F[2:]),
+        "misoriented": voxax.Mesh(cube.vertices, flipped),
+        "degenerate": voxax.Mesh(cube.vertices, fin),
+        "two pieces": voxax.Mesh.concatenate(voxax.data.torus(), cube.translated((3.0, 0, 0))),
+        "non-manifold": nm,
+        "unused vertices": voxax.Mesh(np.concatenate([cube.vertices, cube.vertices + 5]), F),
+    }
+
+
+@pytest.mark.parametrize(
+    "name", ["torus", "open", "misoriented", "degenerate", "two pieces", "non-manifold", "unused vertices"]
+)
+def test_edge_topology_counts_as_manifold_report(name):
+    m = _soups()[name]
+    got, want = fc.edge_topology(m), metrics.manifold_report(m)
+    for f in dataclasses.fields(got):
+        assert getattr(got, f.name) == getattr(want, f.name), f.name
 
 
 def test_bad_input():

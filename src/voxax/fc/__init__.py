@@ -47,17 +47,19 @@ edges 8-11 along z at (x, y) offsets in the same order.
 from ._decode import decode
 from ._encode import Pieces, encode, pieces
 from ._lattice import dual_grid as dual_grid
-from ._roundtrip import RoundtripReport, roundtrip
+from ._roundtrip import EdgeTopology, RoundtripReport, edge_topology, roundtrip
 from ._tokens import EDGE_AXIS as EDGE_AXIS
 from ._tokens import EDGE_OFFSETS, Tokens, merge, select
 from ._tokens import FORMATS as FORMATS
 
 __all__ = [
     "EDGE_OFFSETS",
+    "EdgeTopology",
     "Pieces",
     "RoundtripReport",
     "Tokens",
     "decode",
+    "edge_topology",
     "encode",
     "merge",
     "pieces",

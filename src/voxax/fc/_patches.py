@@ -114,7 +114,10 @@ def split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads):
     from ._lattice import _token_edges
     from ._tokens import Tokens
 
-    labels = patch_labels(tok.edge_signs)
+    # Two patches need 3 crossed edges each: only rows with 6 or more can have several.
+    rows = np.flatnonzero(np.count_nonzero(tok.edge_signs, axis=1) >= 6)
+    labels = np.full(tok.edge_signs.shape, -1, np.int8)
+    labels[rows] = patch_labels(tok.edge_signs[rows])
     count = labels.max(axis=1).astype(np.int64) + 1
     multi = np.flatnonzero(count >= 2)
     if not len(multi):
