@@ -31,11 +31,11 @@
 #include "common/constants.h"
 #include "common/grid.h"
 #include "common/host_errors.h"
+#include "common/host_pool.h"
 #include "fc/decode.h"
 #include "fc/encode.h"
 #include "fc/signs.h"
 #include "intersect/predicates.h"
-#include "common/host_pool.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 
@@ -258,9 +258,17 @@ VOXAX_EXPORT int voxax_fc_decode(const int64_t* index, const double* P, const do
       if (r > 0 && index[r] < index[r - 1])
         return fail("voxax: fc.decode: rows must be sorted by cell index");
     }
-    for (int64_t i = 0; i < 3 * K; ++i)
+    for (int64_t i = 0; i < 3 * K; ++i) {
       if (!std::isfinite(P[i]) || !std::isfinite(N[i]))
         return fail("voxax: fc.decode: anchors and normals must be finite");
+      if (std::fabs(P[i]) > voxax::kMaxAbsCoordinate)
+        return fail("voxax: fc.decode: anchors must have magnitudes <= 1e75 (row " +
+                    std::to_string(i / 3) + ")");
+    }
+    for (int64_t i = 0; i < 12 * K; ++i)
+      if (S[i] < -127)
+        return fail("voxax: fc.decode: edge signs must lie in [-127, 127] (row " +
+                    std::to_string(i / 12) + ")");
     constexpr int64_t kChunk = 4096;
     const int64_t chunks = (K + kChunk - 1) / kChunk;
     std::vector<std::vector<int64_t>> parts(chunks);

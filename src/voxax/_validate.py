@@ -419,3 +419,40 @@ def surface_first(fn):
     extra = inspect.Parameter("faces", inspect.Parameter.KEYWORD_ONLY, default=None)
     wrapper.__signature__ = sig.replace(parameters=[*params, extra, *rest])
     return wrapper
+
+
+def host_threads(where: str, threads) -> int:
+    """The thread count for a host kernel (`voxax._kernels.threads`: None is
+    `VOXAX_NUM_THREADS` or every core), its errors naming `where`."""
+    from . import _kernels
+
+    try:
+        return _kernels.threads(threads)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{where}: {err}") from None
+
+
+def available_memory() -> int:
+    """Bytes of memory available now (`MemAvailable`, else the physical memory)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
+def check_allocation(where: str, nbytes: float, what: str) -> None:
+    """A `MemoryError` before allocating `nbytes` for `what` when they exceed the memory
+    available."""
+    available = available_memory()
+    if nbytes > available:
+        raise MemoryError(
+            f"{where}: {what} needs about {nbytes / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB "
+            "of memory available; use a coarser grid"
+        )

@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import _validate as check
+from ._constants import MAX_ABS_COORDINATE
 from ._grid import Grid
 from ._kernels import raster as _kernel
 
@@ -93,7 +94,7 @@ class Dexels(NamedTuple):
         return w - np.repeat(base, np.diff(self.offsets))
 
 
-def _line_coords(grid: Grid, axis: int, lines) -> tuple[str, tuple]:
+def _line_coords(where: str, grid: Grid, axis: int, lines) -> tuple[str, tuple]:
     others = [a for a in range(3) if a != axis]
     if isinstance(lines, str):
         if lines == "centers":
@@ -103,21 +104,28 @@ def _line_coords(grid: Grid, axis: int, lines) -> tuple[str, tuple]:
         elif lines == "nodes":
             coords = tuple(grid.edges(a) for a in others)
         else:
-            raise ValueError(f"line_crossings: `lines` must be one of {_LINES} or a pair of arrays, got {lines!r}")
+            raise ValueError(f"{where}: `lines` must be one of {_LINES} or a pair of arrays, got {lines!r}")
         return lines, coords
     try:
         c0, c1 = lines
     except (TypeError, ValueError):
         raise ValueError(
-            f"line_crossings: `lines` must be one of {_LINES} or a pair of arrays, got {type(lines).__name__}"
+            f"{where}: `lines` must be one of {_LINES} or a pair of arrays, got {type(lines).__name__}"
         ) from None
     coords = []
     for c in (c0, c1):
-        c = np.ascontiguousarray(np.asarray(c, dtype=np.float64).reshape(-1))
+        c = np.asarray(c)
+        if c.dtype == bool or c.dtype.kind not in "fiu":
+            raise TypeError(f"{where}: line coordinates must be real numbers, got dtype {c.dtype}")
+        if c.ndim != 1:
+            raise ValueError(f"{where}: line coordinates must be 1-D arrays, got shape {c.shape}")
+        c = np.ascontiguousarray(c, dtype=np.float64)
         if not np.all(np.isfinite(c)):
-            raise ValueError("line_crossings: line coordinates must be finite")
+            raise ValueError(f"{where}: line coordinates must be finite")
+        if len(c) and np.abs(c).max() > MAX_ABS_COORDINATE:
+            raise ValueError(f"{where}: line coordinates must have magnitudes <= {MAX_ABS_COORDINATE:g}")
         if np.any(np.diff(c) <= 0):
-            raise ValueError("line_crossings: line coordinates must be strictly increasing")
+            raise ValueError(f"{where}: line coordinates must be strictly increasing")
         coords.append(c)
     return "custom", tuple(coords)
 
@@ -155,7 +163,7 @@ def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers
     0
     ```
     """
-    where = "line_crossings"
+    where = "voxax.raster.line_crossings"
     vertices, faces, (grid, axis) = check.unpack_mesh(where, vertices, faces, grid, axis)
     grid = check.grid(where, grid, dim=3)
     if axis is None:
@@ -163,9 +171,15 @@ def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or not 0 <= int(axis) <= 2:
         raise ValueError(f"{where}: `axis` must be 0, 1 or 2, got {axis!r}")
     axis = int(axis)
-    vertices, faces = check.mesh(where, np.asarray(vertices), np.asarray(faces), dim=3, allow_empty=True)
+    vertices, faces = np.asarray(vertices), np.asarray(faces)
+    if vertices.dtype == bool:
+        raise TypeError(f"{where}: `vertices` must be float32 or float64, got bool")
+    vertices, faces = check.mesh(where, vertices, faces, dim=3, allow_empty=True)
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int32)
-    kind, coords = _line_coords(grid, axis, lines)
+    check.host_threads(where, threads)
+    kind, coords = _line_coords(where, grid, axis, lines)
+    # The line offsets (here and in C++) and the kernel's per-line lists, before allocating.
+    check.check_allocation(where, 40.0 * len(coords[0]) * len(coords[1]), f"{len(coords[0])} x {len(coords[1])} lines")
     offsets, depth, sign, face = _kernel.line_crossings(v, f, axis, coords[0], coords[1], threads)
     return Dexels(axis, kind, coords, offsets, depth, sign, face)

@@ -1223,6 +1223,9 @@ def run_line_crossings(rng, n_inputs):
         "raw unsorted lines": (lambda: raw(30, 10, 0, 3, 3, np.array([0.0, -1.0, 1.0])), "increasing"),
         "raw negative lines": (lambda: raw(30, 10, 0, -3, 3), "negative"),
         "raw too many lines": (lambda: raw(30, 10, 0, 1, 1 << 40), "2\\^36"),
+        "bool vertices": (lambda: raster.line_crossings(v > 0, f, g, 0), "bool"),
+        "complex lines": (lambda: raster.line_crossings(v, f, g, 0, lines=([0j, 1j], [0.0])), "real numbers"),
+        "tiny line": (lambda: raster.line_crossings(v, f, g, 0, lines=([1e-60], [0.0])), "1e-50"),
     }
     expect_rejected("line_crossings", bad, (ValueError, TypeError))
 
@@ -1231,6 +1234,7 @@ def run_fc(rng, n_inputs):
     """Faithful Contouring: encode and decode adversarial soups and closed meshes snapped
     onto the grid (structural checks, thread-count determinism), and hostile raw calls."""
     import ctypes
+    import dataclasses
 
     from voxax import _kernels, fc
     from voxax._kernels import fc as fc_kernel
@@ -1291,12 +1295,12 @@ def run_fc(rng, n_inputs):
         lib.voxax_fc_free(handle)
         _kernels.check(status, err)
 
-    def raw_decode(index, shape, k=None):
+    def raw_decode(index, shape, k=None, anchor=0.0, sign=1):
         err, handle = _kernels.error_buffer(), _kernels.VP()
         index = np.ascontiguousarray(index, np.int64)
         k = len(index) if k is None else k
-        p = np.zeros((max(len(index), 1), 3))
-        s = np.ones((max(len(index), 1), 12), np.int8)
+        p = np.full((max(len(index), 1), 3), anchor)
+        s = np.full((max(len(index), 1), 12), sign, np.int8)
         shape, count = np.ascontiguousarray(shape, np.int64), np.zeros(1, np.int64)
         status = lib.voxax_fc_decode(_kernels.pointer(index, _kernels.I64), _kernels.pointer(p, _kernels.D),
                                      _kernels.pointer(p, _kernels.D), s.ctypes.data_as(ctypes.POINTER(ctypes.c_int8)), k,
@@ -1342,6 +1346,7 @@ def run_fc(rng, n_inputs):
 
     g = voxax.Grid.cube(4)
     box = [-1, -1, -1, 1, 1, 1]
+    tok4 = fc.encode(v, f, g)
     bad = {
         "NaN vertex": (lambda: fc.encode(np.where(np.arange(90).reshape(30, 3) == 7, np.nan, v), f, g), "NaN"),
         "index high": (lambda: fc.encode(v, f + 1, g), "range"),
@@ -1358,6 +1363,14 @@ def run_fc(rng, n_inputs):
         "raw decode index": (lambda: raw_decode([5, 64], [4, 4, 4]), "range"),
         "raw decode shape": (lambda: raw_decode([0], [4, -1, 4]), "shape"),
         "raw decode huge grid": (lambda: raw_decode([0], [1 << 31, 1 << 31, 1 << 31]), "too large"),
+        "raw decode huge anchor": (lambda: raw_decode([0, 5], [4, 4, 4], anchor=1e300), "1e75"),
+        "raw decode sign -128": (lambda: raw_decode([0, 5], [4, 4, 4], sign=-128), "-127"),
+        "decode float signs": (lambda: fc.decode(dataclasses.replace(tok4, edge_signs=tok4.edge_signs * 0.5)),
+                               "integers"),
+        "decode anchors outside": (lambda: fc.decode(dataclasses.replace(tok4, offsets=tok4.offsets + 1e300)),
+                                   "offsets"),
+        "encode bool vertices": (lambda: fc.encode(v > 0, f, g), "bool"),
+        "encode complex vertices": (lambda: fc.encode(v + 0j, f, g), "complex"),
         "raw signs shape": (lambda: raw_signs([0], [4, 0, 4], [0], [1]), "shape"),
         "raw signs huge shape": (lambda: raw_signs([0], [4, 4, 1 << 40], [0], [1]), "shape"),
         "raw signs edge high": (lambda: raw_signs([0], [4, 4, 4], [3 * 125], [1]), "edge id"),

@@ -11,7 +11,7 @@ import ctypes
 
 import numpy as np
 
-from ._ctypes import ERRLEN, I8, I32, I64, VP, D, check, declare, error_buffer, pointer
+from ._ctypes import ERRLEN, I8, I32, I64, VP, D, declare, error_buffer, pointer
 from ._ctypes import threads as _threads
 
 __all__ = ["SIGNATURES", "line_crossings"]
@@ -28,7 +28,7 @@ SIGNATURES = {
 }
 
 
-def line_crossings(vertices, faces, axis, coords0, coords1, threads=None):
+def line_crossings(vertices, faces, axis, coords0, coords1, threads=None, where="voxax.raster.line_crossings"):
     """The crossings of a mesh with the lines along `axis` through `(coords0[i], coords1[j])`:
     `(offsets, depth, sign, face)` (line `i * len(coords1) + j` holds
     `offsets[l]:offsets[l + 1]`)."""
@@ -43,7 +43,8 @@ def line_crossings(vertices, faces, axis, coords0, coords1, threads=None):
         pointer(v, D), len(v), pointer(f, I32), len(f), int(axis), pointer(c0, D), len(c0), pointer(c1, D), len(c1),
         _threads(threads), ctypes.byref(handle), err, ERRLEN,
     )  # fmt: skip
-    check(status, err)
+    if status != 0:
+        raise ValueError(f"{where}: " + err.value.decode("utf-8", "replace").removeprefix("voxax: "))
     try:
         n = int(lib.voxax_crossings_size(handle))
         offsets = np.empty(len(c0) * len(c1) + 1, np.int64)

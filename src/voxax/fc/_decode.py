@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _validate as check
 from .._kernels import fc as _kernel
 from .._mesh import Mesh, mesh_from_trusted
-from ._tokens import Tokens, _unravel
+from ._tokens import Tokens, _unravel, check_tokens
 
 
 def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=None) -> Mesh:
@@ -17,7 +18,8 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
     along the edge's axis where the sign is +1; the quad is split into two triangles
     along the diagonal chosen by `split`. Each edge is listed by the 4 tokens around it:
     the decoder takes the sign of the sum of their votes (a majority vote, which matters
-    for edited tokens). Where cells hold several rows (`anchors_per_cell="components"`),
+    for edited tokens). Where cells hold several rows (surface patches, or
+    `anchors_per_cell="components"`),
     the rows voting on an edge are paired across the 4 cells in the order of their
     anchors along the edge, one quad per pair. Edges whose 4 cells are not all present
     (the grid's boundary, removed tokens) give no quad.
@@ -37,18 +39,14 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
     **Returns:** a [`Mesh`][voxax.Mesh] (vertices referenced by faces only, in row order).
     """
     where = "voxax.fc.decode"
-    if not isinstance(tokens, Tokens):
-        raise TypeError(f"{where}: expected voxax.fc.Tokens, got {type(tokens).__name__}")
-    if split not in ("normal", "short", "none"):
+    tokens = check_tokens(where, tokens)
+    if not isinstance(split, str) or split not in ("normal", "short", "none"):
         raise ValueError(f"{where}: `split` must be 'normal', 'short' or 'none', got {split!r}")
+    check.host_threads(where, threads)
     grid = tokens.grid
     K = len(tokens)
     P = np.ascontiguousarray(tokens.anchors, np.float64)
-    N = np.ascontiguousarray(tokens.normals, np.float64)
-    index = np.ascontiguousarray(tokens.index, np.int64)
-    signs = np.ascontiguousarray(tokens.edge_signs, np.int8)
-    if index.shape != (K,) or P.shape != (K, 3) or N.shape != (K, 3) or signs.shape != (K, 12):
-        raise ValueError(f"{where}: inconsistent token fields")
+    N, index, signs = tokens.normals, tokens.index, tokens.edge_signs
     split_code = {"normal": 0, "short": 1, "none": 2}[split]
     tris = _kernel.decode(where, index, P, N, signs, grid.shape, split_code, threads)
     used = np.zeros(K, bool)

@@ -8,7 +8,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import _kernels
 from .. import _validate as check
 from .._grid import Grid
 from .._kernels import fc as _kernel
@@ -19,11 +18,35 @@ from ._patches import split_patches
 from ._tokens import Tokens
 
 
-def _mesh_args(where, vertices, faces, grid):
+def _mesh_args(where, vertices, faces, grid, threads=None):
     vertices, faces, (grid,) = check.unpack_mesh(where, vertices, faces, grid)
+    if grid is None:
+        raise TypeError(f"{where}: missing `grid` (a voxax.Grid)")
+    if np.asarray(vertices).dtype == bool:
+        raise TypeError(f"{where}: `vertices` must be a float (or integer) array, got bool")
     vertices, faces = check.mesh(where, vertices, faces, dim=3, integer_vertices=True, allow_empty=True)
     grid = check.grid(where, grid, dim=3)
-    return np.asarray(vertices, np.float64), np.asarray(faces, np.int32), grid
+    check.host_threads(where, threads)
+    V, F = np.asarray(vertices, np.float64), np.asarray(faces, np.int32)
+    check.check_allocation(where, _bytes_needed(V, F, grid), f"encoding {len(F)} faces on a {grid.shape} grid")
+    return V, F, grid
+
+
+def _bytes_needed(V, F, grid) -> float:
+    """About what encoding needs: the node lines of the three axes (their offsets in C++
+    and NumPy) and the pieces of the faces (a face of area A and perimeter P meets at most
+    about sqrt(3) A / h^2 + 2 P / h + 1 cells of the smallest spacing h), at ~200 bytes a
+    piece and its row."""
+    n = np.asarray(grid.shape, np.float64) + 1
+    lines = n[1] * n[2] + n[0] * n[2] + n[0] * n[1]
+    if not len(F):
+        return 40.0 * lines
+    h = float(min(grid.spacing))
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    perim = np.linalg.norm(b - a, axis=1) + np.linalg.norm(c - b, axis=1) + np.linalg.norm(a - c, axis=1)
+    pieces = float(np.sum(np.sqrt(3.0) * area / h**2 + 2.0 * perim / h + 1.0))
+    return 40.0 * lines + 200.0 * pieces
 
 
 class Pieces(NamedTuple):
@@ -61,7 +84,7 @@ def pieces(vertices, faces=None, grid=None, *, threads=None) -> Pieces:
     6.0
     """
     where = "voxax.fc.pieces"
-    V, F, grid = _mesh_args(where, vertices, faces, grid)
+    V, F, grid = _mesh_args(where, vertices, faces, grid, threads)
     return Pieces(*_kernel.encode_pieces(where, V, F, grid.lower, grid.upper, grid.shape, threads))
 
 
@@ -184,7 +207,7 @@ def encode(
     **Returns:** [`Tokens`][voxax.fc.Tokens].
     """
     where = "voxax.fc.encode"
-    V, F, grid = _mesh_args(where, vertices, faces, grid)
+    V, F, grid = _mesh_args(where, vertices, faces, grid, threads)
     if layout not in ("primal", "dual"):
         raise ValueError(f"{where}: `layout` must be 'primal' or 'dual', got {layout!r}")
     if isinstance(anchors_per_cell, bool) or anchors_per_cell not in (1, "patches", "components"):
@@ -196,7 +219,6 @@ def encode(
     weight_power = check.positive_float(where, "weight_power", weight_power, allow_zero=True)
     if weight_power > 16:
         raise ValueError(f"{where}: `weight_power` must lie in [0, 16], got {weight_power}")
-    _kernels.threads(threads)
     mode = {1: "one", "patches": "patches", "components": "components"}[anchors_per_cell]
     b = bool(open_boundaries)
     tok = _encode_primal(where, V, F, grid, lambda_n, lambda_d, weight_power, bool(clamp), mode, threads, b)

@@ -159,6 +159,8 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
     off = body[:, 0:3]
     if anchor_frame == "world":
         off = (off - lo) / h - cells - 0.5
+    if len(off) and np.abs(off).max() > 0.5 + 1e-9:
+        raise ValueError(f"{where}: anchors must lie in their cells (offsets in [-0.5, 0.5] cell units)")
     nrm = body[:, 3:6]
     # Rows of the same cell are its components, in order.
     first = np.concatenate([[True], idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, bool)
@@ -218,7 +220,7 @@ def select(tokens: Tokens, mask) -> Tokens:
     True
     """
     if not isinstance(tokens, Tokens):
-        raise TypeError(f"voxax.fc.select: expected voxax.fc.Tokens, got {type(tokens).__name__}")
+        raise TypeError(f"voxax.fc.select: `tokens` must be voxax.fc.Tokens, got {type(tokens).__name__}")
     m = np.asarray(mask)
     if m.dtype == bool:
         if m.shape != (len(tokens),):
@@ -259,11 +261,11 @@ def merge(a: Tokens, b: Tokens) -> Tokens:
     sum of the two signs (the non-zero one where only one is non-zero, 0 where they
     disagree). The dual layout is kept only when both have it.
     """
-    for x in (a, b):
+    for name, x in (("a", a), ("b", b)):
         if not isinstance(x, Tokens):
-            raise TypeError(f"voxax.fc.merge: expected voxax.fc.Tokens, got {type(x).__name__}")
+            raise TypeError(f"voxax.fc.merge: `{name}` must be voxax.fc.Tokens, got {type(x).__name__}")
     if a.grid != b.grid:
-        raise ValueError("voxax.fc.merge: the tokens live on different grids")
+        raise ValueError("voxax.fc.merge: `a` and `b` must live on the same grid")
     dual = a.dual_offsets is not None and b.dual_offsets is not None
     both = [a, b]
     idx = np.concatenate([t.index for t in both])
@@ -313,3 +315,54 @@ def merge(a: Tokens, b: Tokens) -> Tokens:
             semi_axis=vote(cat("semi_axis")),
         )
     return Tokens(a.grid, idx[new], mean(cat("offsets")), nrm, vote(cat("edge_signs")), comp[new], area, **kw)
+
+
+def _real(where, name, x, shape, kinds="fiu"):
+    a = np.asarray(x)
+    if a.dtype == bool or a.dtype.kind not in kinds:
+        what = "real numbers" if kinds == "fiu" else "integers"
+        raise TypeError(f"{where}: `tokens.{name}` must hold {what}, got dtype {a.dtype}")
+    if a.shape != shape:
+        raise ValueError(f"{where}: `tokens.{name}` must have shape {shape}, got {a.shape}")
+    return a
+
+
+def check_tokens(where: str, tokens) -> Tokens:
+    """`tokens` checked field by field (types, shapes, ranges): a `TypeError` or `ValueError`
+    naming the field, never a silent cast (edited tokens go through here before decoding)."""
+    if not isinstance(tokens, Tokens):
+        raise TypeError(f"{where}: `tokens` must be voxax.fc.Tokens, got {type(tokens).__name__}")
+    grid = check.grid(where, tokens.grid, dim=3)
+    index = np.asarray(tokens.index)
+    if index.ndim != 1:
+        raise ValueError(f"{where}: `tokens.index` must have shape (K,), got {index.shape}")
+    K = len(index)
+    index = _real(where, "index", index, (K,), "iu")
+    if K and (index.min() < 0 or index.max() >= grid.size):
+        raise ValueError(f"{where}: `tokens.index` must lie in [0, {grid.size}) (C-order cells of the grid)")
+    if np.any(np.diff(index) < 0):
+        raise ValueError(f"{where}: `tokens.index` must be sorted (rows sorted by cell index)")
+    off = _real(where, "offsets", tokens.offsets, (K, 3))
+    if not np.all(np.isfinite(off)) or (K and np.abs(off).max() > 0.5 + 1e-9):
+        raise ValueError(f"{where}: `tokens.offsets` must be finite and lie in [-0.5, 0.5] (cell units)")
+    nrm = _real(where, "normals", tokens.normals, (K, 3))
+    if not np.all(np.isfinite(nrm)):
+        raise ValueError(f"{where}: `tokens.normals` must be finite")
+    signs = _real(where, "edge_signs", tokens.edge_signs, (K, 12), "iu")
+    if K and (signs.min() < -127 or signs.max() > 127):
+        raise ValueError(f"{where}: `tokens.edge_signs` must lie in [-127, 127]")
+    _real(where, "component", tokens.component, (K,), "iu")
+    _real(where, "area", tokens.area, (K,))
+    return Tokens(
+        grid,
+        np.ascontiguousarray(index, np.int64),
+        np.ascontiguousarray(off, np.float64),
+        np.ascontiguousarray(nrm, np.float64),
+        np.ascontiguousarray(signs, np.int8),
+        np.asarray(tokens.component, np.int32),
+        np.asarray(tokens.area, np.float64),
+        tokens.dual_offsets,
+        tokens.dual_normals,
+        tokens.dual_mask,
+        tokens.semi_axis,
+    )
