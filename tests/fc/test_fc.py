@@ -603,3 +603,18 @@ def test_meshes_through_grid_nodes_decode_closed(sub):
         rep = metrics.manifold_report(fc.decode(tok))
         assert rep.n_boundary_edges == 0 and rep.n_misoriented_edges == 0, (sub, n)
         assert metrics.euler_characteristic(fc.decode(tok)) == 2, (sub, n)
+
+
+def test_tokens_and_reports_are_values():
+    import copy
+    import pickle
+
+    m = voxax.data.mug()
+    g = voxax.Grid.around(m, 12)
+    tok = fc.encode(m, g, threads=1)
+    assert tok == fc.encode(m, g, threads=2)  # every field, bit for bit, for any thread count
+    assert tok != fc.select(tok, np.arange(len(tok) - 1))
+    _, rep = fc.roundtrip(m, g, samples=200, progress=False)
+    for obj in (tok, rep, rep.manifold):
+        for other in (pickle.loads(pickle.dumps(obj)), copy.deepcopy(obj)):
+            assert type(other) is type(obj) and other == obj

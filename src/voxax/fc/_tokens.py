@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import _validate as check
 from .._grid import Grid
+from .._values import ValueEquality
 
 __all__ = ["EDGE_AXIS", "EDGE_OFFSETS", "FORMATS", "Tokens", "merge", "select"]
 
@@ -25,7 +26,7 @@ del _e, _a, _others
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class Tokens:
+class Tokens(ValueEquality):
     """Faithful Contour Tokens: one row per active cell (per component with
     `anchors_per_cell="components"`), sorted by C-order cell index, then component.
 
@@ -108,7 +109,7 @@ def _to_array(tokens: Tokens, fmt: str = "fct19", anchor_frame: str = "cell") ->
     cols += [tokens.anchors if world else tokens.offsets, tokens.normals]
     if fmt == "fct69":
         if tokens.dual_offsets is None:
-            raise ValueError(f"{where}: 'fct69' needs tokens encoded with layout='dual'")
+            raise ValueError(f"{where}: `fmt` 'fct69' must have tokens encoded with layout='dual'")
         h = np.asarray(tokens.grid.spacing)
         corners = tokens.cells[:, None, :] + np.array(np.unravel_index(np.arange(8), (2, 2, 2))).T[None]
         dual = tokens.dual_offsets
@@ -133,12 +134,12 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
         raise TypeError(f"{where}: `arr` must be a real array, got dtype {a.dtype}")
     a = a.astype(np.float64)
     if a.ndim != 2 or a.shape[1] != FORMATS[fmt]:
-        raise ValueError(f"{where}: '{fmt}' needs shape (K, {FORMATS[fmt]}), got {a.shape}")
+        raise ValueError(f"{where}: `arr` must have shape (K, {FORMATS[fmt]}) for '{fmt}', got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{where}: `arr` contains NaN or Inf")
+        raise ValueError(f"{where}: `arr` must be finite (it contains NaN or Inf)")
     if fmt == "fct18":
         if index is None:
-            raise TypeError(f"{where}: 'fct18' has no index column: pass `index` (K,)")
+            raise TypeError(f"{where}: `index` must be given for 'fct18' (it has no index column): (K,) integers")
         idx = np.asarray(index)
         if idx.shape != (len(a),) or idx.dtype.kind not in "iu":
             raise ValueError(f"{where}: `index` must be (K,) integers, got {idx.dtype}{idx.shape}")
@@ -146,13 +147,13 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
         body = a
     else:
         if np.any(a[:, 0] != np.round(a[:, 0])):
-            raise ValueError(f"{where}: the index column must hold integers")
+            raise ValueError(f"{where}: `arr`'s index column must hold integers")
         idx = a[:, 0].astype(np.int64)
         body = a[:, 1:]
     if len(idx) and (idx.min() < 0 or idx.max() >= grid.size):
-        raise ValueError(f"{where}: cell indices must lie in [0, {grid.size})")
+        raise ValueError(f"{where}: `arr`'s cell indices must lie in [0, {grid.size})")
     if np.any(np.diff(idx) < 0):
-        raise ValueError(f"{where}: rows must be sorted by cell index")
+        raise ValueError(f"{where}: `arr`'s rows must be sorted by cell index")
     cells = np.stack(np.unravel_index(idx, grid.shape), axis=1)
     h = np.asarray(grid.spacing)
     lo = np.asarray(grid.lower)
@@ -160,7 +161,7 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
     if anchor_frame == "world":
         off = (off - lo) / h - cells - 0.5
     if len(off) and np.abs(off).max() > 0.5 + 1e-9:
-        raise ValueError(f"{where}: anchors must lie in their cells (offsets in [-0.5, 0.5] cell units)")
+        raise ValueError(f"{where}: `arr`'s anchors must lie in their cells (offsets in [-0.5, 0.5] cell units)")
     nrm = body[:, 3:6]
     # Rows of the same cell are its components, in order.
     first = np.concatenate([[True], idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, bool)
@@ -185,7 +186,7 @@ def _from_array(arr, grid: Grid, fmt: str = "fct19", anchor_frame: str = "cell",
 
 def _signs(where, x):
     if np.any((x != np.round(x)) | (np.abs(x) > 127)):
-        raise ValueError(f"{where}: signs must be integers in [-127, 127]")
+        raise ValueError(f"{where}: `arr`'s signs must be integers in [-127, 127]")
     return x.astype(np.int8)
 
 
@@ -224,12 +225,12 @@ def select(tokens: Tokens, mask) -> Tokens:
     m = np.asarray(mask)
     if m.dtype == bool:
         if m.shape != (len(tokens),):
-            raise ValueError(f"voxax.fc.select: a boolean mask must have shape ({len(tokens)},), got {m.shape}")
+            raise ValueError(f"voxax.fc.select: `mask` must have shape ({len(tokens)},) when boolean, got {m.shape}")
         rows = np.flatnonzero(m)
     elif m.dtype.kind in "iu":
         rows = np.unique(m.reshape(-1))
         if len(rows) and (rows[0] < -len(tokens) or rows[-1] >= len(tokens)):
-            raise ValueError("voxax.fc.select: row index out of range")
+            raise ValueError(f"voxax.fc.select: `mask`'s row indices must lie in [-{len(tokens)}, {len(tokens)})")
         rows = np.unique(np.where(rows < 0, rows + len(tokens), rows))
     else:
         raise TypeError(f"voxax.fc.select: `mask` must be boolean or integer, got {m.dtype}")
