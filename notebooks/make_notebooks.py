@@ -915,16 +915,18 @@ does not even apply: the winding number of an open surface is not an inside indi
 the 0.5 level set is a closed blob around part of the sheet, far from it. The tokens keep
 the sheet open, with its one boundary loop.
 
-One caveat: dual contouring places one vertex per cell, so a cell that the two faces of a
-sharp edge both cross while the edge itself passes just outside the cell joins the two faces
-at that vertex, and the part's output has a handful of non-manifold edges (about 1 in 5,000
-of its edges). `anchors_per_cell="components"` gives such cells one anchor per sheet (pieces
-are joined only along mesh edges inside the cell), and the part decodes as a closed
+Plain dual contouring places one vertex per cell, so a cell that two sheets cross (the two
+faces of a sharp edge that passes just outside the cell, a part thinner than a cell) joins
+them at that vertex, and the output gets a handful of non-manifold edges
+(`anchors_per_cell=1`). The default, `anchors_per_cell="patches"`, gives such cells one
+anchor per surface patch, the patches read from the cell's edge signs as marching cubes
+joins them, at nearly the cost of one anchor per cell; `"components"` splits the cell's
+pieces along the mesh edges inside it, many times slower. Both decode the part as a closed
 2-manifold of genus 1:
 """),
     code("""
 part, grid = shapes["CAD part"], results["CAD part"]["grid"]
-for option in (1, "components"):
+for option in (1, "patches", "components"):
     rep = voxax.metrics.manifold_report(voxax.fc.decode(voxax.fc.encode(part, grid, anchors_per_cell=option)))
     print(f"anchors_per_cell={option!r:12}: closed {rep.closed}, {rep.n_nonmanifold_edges} non-manifold edges, "
           f"chi {rep.euler_characteristic}")
