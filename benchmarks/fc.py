@@ -22,6 +22,14 @@ PYTHONPATH=src python benchmarks/fc.py --faces 100000 1000000 --sizes 256 512 10
 
 `--write-readme` replaces the section between the Faithful Contouring markers in
 `benchmarks/README.md`.
+
+`--manifold N ...` encodes and decodes closed meshes (`voxax.data`'s hand, mug, torus, the
+100K-face `large`, a 5-subdivision icosphere and the CAD part) at N cells along their longest
+side with each `anchors_per_cell` (1, "patches", "components"), side by side in one process
+(best of `--repeats`), and counts the output's non-manifold and misoriented edges;
+`--report-cost N` times `voxax.fc.roundtrip` at N on the hand against the measures it
+took before (`metrics.hausdorff`, `chamfer`, `f_score`, `manifold_report` on the same
+output). With `--write-readme` they replace the sections between their own markers.
 """
 
 from __future__ import annotations
@@ -147,6 +155,115 @@ def worker(kind: str, faces: int, n: int, repeats: int, samples: int) -> dict:
     return row
 
 
+def _closed_meshes():
+    import voxax
+
+    meshes = {name: voxax.data.get(name) for name in ("hand", "mug", "torus")}
+    meshes["large (100K)"] = voxax.data.large(100_000)
+    meshes["icosphere(5)"] = voxax.data.icosphere(5)
+    try:
+        meshes["CAD part"] = cad_part()
+    except ImportError:
+        pass
+    return meshes
+
+
+def manifold_rows(sizes, repeats, only=None):
+    """Time and output topology of each `anchors_per_cell` on closed meshes (those named in
+    `only`, or all)."""
+    import voxax
+
+    lines = [
+        "| mesh | faces | grid | anchors_per_cell | tokens | encode + decode (CPU) | non-manifold edges | "
+        "misoriented edges | closed 2-manifold | Euler characteristic (input) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, mesh in _closed_meshes().items():
+        if only and name not in only:
+            continue
+        chi = voxax.fc.edge_topology(mesh).euler_characteristic
+        for n in sizes:
+            grid = voxax.Grid.around(mesh.vertices, n)
+            voxax.fc.decode(voxax.fc.encode(mesh, voxax.Grid.around(mesh.vertices, 8)))  # warm
+            for mode in (1, "patches", "components"):
+                best = None
+                for _ in range(repeats):
+                    w, c = time.perf_counter(), time.process_time()
+                    tok = voxax.fc.encode(mesh, grid, anchors_per_cell=mode)
+                    out = voxax.fc.decode(tok)
+                    t = (time.perf_counter() - w, time.process_time() - c)
+                    best = t if best is None or t[0] < best[0] else best
+                topo = voxax.fc.edge_topology(out)
+                ok = "yes" if topo.closed and topo.oriented else "no"
+                lines.append(
+                    f"| {name} | {mesh.n_faces:,} | {'x'.join(map(str, grid.shape))} | {mode!r} | {len(tok):,} | "
+                    f"{best[0]:.2f} s ({best[1]:.2f} s) | {topo.n_nonmanifold_edges} | {topo.n_misoriented_edges} | "
+                    f"{ok} | {topo.euler_characteristic} ({chi}) |"
+                )
+                print(lines[-1], flush=True)
+    return lines
+
+
+def report_cost_rows(n, samples):
+    """`voxax.fc.roundtrip` at n on the hand, and the measures it took before on its output."""
+    import warnings
+
+    import voxax
+
+    mesh = voxax.data.hand()
+    grid = voxax.Grid.around(mesh.vertices, n)
+    voxax.fc.roundtrip(mesh, 8, samples=100, progress=False)  # warm
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        w, c = time.perf_counter(), time.process_time()
+        out, rep = voxax.fc.roundtrip(mesh, grid=grid, samples=samples, progress=False)
+        now = (time.perf_counter() - w, time.process_time() - c)
+    m = voxax.metrics
+    w, c = time.perf_counter(), time.process_time()
+    hd = m.hausdorff(out, mesh, n=samples)
+    cd = m.chamfer(out, mesh, convention="g2p", n=samples, to_surface=True)
+    fs = m.f_score(out, mesh, rep.threshold, n=samples, to_surface=True)
+    t_metrics = (time.perf_counter() - w, time.process_time() - c)
+    w, c = time.perf_counter(), time.process_time()
+    mr = m.manifold_report(out)
+    t_manifold = (time.perf_counter() - w, time.process_time() - c)
+    same = (hd, cd, fs) == (rep.hausdorff, rep.chamfer_g2p, rep.f_score) and all(
+        getattr(rep.manifold, f) == getattr(mr, f)
+        for f in ("n_edges", "n_nonmanifold_edges", "n_misoriented_edges", "n_boundary_loops", "n_components")
+    )
+    enc_dec = rep.encode_seconds + rep.decode_seconds
+    return [
+        f"The hand ({mesh.n_faces:,} faces) at {'x'.join(map(str, grid.shape))}: {rep.tokens:,} tokens, "
+        f"{out.n_faces:,} output faces, {samples:,} samples per surface; the same values both ways: {same}.",
+        "",
+        "| step | wall (CPU) |",
+        "|---|---|",
+        f"| encode + decode | {enc_dec:.2f} s |",
+        f"| roundtrip's measures now (one BVH per mesh, `fc.edge_topology`) | {rep.measure_seconds:.2f} s |",
+        f"| roundtrip in all | {now[0]:.2f} s ({now[1]:.2f} s) |",
+        f"| before: `metrics.hausdorff` + `chamfer` + `f_score` (7 BVH builds) | {t_metrics[0]:.2f} s "
+        f"({t_metrics[1]:.2f} s) |",
+        f"| before: `metrics.manifold_report` | {t_manifold[0]:.2f} s ({t_manifold[1]:.2f} s) |",
+    ]
+
+
+def _write_section(key, title, argv, lines):
+    with open("/proc/loadavg") as fh:
+        load = fh.read().split()[:3]
+    machine = f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+    cmd = "python benchmarks/fc.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    start, end = f"<!-- {key}:start -->", f"<!-- {key}:end -->"
+    body = f"{start}\n\nMachine: {machine}; load average at the end {', '.join(load)}. Command: `{cmd}`.\n\n"
+    body += "\n".join(lines) + f"\n\n{end}"
+    readme = Path(__file__).with_name("README.md")
+    old = readme.read_text()
+    if start in old:
+        new = re.sub(re.escape(start) + ".*?" + re.escape(end), lambda _: body, old, flags=re.DOTALL)
+    else:
+        new = old.rstrip() + f"\n\n### {title}\n\n" + body + "\n"
+    readme.write_text(new)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--faces", type=int, nargs="+", default=[100_000])
@@ -156,6 +273,9 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=20_000)
     ap.add_argument("--write-readme", action="store_true")
     ap.add_argument("--cad", type=int, default=0, metavar="N", help="only the CAD part's fidelity at N cells")
+    ap.add_argument("--manifold", type=int, nargs="+", metavar="N", help="only the anchors' topology at N cells")
+    ap.add_argument("--meshes", nargs="+", help="with --manifold: only these meshes (e.g. 'CAD part')")
+    ap.add_argument("--report-cost", type=int, metavar="N", help="only the cost of roundtrip's report at N cells")
     ap.add_argument("--worker", nargs=3, metavar=("KIND", "FACES", "N"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
@@ -164,6 +284,18 @@ def main(argv=None):
             print(json.dumps(cad_worker(kind, int(n), args.samples)), flush=True)
         else:
             print(json.dumps(worker(kind, int(faces), int(n), args.repeats, args.samples)), flush=True)
+        return 0
+    if args.manifold:
+        lines = manifold_rows(args.manifold, args.repeats, args.meshes)
+        print("\n".join(lines))
+        if args.write_readme:
+            _write_section("fc-manifold", "Faithful Contouring: closed meshes, anchors per cell", argv, lines)
+        return 0
+    if args.report_cost:
+        lines = report_cost_rows(args.report_cost, args.samples)
+        print("\n".join(lines))
+        if args.write_readme:
+            _write_section("fc-report", "Faithful Contouring: the cost of roundtrip's report", argv, lines)
         return 0
     if args.cad:
         lines = [
