@@ -36,9 +36,9 @@ PENDING = {
     ("key", "voxax.esi.energy"), ("key", "voxax.esi.select"), ("key", "voxax.nesi.fit"),
     ("key", "voxax.nesi.training_data"), ("progress", "voxax.nesi.fit"),
     ("surface", "voxax.closest_points"), ("surface", "voxax.first_hits"), ("surface", "voxax.any_hits"),
-    ("surface", "voxax.all_hits"), ("surface", "voxax.fc.roundtrip"),
+    ("surface", "voxax.all_hits"),
     ("same", "voxax.closest_points"), ("same", "voxax.first_hits"),
-    ("errors", "voxax.closest_points"), ("errors", "voxax.first_hits"), ("errors", "voxax.raster.line_crossings"),
+    ("errors", "voxax.closest_points"), ("errors", "voxax.first_hits"),
 }
 
 
@@ -154,6 +154,8 @@ SURFACE_CALLS = [
     ("voxax.metrics.manifold_report", ()),
     ("voxax.raster.line_crossings", (GRID, 2)),
     ("voxax.fc.encode", (voxax.Grid.around(BALL, 6),)),
+    ("voxax.fc.pieces", (voxax.Grid.around(BALL, 6),)),
+    ("voxax.fc.edge_topology", ()),
 ]
 
 
