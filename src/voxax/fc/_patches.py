@@ -110,7 +110,6 @@ def split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads):
     it is their mean centroid (inside the closed cell), and a patch without such pieces takes
     the mean of its crossings."""
     from .._kernels import fc as _kernel
-    from .._mesh import face_normals
     from ._lattice import _token_edges
     from ._tokens import Tokens
 
@@ -123,7 +122,6 @@ def split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads):
     if not len(multi):
         return tok
     grid = tok.grid
-    h, lo = np.asarray(grid.spacing), np.asarray(grid.lower)
     # The rows to make: (multi row, patch).
     owner = np.repeat(multi, count[multi])
     patch = (np.arange(len(owner)) - np.repeat(np.cumsum(count[multi]) - count[multi], count[multi])).astype(np.int8)
@@ -155,6 +153,32 @@ def split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads):
     hit = (rkey_s[at] == pkey) if len(rkey_s) else np.zeros(len(pkey), bool)
     prow = xr_s[at[hit]]
     pa, pcen, pfh = pa[hit], pcen[hit], pf[hit]
+    off, nrm, area = _patch_anchors(tok, owner, (prow, pa, pcen, pfh), (xr, xc), cr, V, F, lambda_n, lambda_d,
+                                    weight_power)  # fmt: skip
+    keep = np.ones(len(tok), bool)
+    keep[multi] = False
+    index = np.concatenate([tok.index[keep], cell_of])
+    comp = np.concatenate([tok.component[keep], patch.astype(np.int32)])
+    o = np.lexsort((comp, index))
+    cat = [
+        (tok.offsets[keep], off),
+        (tok.normals[keep], nrm),
+        (tok.edge_signs[keep], new_signs),
+        (tok.area[keep], area),
+    ]
+    off, nrm, signs, area = (np.concatenate(p)[o] for p in cat)
+    return Tokens(grid, index[o], off, nrm, signs, comp[o], area)
+
+
+def _patch_anchors(tok, owner, pieces, crossings, cr, V, F, lambda_n, lambda_d, weight_power):
+    """The offsets, normals and areas of the new rows (`owner`: the row each replaces) from
+    their pieces `(row, area, centroid, face)` and their crossings `(row, crossing)`."""
+    from .._mesh import face_normals
+
+    prow, pa, pcen, pfh = pieces
+    xr, xc = crossings
+    grid = tok.grid
+    h, lo = np.asarray(grid.spacing), np.asarray(grid.lower)
     R = len(owner)
     cells = tok.cells[owner].astype(np.float64)
     centre = lo + (cells + 0.5) * h
@@ -192,16 +216,4 @@ def split_patches(tok, V, F, cr, lambda_n, lambda_d, weight_power, threads):
     np.add.at(sn, xr, np.where(has[xr][:, None], 0.0, fn[cr.face[xc]]))
     ln = np.linalg.norm(sn, axis=1, keepdims=True)
     nrm = np.where(ln > 0, sn / np.where(ln > 0, ln, 1), tok.normals[owner])
-    keep = np.ones(len(tok), bool)
-    keep[multi] = False
-    index = np.concatenate([tok.index[keep], cell_of])
-    comp = np.concatenate([tok.component[keep], patch.astype(np.int32)])
-    o = np.lexsort((comp, index))
-    cat = [
-        (tok.offsets[keep], off),
-        (tok.normals[keep], nrm),
-        (tok.edge_signs[keep], new_signs),
-        (tok.area[keep], area),
-    ]
-    off, nrm, signs, area = (np.concatenate(p)[o] for p in cat)
-    return Tokens(grid, index[o], off, nrm, signs, comp[o], area)
+    return off, nrm, area
