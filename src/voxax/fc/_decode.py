@@ -37,6 +37,11 @@ def decode(tokens: Tokens, *, split: str = "normal", tips: bool = True, threads=
     - `threads`: worker threads (None: all cores); the result does not depend on it.
 
     **Returns:** a [`Mesh`][voxax.Mesh] (vertices referenced by faces only, in row order).
+
+    **Raises:** `TypeError` or `ValueError` naming the field for tokens that are not what
+    [`encode`][voxax.fc.encode] makes (edited ones are checked field by field: integer sorted
+    `index` in the grid, finite `offsets` in `[-0.5, 0.5]`, finite `normals`, integer
+    `edge_signs` in `[-127, 127]`, matching shapes).
     """
     where = "voxax.fc.decode"
     tokens = check_tokens(where, tokens)

@@ -27,8 +27,10 @@ del _e, _a, _others
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Tokens(ValueEquality):
-    """Faithful Contour Tokens: one row per active cell (per component with
-    `anchors_per_cell="components"`), sorted by C-order cell index, then component.
+    """Faithful Contour Tokens: one row per active cell (per surface patch in the cells that
+    several patches cross, per component with `anchors_per_cell="components"`), sorted by
+    C-order cell index, then component.
+    Tokens compare by value (`==`: every field, arrays element by element).
 
     **Fields:**
 
