@@ -9,7 +9,7 @@
 //   voxax_cpu_features(out (n,) i32, n) -> count
 //
 // Writes up to n values, in this order, and returns how many there are (call with n = 0
-// to ask):
+// or out null to ask):
 //   0: the AVX2 clones are compiled in (1) or not (0: not x86-64 Linux, or a sanitizer
 //      build),
 //   1: the clones the loader selects: 1 the AVX2 ones, 0 the default ones (GCC's and
@@ -91,6 +91,7 @@ __attribute__((visibility("default"))) int voxax_cpu_features(int32_t* out, int 
                             avx512f,
                             static_cast<int32_t>(std::thread::hardware_concurrency())};
   const int count = static_cast<int>(sizeof(values) / sizeof(values[0]));
+  if (out == nullptr) return count;
   for (int i = 0; i < n && i < count; ++i) out[i] = values[i];
   return count;
 }
