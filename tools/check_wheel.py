@@ -3,7 +3,9 @@
 - It holds the package and exactly one kernel library, a regular file (not a link).
 - The kernels are a portable build: `voxax_cpu_features` (csrc/common/cpu_features.cc)
   reports no instruction-set extension enabled throughout the library, and on x86-64 Linux
-  the AVX2 clones compiled in (chosen at run time).
+  the AVX2 clones compiled in (chosen at run time). On x86-64, where objdump is installed,
+  the disassembly agrees: AVX instructions (VEX or EVEX encoded, ymm or zmm registers)
+  appear only in the functions' AVX2 clones (`<name>.avx2...`).
 
 With `--sdist`: the sdist holds what a build from it needs (CMakeLists.txt, csrc/, the
 package, the metadata's README, LICENSE and CHANGELOG.md) and no build output (compiled
@@ -19,7 +21,10 @@ from __future__ import annotations
 
 import ctypes
 import platform
+import re
+import shutil
 import stat
+import subprocess
 import sys
 import tarfile
 import tempfile
@@ -35,6 +40,29 @@ _COUNT = 2 + 2 * len(_FEATURES) + 1
 def fail(message: str) -> None:
     print(f"tools/check_wheel.py: {message}", file=sys.stderr)
     sys.exit(1)
+
+
+_FUNCTION = re.compile(r"^[0-9a-f]+ <(.+)>:$")
+_AVX = re.compile(r"\tv[a-z0-9]+\s|%[yz]mm")
+
+
+def avx_outside_clones(library: str) -> dict[str, int] | None:
+    """The functions other than AVX2 clones with AVX instructions, and how many each has
+    (None without objdump)."""
+    objdump = shutil.which("objdump")
+    if objdump is None:
+        return None
+    text = subprocess.run([objdump, "-d", "--no-show-raw-insn", library], check=True, capture_output=True,
+                          text=True).stdout
+    found: dict[str, int] = {}
+    function = "?"
+    for line in text.splitlines():
+        match = _FUNCTION.match(line)
+        if match:
+            function = match.group(1)
+        elif _AVX.search(line) and ".avx2" not in function:
+            found[function] = found.get(function, 0) + 1
+    return found
 
 
 def main(wheel: str) -> None:
@@ -61,14 +89,20 @@ def main(wheel: str) -> None:
                 fail(f"voxax_cpu_features reports {count} values, expected {_COUNT}")
             values = (ctypes.c_int32 * count)()
             fn(values, count)
+            on_x86 = platform.machine() in ("x86_64", "AMD64")
+            avx = avx_outside_clones(path) if on_x86 else None
     built = [name for name, flag in zip(_FEATURES, values[2:2 + len(_FEATURES)]) if flag]
     if built:
         fail(f"the kernels are compiled with {', '.join(built)} throughout: not portable (drop -march/-m flags)")
     on_x86_linux = platform.machine() in ("x86_64", "AMD64") and sys.platform.startswith("linux")
     if on_x86_linux and not values[0]:
         fail("the AVX2 clones are not compiled in")
+    if avx:
+        fail(f"AVX instructions outside the AVX2 clones: {sorted(avx.items(), key=lambda kv: -kv[1])[:5]}")
+    scan = ("no AVX instruction outside the AVX2 clones (objdump)" if avx is not None
+            else "instruction scan skipped (no objdump, or not x86-64)")
     print(f"{Path(wheel).name}: {len(names)} files, kernels for the baseline instruction set, "
-          f"AVX2 clones {'compiled in' if values[0] else 'not applicable here'}")
+          f"AVX2 clones {'compiled in' if values[0] else 'not applicable here'}, {scan}")
 
 
 def check_sdist(sdist: str) -> None:
