@@ -29,6 +29,8 @@ The public API:
 - `voxax.reference`: a slow, independent NumPy implementation used as the test oracle.
 - `voxax.export_safety_checks()`: what `jax.export` needs to export functions that call the
   kernels.
+- `voxax.show_config()`: the version, the kernel library and the vector paths and thread
+  count this machine uses; `voxax.__version__`.
 """
 
 from . import _kernels  # noqa: F401  (registers the kernels with XLA)
@@ -53,7 +55,10 @@ from ._kernels.export import export_safety_checks, ffi_targets
 from ._voxelize import slab_grids, voxelize_sharded, voxelize_slab
 from ._spatial import Intersections, intersections
 
-__version__ = "0.1.0"
+from ._config import show_config
+from . import _version
+
+__version__ = _version.version()
 
 # The systems and the optimization drivers load on first use (PEP 562), so that
 # `import voxax` (and every command-line call) does not pay for optimistix, equinox,
@@ -139,5 +144,6 @@ __all__ = [
     "io",
     "plot",
     "reference",
+    "show_config",
     "__version__",
 ]

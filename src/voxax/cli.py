@@ -777,6 +777,10 @@ def build_parser(commands: list[Command] | None = None) -> argparse.ArgumentPars
     parser = _Parser(prog="voxax", description="Exact differentiable voxelization for JAX.")
     parser.add_argument("--traceback", action="store_true",
                         help="on an error, show the Python traceback instead of a one-line message")
+    parser.add_argument("--version", action="store_true",
+                        help="print the version and exit (with --verbose: the build, the kernel library, the vector "
+                             "paths and thread count this machine uses, the jax versions; voxax.show_config())")
+    parser.add_argument("--verbose", "-v", action="store_true", help="with --version: the full configuration")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
                                 help="the command to run (see 'voxax COMMAND --help')")
     for command in COMMANDS if commands is None else commands:
@@ -793,6 +797,16 @@ def _one_line(err: BaseException) -> str:
     return text if isinstance(err, (UsageError, ValueError)) else f"{type(err).__name__}: {text}"
 
 
+def _version(verbose: bool) -> int:
+    import voxax
+
+    if verbose:
+        voxax.show_config()
+    else:
+        print(f"voxax {voxax.__version__}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Runs `voxax` with `argv` (default `sys.argv[1:]`) and returns the exit status:
     0 on success, 1 when a command reports failure (e.g. overlaps remain), 2 for a
@@ -803,6 +817,8 @@ def main(argv: list[str] | None = None) -> int:
     _prog = "voxax"
     command_at = next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))
     show_traceback = "--traceback" in argv[:command_at]  # an option of `voxax` itself
+    if "--version" in argv[:command_at]:  # no command needed
+        return _version(verbose=bool({"--verbose", "-v"} & set(argv[:command_at])))
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning

@@ -1666,6 +1666,29 @@ REFERENCE_FRACTION = 0.1
 BATCH = 4  # one batch size, so that batched functions compile once per grid
 
 
+def run_cpu_features():
+    """voxax_cpu_features (csrc/common/cpu_features.cc): buffers of every length up to the
+    count (the sanitizer catches a write past one), a null buffer, a negative length; every
+    prefix agrees with the full answer."""
+    import ctypes
+
+    fn = _kernels.library().voxax_cpu_features
+    fn.restype, fn.argtypes = ctypes.c_int, [ctypes.POINTER(ctypes.c_int32), ctypes.c_int]
+    count = fn(None, 0)
+    if count != fn(None, 5) or count < 1:
+        fail(f"voxax_cpu_features: count {count} with n = 0, {fn(None, 5)} with a null buffer of 5")
+    full = (ctypes.c_int32 * count)()
+    fn(full, count)
+    for n in range(-1, count + 1):
+        buf = (ctypes.c_int32 * max(n, 1))(*([-7] * max(n, 1)))
+        if fn(buf, n) != count:
+            fail(f"voxax_cpu_features: wrong count for n = {n}")
+        expected = list(full[:n]) if n > 0 else [-7]
+        if list(buf) != expected:
+            fail(f"voxax_cpu_features: n = {n} wrote {list(buf)}, expected {expected}")
+    COUNTS["cpu_features"] += count + 3
+
+
 def main(argv=None):
     global REFERENCE_FRACTION, ARTIFACTS
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -1707,6 +1730,7 @@ def main(argv=None):
         run_marching_cubes(rng, max(20, args.inputs // 20))
         run_raw_tangent_ffi(rng)
         run_intersections(rng)
+        run_cpu_features()
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
