@@ -1561,7 +1561,7 @@ def run_intersections(rng, rounds=60):
     touching soups; invalid inputs; hostile raw calls of the C entry point."""
     import ctypes
 
-    from voxax._spatial import intersect as _intersections
+    from voxax._kernels import intersect as _intersect_kernel
 
     for k in range(rounds):
         nf = int(rng.integers(1, 120))
@@ -1614,8 +1614,7 @@ def run_intersections(rng, rounds=60):
                 fail(f"intersections: wrong message {exc}")
         COUNTS["intersections_invalid"] += 1
     # Raw calls that skip the Python checks: the kernel validates on its own.
-    lib = _kernels.library()
-    _intersections._setup(lib)
+    lib = _intersect_kernel.library()
     err = ctypes.create_string_buffer(256)
     handle = ctypes.c_void_p()
     bad = np.array([[0, 1, 5]], dtype=np.int32)

@@ -20,7 +20,6 @@ vertex shared by consistently oriented triangles exactly once.
 
 from __future__ import annotations
 
-import ctypes
 import weakref
 from typing import NamedTuple
 
@@ -29,6 +28,7 @@ import numpy as np
 
 from .. import _kernels
 from .._constants import MAX_ABS_COORDINATE
+from .._kernels import spatial as kernels
 from .._mesh import Mesh
 
 __all__ = [
@@ -42,65 +42,10 @@ __all__ = [
     "first_hits",
 ]
 
-_ERRLEN = _kernels.ERRLEN
-_D, _I32, _I64, _I8, _VP = _kernels.D, _kernels.I32, _kernels.I64, _kernels.I8, _kernels.VP
-_ptr, _check, _threads = _kernels.pointer, _kernels.check, _kernels.threads
+_threads = _kernels.threads
 
-
-def signed_library():
-    i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
-    sig = {
-        "voxax_bvh_build": (
-            ctypes.c_int,
-            [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
-        ),
-        "voxax_bvh_free": (None, [_VP]),
-        "voxax_bvh_stats": (None, [_VP, _I64]),
-        "voxax_bvh_closest": (
-            ctypes.c_int,
-            [_VP, _D, i64, ctypes.c_double, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
-        ),
-        "voxax_bvh_first_hit": (
-            ctypes.c_int,
-            [
-                _VP,
-                _D,
-                _D,
-                i64,
-                dbl,
-                dbl,
-                i32,
-                i32,
-                _D,
-                _I32,
-                _D,
-                _I8,
-                ctypes.c_char_p,
-                i64,
-            ],
-        ),
-        "voxax_bvh_all_hits": (
-            ctypes.c_int,
-            [
-                _VP,
-                _D,
-                _D,
-                i64,
-                dbl,
-                dbl,
-                i32,
-                _I64,
-                ctypes.POINTER(_VP),
-                ctypes.c_char_p,
-                i64,
-            ],
-        ),
-        "voxax_hits_size": (i64, [_VP]),
-        "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
-        "voxax_hits_free": (None, [_VP]),
-        "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
-    }
-    return _kernels.declare(sig)
+# The kernel library with the BVH's and the kNN host call's signatures (used by `knn`).
+signed_library = kernels.library
 
 
 def as_coords(x, name: str) -> np.ndarray:
@@ -211,21 +156,9 @@ class BVH:
             raise ValueError("BVH needs a 3D triangle mesh, got a 2D polyline")
         v = as_coords(mesh.vertices, "vertices")
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
-        lib = signed_library()
-        handle = _VP()
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = lib.voxax_bvh_build(
-            _ptr(v, _D),
-            len(v),
-            _ptr(f, _I32),
-            len(f),
-            ctypes.byref(handle),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        handle = kernels.bvh_build(v, f)
         self._handle = handle
-        self._finalizer = weakref.finalize(self, lib.voxax_bvh_free, handle)
+        self._finalizer = weakref.finalize(self, kernels.bvh_free, handle)
         self.mesh = mesh
 
     @property
@@ -236,9 +169,7 @@ class BVH:
     @property
     def n_nodes(self) -> int:
         """Number of tree nodes."""
-        out = np.zeros(2, np.int64)
-        signed_library().voxax_bvh_stats(self._handle, _ptr(out, _I64))
-        return int(out[0])
+        return kernels.bvh_stats(self._handle)[0]
 
     def __repr__(self) -> str:
         return f"BVH(n_faces={self.n_faces}, n_nodes={self.n_nodes})"
@@ -261,29 +192,10 @@ class BVH:
         p = as_coords(points, "points")
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
-        n = len(p)
         cap = np.inf if max_distance is None else float(max_distance)
         if not cap >= 0.0:
             raise ValueError(f"closest_points: max_distance must be >= 0, got {max_distance}")
-        dist = np.empty(n, np.float64)
-        face = np.empty(n, np.int32)
-        bary = np.empty((n, 3), np.float64)
-        point = np.empty((n, 3), np.float64)
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = signed_library().voxax_bvh_closest(
-            self._handle,
-            _ptr(p, _D),
-            n,
-            cap,
-            _threads(threads),
-            _ptr(dist, _D),
-            _ptr(face, _I32),
-            _ptr(bary, _D),
-            _ptr(point, _D),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _threads(threads))
         return ClosestPoints(
             dist.reshape(lead),
             face.reshape(lead),
@@ -314,29 +226,7 @@ class BVH:
 
     def _first(self, origins, directions, t_min, t_max, any_hit, threads):
         o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max)
-        n = len(o)
-        t = np.empty(n, np.float64)
-        face = np.empty(n, np.int32)
-        bary = np.empty((n, 3), np.float64)
-        sign = np.empty(n, np.int8)
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = signed_library().voxax_bvh_first_hit(
-            self._handle,
-            _ptr(o, _D),
-            _ptr(d, _D),
-            n,
-            t_min,
-            t_max,
-            int(any_hit),
-            _threads(threads),
-            _ptr(t, _D),
-            _ptr(face, _I32),
-            _ptr(bary, _D),
-            _ptr(sign, _I8),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        t, face, bary, sign = kernels.bvh_first_hits(self._handle, o, d, t_min, t_max, any_hit, _threads(threads))
         return RayHits(
             t.reshape(lead),
             face.reshape(lead),
@@ -402,35 +292,7 @@ class BVH:
         """
         o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max)
         n = len(o)
-        counts = np.zeros(n, np.int64)
-        out = _VP()
-        err = ctypes.create_string_buffer(_ERRLEN)
-        lib = signed_library()
-        status = lib.voxax_bvh_all_hits(
-            self._handle,
-            _ptr(o, _D),
-            _ptr(d, _D),
-            n,
-            t_min,
-            t_max,
-            _threads(threads),
-            _ptr(counts, _I64),
-            ctypes.byref(out),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
-        try:
-            h = int(lib.voxax_hits_size(out))
-            t = np.empty(h, np.float64)
-            face = np.empty(h, np.int32)
-            bary = np.empty((h, 3), np.float64)
-            sign = np.empty(h, np.int8)
-            lib.voxax_hits_copy(
-                out, _ptr(t, _D), _ptr(face, _I32), _ptr(bary, _D), _ptr(sign, _I8)
-            )
-        finally:
-            lib.voxax_hits_free(out)
+        counts, t, face, bary, sign = kernels.bvh_all_hits(self._handle, o, d, t_min, t_max, _threads(threads))
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         ray = np.repeat(np.arange(n, dtype=np.int64), counts)
         return AllHits(offsets, ray, t, face, bary, sign)
@@ -490,16 +352,7 @@ def _closest_points_ffi(mesh, points) -> ClosestPoints:
     p = as_rows(points, "points")
     lead = p.shape[:-1]
     flat = p.reshape(-1, 3)
-    n = flat.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((n,), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-    )
-    d, fc, b, q = jax.ffi.ffi_call(_kernels.CLOSEST_POINTS, out, vmap_method="sequential")(
-        v, f, flat
-    )
+    d, fc, b, q = kernels.closest_points_ffi(v, f, flat)
     return ClosestPoints(
         d.reshape(lead),
         fc.reshape(lead),
@@ -526,15 +379,7 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
         raise ValueError(
             f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
         )
-    n = o.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((n,), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-    )
-    call = jax.ffi.ffi_call(_kernels.FIRST_HITS, out, vmap_method="sequential")
-    t, fc, b, sg = call(v, f, o, d, t_min=np.float64(t_min), t_max=np.float64(t_max))
+    t, fc, b, sg = kernels.first_hits_ffi(v, f, o, d, t_min, t_max)
     return RayHits(
         t.reshape(lead),
         fc.reshape(lead),
