@@ -13,11 +13,20 @@ import jax
 import numpy as np
 
 from ._ctypes import ERRLEN, I8, I32, I64, VP, D, check, declare, error_buffer, pointer
-from ._loader import CLOSEST_POINTS, FIRST_HITS
+from ._loader import CLOSEST_POINTS, FIRST_HITS, WINDING_CHECK
 
 __all__ = [
-    "bvh_all_hits", "bvh_build", "bvh_closest", "bvh_first_hits", "bvh_free", "bvh_stats",
-    "closest_points_ffi", "first_hits_ffi", "library",
+    "bvh_all_hits",
+    "bvh_build",
+    "bvh_closest",
+    "bvh_first_hits",
+    "bvh_free",
+    "bvh_stats",
+    "closest_points_ffi",
+    "first_hits_ffi",
+    "library",
+    "winding_check_ffi",
+    "winding_number",
 ]
 
 _i64, _i32, _dbl, _err = ctypes.c_int64, ctypes.c_int32, ctypes.c_double, ctypes.c_char_p
@@ -37,6 +46,7 @@ _SIGNATURES = {
     "voxax_hits_copy": (None, [VP, D, I32, D, I8]),
     "voxax_hits_free": (None, [VP]),
     "voxax_knn_host": (ctypes.c_int, [D, _i64, D, _i64, _i32, _i32, I32, D, _err, _i64]),
+    "voxax_winding_number": (ctypes.c_int, [D, _i64, I32, _i64, D, _i64, _i32, _i32, D, I64, _err, _i64]),
 }  # fmt: skip
 
 
@@ -124,6 +134,22 @@ def bvh_all_hits(handle: VP, origins, directions, t_min: float, t_max: float, th
     return counts, t, face, bary, sign
 
 
+def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, exact_sum: bool, threads: int):
+    """Winding numbers of mesh `(vertices (V, 3) f64, faces (F, 3) i32)` at `points (n, 3)
+    f64`: `(values (n,) f64, closed, points decided by a ray)`. `exact_sum`: the solid-angle
+    sum at every point instead of one ray per point on a closed mesh."""
+    n = len(points)
+    out = np.empty(n, np.float64)
+    stats = np.zeros(2, np.int64)
+    err = error_buffer()
+    status = library().voxax_winding_number(
+        pointer(vertices, D), len(vertices), pointer(faces, I32), len(faces), pointer(points, D), n,
+        int(exact_sum), threads, pointer(out, D), pointer(stats, I64), err, ERRLEN,
+    )  # fmt: skip
+    check(status, err)
+    return out, bool(stats[0]), int(stats[1])
+
+
 def closest_points_ffi(vertices, faces, points):
     """The closest-point FFI kernel on JAX arrays `vertices (V, 3) f64`, `faces (F, 3) i32`,
     `points (n, 3) f64`: `(distance, face, barycentric, point)`."""
@@ -149,3 +175,11 @@ def first_hits_ffi(vertices, faces, origins, directions, t_min: float, t_max: fl
     )
     call = jax.ffi.ffi_call(FIRST_HITS, out, vmap_method="sequential")
     return call(vertices, faces, origins, directions, t_min=np.float64(t_min), t_max=np.float64(t_max))
+
+
+def winding_check_ffi(vertices, faces, points):
+    """The winding numbers' input check as an FFI kernel (for jit): `vertices (..., V, d)`
+    f32/f64, `faces (..., F, k)` int32, `points (..., d)` f32/f64; returns a 0 int32
+    scalar, or fails with the reason."""
+    call = jax.ffi.ffi_call(WINDING_CHECK, jax.ShapeDtypeStruct((), np.int32), vmap_method="sequential")
+    return call(vertices, faces, points)

@@ -1,0 +1,90 @@
+// Eager host entry point of the winding numbers (see spatial/winding.h), a plain C ABI for
+// ctypes. Validates its input, catches every exception and reports failures as a
+// non-zero status with a message in `err`.
+//
+//   voxax_winding_number(V (nv, 3) f64, nv, F (nf, 3) i32, nf, P (n, 3) f64, n, mode,
+//                        threads, out (n,) f64, stats (2,) i64, err, errlen)
+//     mode 0: one ray per point where the faces form a cycle, the exact sum elsewhere;
+//     mode 1: the exact sum everywhere. stats: [faces form a cycle, points decided by a ray].
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+
+#include "common/host_errors.h"
+#include "common/host_pool.h"
+#include "spatial/bvh.h"
+#include "spatial/winding.h"
+
+#define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
+
+namespace {
+
+constexpr int64_t kChunk = 256;  // points per task: fixed, so results do not depend on threads
+
+// The direction of every ray: no component zero and far from any axis or diagonal plane,
+// so that the faces of axis-aligned and lattice meshes are rarely met at an edge.
+constexpr double kDir[3] = {0.5380366873043318, 0.6914262851176237, 0.4820538419276491};
+
+}  // namespace
+
+VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                                      const double* P, int64_t n, int32_t mode, int32_t threads,
+                                      double* out, int64_t* stats, char* err, int64_t errlen) {
+  return voxax::host_guarded("the winding numbers", err, errlen, [&](std::string* msg) {
+    if (nv < 0 || nf < 0 || n < 0 || nf > INT32_MAX / 2) {
+      *msg = "voxax: the winding numbers take at most 2^30 faces";
+      return false;
+    }
+    if (mode != 0 && mode != 1) {
+      *msg = "voxax: the winding numbers' mode must be 0 or 1";
+      return false;
+    }
+    if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg) ||
+        !voxax::check_host_coordinates(P, 3 * n, "points", msg))
+      return false;
+    for (int64_t i = 0; i < 3 * nf; ++i) {
+      if (F[i] < 0 || F[i] >= nv) {
+        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
+               std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
+        return false;
+      }
+    }
+    const bool closed = voxax::spatial::faces_closed(F, nf);
+    const bool rays = mode == 0 && closed && nf > 0;
+    voxax::spatial::Bvh bvh;
+    if (rays) bvh.build(V, F, nf);
+    const double extent = bvh.extent();
+    std::atomic<int64_t> by_ray{0};
+    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      int64_t decided = 0;
+      for (int64_t i = b; i < e; ++i) {
+        const double* p = P + 3 * i;
+        if (rays) {
+          // Hits within this distance of p are unclear: far above the rounding of t.
+          const double scale =
+              extent + std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
+          const double margin = 1e-9 * scale;
+          const auto ray =
+              voxax::spatial::make_ray(p, kDir, -margin, std::numeric_limits<double>::infinity());
+          int64_t sum = 0;
+          if (bvh.crossings(ray, margin, &sum)) {
+            out[i] = static_cast<double>(sum);
+            ++decided;
+            continue;
+          }
+        }
+        out[i] = voxax::spatial::winding_sum(p, V, F, nf);
+      }
+      by_ray += decided;
+    });
+    if (stats) {
+      stats[0] = closed ? 1 : 0;
+      stats[1] = by_ray.load();
+    }
+    return true;
+  });
+}
