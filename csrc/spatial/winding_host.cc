@@ -4,8 +4,10 @@
 //
 //   voxax_winding_number(V (nv, 3) f64, nv, F (nf, 3) i32, nf, P (n, 3) f64, n, mode,
 //                        threads, out (n,) f64, stats (2,) i64, err, errlen)
-//     mode 0: one ray per point where the faces form a cycle, the exact sum elsewhere;
-//     mode 1: the exact sum everywhere. stats: [faces form a cycle, points decided by a ray].
+//     mode 0: one ray per point where the faces form a cycle, the hierarchy of boundaries
+//     (WindingTree) elsewhere and for the points a ray leaves unclear; mode 1: the plain
+//     solid-angle sum everywhere (face by face). stats: [faces form a cycle, points decided by a
+//     ray].
 
 #include <algorithm>
 #include <atomic>
@@ -57,6 +59,8 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     const bool rays = mode == 0 && closed && nf > 0;
     voxax::spatial::Bvh bvh;
     if (rays) bvh.build(V, F, nf);
+    voxax::spatial::WindingTree tree;
+    if (mode == 0) tree.build(V, F, nf);
     const double extent = bvh.extent();
     std::atomic<int64_t> by_ray{0};
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
@@ -77,7 +81,7 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
             continue;
           }
         }
-        out[i] = voxax::spatial::winding_sum(p, V, F, nf);
+        out[i] = mode == 0 ? tree.eval(p) : voxax::spatial::winding_sum(p, V, F, nf);
       }
       by_ray += decided;
     });

@@ -11,7 +11,8 @@ voxels: both agree for closed surfaces.
 
 Eagerly, for one 3D mesh, the values come from C++ (`csrc/spatial/winding*`): one
 watertight ray per point through a BVH where the faces form a cycle, the exact sum
-elsewhere. Traced, batched and 2D calls run in JAX (differentiable): every point meets
+elsewhere (a hierarchy of the faces' boundaries, exact up to rounding). Traced, batched and
+2D calls run in JAX (differentiable): every point meets
 every face, so the cost is O(points x faces). The points are processed in chunks with
 `jax.lax.map`, so the memory is O(chunk_size x faces) for the forward pass and, because
 every chunk is rematerialised (`jax.checkpoint`), for the backward pass too.
@@ -155,8 +156,13 @@ def winding_number(
       signed crossing count of one watertight ray per point through a BVH, O(log F) per
       point and exactly the integer; points whose ray meets an edge or a vertex exactly, or
       that lie within rounding of a face, take the exact sum instead (so points on the
-      surface still get 1/2). Other meshes take the exact sum at every point, O(F) per
-      point on all cores (`threads`). The result is cast to the input's float dtype.
+      surface still get 1/2). Other meshes (open surfaces, soups) and those points use a
+      hierarchy of the faces' boundaries (Jacobson et al. 2013): seen from outside a
+      node's box, a patch has the winding number of the fan over its boundary edges, so a
+      node costs its boundary's edges and only the nodes around the point descend to
+      their triangles; the value is the solid-angle sum's up to rounding (no
+      approximation). On all cores (`threads`); the result is cast to the input's float
+      dtype.
     - **JAX** (under `jax.jit`, `jax.grad`, `jax.vmap`, for batch axes and for 2D): the
       sum in plain JAX, differentiable in `vertices` and `points` by autodiff (away from
       the surface the gradient of a closed mesh's winding number is zero, up to rounding).
@@ -209,7 +215,7 @@ def winding_number(
         f = np.ascontiguousarray(faces, dtype=np.int32)  # in range: checked above
         p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         out, _, _ = kernels.winding_number(v, f, p, False, nthreads)
-        return jnp.asarray(out.astype(dtype).reshape(lead))
+        return jnp.asarray(out.astype(jax.dtypes.canonicalize_dtype(dtype)).reshape(lead))
     vertices = jnp.asarray(vertices).astype(dtype)
     faces = jnp.asarray(faces)
     points = jnp.asarray(points)
