@@ -176,8 +176,8 @@ def test_open_surface_takes_the_exact_sum(rng):
 
 
 def test_winding_number_eager_and_traced_agree_and_stay_differentiable(rng):
-    m = voxax.data.icosphere(2)
-    p = rng.uniform(-1.2, 1.2, size=(50, 3))
+    m = voxax.data.icosphere(1)
+    p = rng.uniform(-1.2, 1.2, size=(12, 3))
     eager = np.asarray(voxax.winding_number(m, p))
     traced = np.asarray(jax.jit(lambda q: voxax.winding_number(m, q))(jnp.asarray(p)))
     np.testing.assert_allclose(eager, traced, atol=1e-9)
@@ -189,23 +189,25 @@ def test_winding_number_eager_and_traced_agree_and_stay_differentiable(rng):
 
 
 def test_closest_point_gradients(rng):
-    m = voxax.data.icosphere(2)
+    m = voxax.data.icosphere(1)
     v, f = jnp.asarray(m.vertices), np.asarray(m.faces)
-    q = jnp.asarray(rng.normal(size=(8, 3)) * 0.8)
-    g = jax.grad(lambda x: voxax.closest_points((v, f), x).distance.sum())(q)
+    q = jnp.asarray(rng.normal(size=(6, 3)) * 0.8)
+    g = jax.jit(jax.grad(lambda x: voxax.closest_points((v, f), x).distance.sum()))(q)
     r = voxax.closest_points(m, np.asarray(q))
     np.testing.assert_allclose(g, (np.asarray(q) - r.point) / r.distance[:, None], atol=1e-12)
     eps = 1e-6
     dv = jnp.asarray(rng.normal(size=v.shape))
     dq = jnp.asarray(rng.normal(size=q.shape))
-    for field in ("distance", "point", "barycentric"):
 
-        def fn(w, x, field=field):
-            return getattr(voxax.closest_points((w, f), x), field).sum()
+    def fn(w, x):
+        c = voxax.closest_points((w, f), x)
+        return jnp.stack([c.distance.sum(), c.point.sum(), c.barycentric[:, 1].sum()])
 
-        gv, gq = jax.grad(fn, argnums=(0, 1))(v, q)
-        fd = (fn(v + eps * dv, q + eps * dq) - fn(v - eps * dv, q - eps * dq)) / (2 * eps)
-        assert float(jnp.sum(gv * dv) + jnp.sum(gq * dq)) == pytest.approx(float(fd), rel=1e-5, abs=1e-7)
+    jac = jax.jit(jax.jacrev(fn, argnums=(0, 1)))
+    jv, jq = jac(v, q)
+    directional = jnp.einsum("kvd,vd->k", jv, dv) + jnp.einsum("kqd,qd->k", jq, dq)
+    fd = (fn(v + eps * dv, q + eps * dq) - fn(v - eps * dv, q - eps * dq)) / (2 * eps)
+    np.testing.assert_allclose(directional, fd, rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.parametrize("kind", ["soup", "open_sphere"])

@@ -373,6 +373,7 @@ def _safe_div(num, den):
     return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
 
 
+@jax.jit
 def _local_closest(corners, q, bary):
     """`(distance, barycentric, point)` of the closest point of triangles `corners (n, 3, 3)`
     to `q (n, 3)`, in the region that the kernel's weights `bary (n, 3)` name (three
