@@ -684,28 +684,46 @@ class Bvh {
   }
 
   // The sum of ray_crossing over every triangle whose box the ray (from r.tmin, which
-  // should be -margin) meets. Returns false (and leaves *sum) where a crossing is unclear.
+  // should be -margin) meets, through the float records (their boxes contain the double
+  // ones). Returns false (and leaves *sum) where a crossing is unclear.
   bool crossings(const Ray& ray, double margin, int64_t* sum) const {
+    constexpr double inf = std::numeric_limits<double>::infinity();
     int64_t s = 0;
-    if (!nodes_.empty()) {
-      int32_t stack[128];
-      int sp = 0;
-      stack[sp++] = 0;
-      while (sp > 0) {
-        const Node& node = nodes_[stack[--sp]];
-        if (ray_box(ray, node.box, ray.tmax) == std::numeric_limits<double>::infinity()) continue;
-        if (node.count > 0) {
-          for (int32_t i = node.first; i < node.first + node.count; ++i) {
-            const int c = ray_crossing(ray, &tris_[9 * static_cast<size_t>(i)], margin);
-            if (c == kUnclear) return false;
-            s += c;
-          }
-          continue;
+    if (nodes_.empty() || ray_box(ray, root_box_, ray.tmax) == inf) {
+      *sum = 0;
+      return true;
+    }
+    struct Entry {
+      int32_t ref, count;
+    };
+    Entry stack[128];
+    int sp = 0;
+    const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
+    const RayPair rp = ray_pair(ray);
+    stack[sp++] = {root_ref_, root_count_};
+    while (sp > 0) {
+      const Entry e = stack[--sp];
+      if (e.count > 0) {
+        for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
+          const int c = ray_crossing(ray, &tris_[9 * static_cast<size_t>(i)], margin);
+          if (c == kUnclear) return false;
+          s += c;
         }
-        if (sp + 2 > 128) return false;
-        stack[sp++] = node.first + 1;
-        stack[sp++] = node.first;
+        continue;
       }
+      if (sp + 2 > 128) return false;
+      const Pair& pr = pairs_[e.ref];
+      double tl, tr;
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
+        tl = tt[0];
+        tr = tt[1];
+      } else {
+        tl = pair_ray_box(ray, pr, 0, ray.tmax);
+        tr = pair_ray_box(ray, pr, 1, ray.tmax);
+      }
+      if (tr != inf) stack[sp++] = {pr.ref[1], pr.count[1]};
+      if (tl != inf) stack[sp++] = {pr.ref[0], pr.count[0]};
     }
     *sum = s;
     return true;

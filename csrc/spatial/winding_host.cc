@@ -10,11 +10,11 @@
 //     ray].
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "common/host_errors.h"
 #include "common/host_pool.h"
@@ -59,15 +59,13 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     const bool rays = mode == 0 && closed && nf > 0;
     voxax::spatial::Bvh bvh;
     if (rays) bvh.build(V, F, nf);
-    voxax::spatial::WindingTree tree;
-    if (mode == 0) tree.build(V, F, nf);
     const double extent = bvh.extent();
-    std::atomic<int64_t> by_ray{0};
-    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      int64_t decided = 0;
-      for (int64_t i = b; i < e; ++i) {
-        const double* p = P + 3 * i;
-        if (rays) {
+    // 1: the point still needs the sum (every point, unless a ray decides it)
+    std::vector<uint8_t> pending(n, 1);
+    if (rays)
+      voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        for (int64_t i = b; i < e; ++i) {
+          const double* p = P + 3 * i;
           // Hits within this distance of p are unclear: far above the rounding of t.
           const double scale =
               extent + std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
@@ -77,17 +75,25 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           int64_t sum = 0;
           if (bvh.crossings(ray, margin, &sum)) {
             out[i] = static_cast<double>(sum);
-            ++decided;
-            continue;
+            pending[i] = 0;
           }
         }
-        out[i] = mode == 0 ? tree.eval(p) : voxax::spatial::winding_sum(p, V, F, nf);
-      }
-      by_ray += decided;
-    });
+      });
+    int64_t by_ray = 0;
+    for (int64_t i = 0; i < n; ++i) by_ray += pending[i] == 0;
+    if (by_ray < n) {
+      voxax::spatial::WindingTree tree;
+      if (mode == 0) tree.build(V, F, nf);
+      voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        for (int64_t i = b; i < e; ++i)
+          if (pending[i])
+            out[i] =
+                mode == 0 ? tree.eval(P + 3 * i) : voxax::spatial::winding_sum(P + 3 * i, V, F, nf);
+      });
+    }
     if (stats) {
       stats[0] = closed ? 1 : 0;
-      stats[1] = by_ray.load();
+      stats[1] = by_ray;
     }
     return true;
   });
