@@ -226,3 +226,20 @@ def test_hierarchical_winding_numbers_equal_the_plain_sum(rng, kind):
     np.testing.assert_array_equal(tree, kernels.winding_number(v, f, p, False, 1)[0])
     oracle = np.asarray(jax.jit(lambda q: voxax.winding_number(v, f, q))(jnp.asarray(p)))
     np.testing.assert_allclose(tree, oracle, atol=1e-9)
+
+
+def test_winding_number_threads_and_concurrent_calls(rng):
+    import concurrent.futures
+
+    closed = voxax.data.icosphere(2)
+    soup = (rng.normal(size=(90, 3)), rng.integers(0, 90, size=(60, 3)))
+    p = rng.uniform(-1.2, 1.2, size=(700, 3))  # several chunks of points
+    for mesh in (closed, soup):
+        one = np.asarray(voxax.winding_number(mesh, p, threads=1))
+        np.testing.assert_array_equal(np.asarray(voxax.winding_number(mesh, p, threads=np.int64(2))), one)
+        with concurrent.futures.ThreadPoolExecutor(4) as pool:
+            for got in pool.map(lambda _, m=mesh: np.asarray(voxax.winding_number(m, p)), range(4)):
+                np.testing.assert_array_equal(got, one)
+    for bad, err in ((2.5, TypeError), (True, TypeError), (0, ValueError)):
+        with pytest.raises(err, match="`threads` must"):
+            voxax.winding_number(closed, p, threads=bad)
