@@ -206,7 +206,7 @@ def winding_number(
     points = _check_points(where, points, d)
     nthreads = _kernels.threads(threads)
     pdtype = points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype
-    dtype = jnp.result_type(vertices.dtype, pdtype)
+    dtype = jax.dtypes.canonicalize_dtype(np.result_type(vertices.dtype, pdtype))
     batch = tuple(np.broadcast_shapes(vertices.shape[:-2], faces.shape[:-2]))
     lead = tuple(points.shape[:-1])
     traced = not all(_validate.is_concrete(x) for x in (vertices, faces, points))
