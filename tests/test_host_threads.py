@@ -57,7 +57,7 @@ CHECKED_ELSEWHERE = {
     "esi.depth_map", "esi.energy", "esi.select", "esi.occupancy", "esi.to_mesh",  # tests/esi
     "cvt.fragments", "cvt.rdt", "cvt.remesh",  # tests/cvt
     "fc.pieces", "fc.decode", "fc.roundtrip",  # tests/fc
-    "all_hits", "any_hits", "first_hits",  # tests/spatial
+    "all_hits", "any_hits", "first_hits", "winding_number",  # tests/spatial
 }
 
 

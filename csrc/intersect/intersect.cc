@@ -4,6 +4,7 @@
 //
 // C interface:
 //   voxax_intersections(va, nva, fa, nfa, vb, nvb, fb, nfb, threads, &handle, err, errlen)
+//     (threads <= 0: every core)
 //     -> number of pairs (>= 0), or -1 with a message in err. vb == nullptr: self test.
 //   voxax_intersections_copy(handle, out)  writes the (K, 2) int64 pairs, sorted.
 //   voxax_intersections_free(handle)
@@ -24,6 +25,7 @@
 #include <utility>
 #include <vector>
 
+#include "common/host_pool.h"
 #include "intersect/tritri.h"
 
 namespace voxax {
@@ -350,8 +352,9 @@ __attribute__((visibility("default"))) int64_t voxax_intersections(
     }
     Result* r = new Result();
     try {
+      // threads <= 0: every core (the one rule of the host entry points)
       run(a, two ? &b : nullptr,
-          static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(threads, 256))), r);
+          voxax::spatial::resolve_threads(static_cast<int>(std::min<int64_t>(threads, 256))), r);
     } catch (...) {
       delete r;
       throw;

@@ -183,32 +183,55 @@ inline double closest_on_triangle(const double* p, const double* a, const double
                                   const double* c, double* bary, double* q) {
   return closest_on_triangle(p, a, b, c, bary, q, triangle_degenerate(a, b, c));
 }
+// The closest point of the triangle's edges (as segments) to p: always finite.
+inline double closest_on_edges(const double* p, const double* a, const double* b, const double* c,
+                               double* bary, double* q) {
+  double best = std::numeric_limits<double>::infinity(), t, tmp[3];
+  const double* ends[3][2] = {{a, b}, {b, c}, {c, a}};
+  for (int e = 0; e < 3; ++e) {
+    const double d2 = closest_on_segment(p, ends[e][0], ends[e][1], &t, tmp);
+    if (d2 < best) {
+      best = d2;
+      double w[3] = {0, 0, 0};
+      w[e] = 1.0 - t;
+      w[(e + 1) % 3] = t;
+      for (int i = 0; i < 3; ++i) {
+        bary[i] = w[i];
+        q[i] = tmp[i];
+      }
+    }
+  }
+  return best;
+}
+
+inline double closest_by_regions(const double* p, const double* a, const double* b, const double* c,
+                                 double* bary, double* q);
+
+// Far from a triangle (|p - a| e_max >> |n|, beyond about 1e15 times its size) the
+// dot products of the region classification cancel: its weights can come out as 0 / 0,
+// 1 / 0 or far outside [0, 1], and the point as NaN. Such a result is replaced by the
+// closest point of the edges, which is finite and, at that range, as close as rounding
+// can tell (any point of the triangle is). Weights a few ulps outside [0, 1] near an
+// edge are kept (the point stays on the triangle within rounding).
 inline double closest_on_triangle(const double* p, const double* a, const double* b,
                                   const double* c, double* bary, double* q, bool degenerate) {
+  if (degenerate) return closest_on_edges(p, a, b, c, bary, q);
+  const double d2 = closest_by_regions(p, a, b, c, bary, q);
+  constexpr double kSlack = 1e-9;
+  bool ok = d2 < std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 3; ++i) ok = ok && bary[i] >= -kSlack && bary[i] <= 1.0 + kSlack;
+  return ok ? d2 : closest_on_edges(p, a, b, c, bary, q);
+}
+
+// The region classification (the vertex, edge and face regions of the triangle, tested
+// on the dot products of p - a, p - b and p - c with the edges ab and ac).
+inline double closest_by_regions(const double* p, const double* a, const double* b, const double* c,
+                                 double* bary, double* q) {
   double ab[3], ac[3], ap[3];
   for (int i = 0; i < 3; ++i) {
     ab[i] = b[i] - a[i];
     ac[i] = c[i] - a[i];
     ap[i] = p[i] - a[i];
-  }
-  if (degenerate) {
-    // Degenerate (or nearly): the triangle is (within rounding) the union of its edges.
-    double best = std::numeric_limits<double>::infinity(), t, tmp[3];
-    const double* ends[3][2] = {{a, b}, {b, c}, {c, a}};
-    for (int e = 0; e < 3; ++e) {
-      const double d2 = closest_on_segment(p, ends[e][0], ends[e][1], &t, tmp);
-      if (d2 < best) {
-        best = d2;
-        double w[3] = {0, 0, 0};
-        w[e] = 1.0 - t;
-        w[(e + 1) % 3] = t;
-        for (int i = 0; i < 3; ++i) {
-          bary[i] = w[i];
-          q[i] = tmp[i];
-        }
-      }
-    }
-    return best;
   }
   auto dot = [](const double* u, const double* v) {
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
@@ -363,6 +386,51 @@ inline bool ray_triangle(const Ray& r, const double* tri, double tmax, RayHit* h
                     (ab[0] * ac[1] - ab[1] * ac[0]) * r.dir[2];
   hit->sign = nd < 0.0 ? -1 : (nd > 0.0 ? 1 : 0);
   return true;
+}
+
+// The crossing of a ray with a triangle for winding numbers, decided only where it is
+// clear-cut: +1 (the ray leaves through the triangle's front, along its normal: the
+// sheared triangle's area is negative), -1 (it enters), 0 (a clear miss, or a hit at t < -margin),
+// or kUnclear where an edge function is exactly 0 (the ray meets an edge or a vertex, or lies in
+// the triangle's plane) or the hit lies within `margin` of the origin. The edge functions are the
+// watertight test's, computed per vertex and per edge exactly as in ray_triangle, so two triangles
+// sharing an edge see it with negated bits: on a closed chain the decided crossings of one ray sum
+// to the winding number at its origin.
+constexpr int kUnclear = 2;
+inline int ray_crossing(const Ray& r, const double* tri, double margin) {
+  double a[3], b[3], c[3];
+  bool near_box = true;
+  for (int i = 0; i < 3; ++i) {
+    a[i] = tri[i] - r.org[i];
+    b[i] = tri[3 + i] - r.org[i];
+    c[i] = tri[6 + i] - r.org[i];
+    near_box = near_box && std::min(a[i], std::min(b[i], c[i])) <= margin &&
+               std::max(a[i], std::max(b[i], c[i])) >= -margin;
+  }
+  if (near_box) {
+    // The origin within `margin` of the triangle's box and plane (on the surface, or
+    // within rounding of it): unclear, whatever the ray does there.
+    const double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    const double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                         e1[0] * e2[1] - e1[1] * e2[0]};
+    const double nn = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (!(std::fabs(n[0] * a[0] + n[1] * a[1] + n[2] * a[2]) > margin * nn)) return kUnclear;
+  }
+  const double ax = a[r.kx] - r.sx * a[r.kz], ay = a[r.ky] - r.sy * a[r.kz];
+  const double bx = b[r.kx] - r.sx * b[r.kz], by = b[r.ky] - r.sy * b[r.kz];
+  const double cx = c[r.kx] - r.sx * c[r.kz], cy = c[r.ky] - r.sy * c[r.kz];
+  const double U = cx * by - cy * bx;
+  const double V = ax * cy - ay * cx;
+  const double W = bx * ay - by * ax;
+  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return 0;
+  if (U == 0.0 || V == 0.0 || W == 0.0) return kUnclear;
+  const double det = U + V + W;  // U, V, W share a strict sign: det != 0
+  const double T = U * (r.sz * a[r.kz]) + V * (r.sz * b[r.kz]) + W * (r.sz * c[r.kz]);
+  const double t = T / det;
+  if (t > margin) return det > 0.0 ? -1 : 1;
+  if (t < -margin) return 0;
+  return kUnclear;
 }
 
 class Bvh {
@@ -613,6 +681,61 @@ class Bvh {
     std::sort(out->begin() + start, out->end(), [](const RayHit& x, const RayHit& y) {
       return x.t < y.t || (x.t == y.t && x.face < y.face);
     });
+  }
+
+  // The sum of ray_crossing over every triangle whose box the ray (from r.tmin, which
+  // should be -margin) meets, through the float records (their boxes contain the double
+  // ones). Returns false (and leaves *sum) where a crossing is unclear.
+  bool crossings(const Ray& ray, double margin, int64_t* sum) const {
+    constexpr double inf = std::numeric_limits<double>::infinity();
+    int64_t s = 0;
+    if (nodes_.empty() || ray_box(ray, root_box_, ray.tmax) == inf) {
+      *sum = 0;
+      return true;
+    }
+    struct Entry {
+      int32_t ref, count;
+    };
+    Entry stack[128];
+    int sp = 0;
+    const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
+    const RayPair rp = ray_pair(ray);
+    stack[sp++] = {root_ref_, root_count_};
+    while (sp > 0) {
+      const Entry e = stack[--sp];
+      if (e.count > 0) {
+        for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
+          const int c = ray_crossing(ray, &tris_[9 * static_cast<size_t>(i)], margin);
+          if (c == kUnclear) return false;
+          s += c;
+        }
+        continue;
+      }
+      if (sp + 2 > 128) return false;
+      const Pair& pr = pairs_[e.ref];
+      double tl, tr;
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
+        tl = tt[0];
+        tr = tt[1];
+      } else {
+        tl = pair_ray_box(ray, pr, 0, ray.tmax);
+        tr = pair_ray_box(ray, pr, 1, ray.tmax);
+      }
+      if (tr != inf) stack[sp++] = {pr.ref[1], pr.count[1]};
+      if (tl != inf) stack[sp++] = {pr.ref[0], pr.count[0]};
+    }
+    *sum = s;
+    return true;
+  }
+
+  // The largest |coordinate| of the root box (0 for an empty tree).
+  double extent() const {
+    if (nodes_.empty()) return 0.0;
+    double m = 0.0;
+    for (int a = 0; a < 3; ++a)
+      m = std::max(m, std::max(std::fabs(root_box_.lo[a]), std::fabs(root_box_.hi[a])));
+    return m;
   }
 
  private:

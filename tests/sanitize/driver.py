@@ -1576,7 +1576,7 @@ def run_intersections(rng, rounds=60):
     touching soups; invalid inputs; hostile raw calls of the C entry point."""
     import ctypes
 
-    from voxax._spatial import intersect as _intersections
+    from voxax._kernels import intersect as _intersect_kernel
 
     for k in range(rounds):
         nf = int(rng.integers(1, 120))
@@ -1629,8 +1629,7 @@ def run_intersections(rng, rounds=60):
                 fail(f"intersections: wrong message {exc}")
         COUNTS["intersections_invalid"] += 1
     # Raw calls that skip the Python checks: the kernel validates on its own.
-    lib = _kernels.library()
-    _intersections._setup(lib)
+    lib = _intersect_kernel.library()
     err = ctypes.create_string_buffer(256)
     handle = ctypes.c_void_p()
     bad = np.array([[0, 1, 5]], dtype=np.int32)
@@ -1644,6 +1643,96 @@ def run_intersections(rng, rounds=60):
         if lib.voxax_intersections(*args, 2, ctypes.byref(handle), err, len(err)) != -1:
             fail("raw intersections call accepted invalid input")
         COUNTS["intersections_raw"] += 1
+
+
+def run_winding(rng, rounds=40):
+    """Winding numbers (the ray path on closed meshes, the boundary hierarchy on soups) on
+    adversarial soups and closed meshes, against the plain solid-angle sum; hostile raw
+    calls of the host entry point and of the jit check kernel."""
+    import ctypes
+
+    from voxax._kernels import spatial as spk
+
+    closed = [voxax.data.box(), voxax.data.icosphere(1), voxax.data.overlapping_cubes()]
+    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
+    for i in range(rounds):
+        kind = kinds[i % len(kinds)]
+        if kind == "closed":
+            m = closed[i % len(closed)]
+            v, f = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int32)
+            v = v * 10.0 ** float(rng.integers(-20, 20))
+        else:
+            v, f = _spatial_soup(rng, kind)
+        scale = float(np.abs(v).max()) if v.size else 1.0
+        p = rng.uniform(-1.5, 1.5, (30, 3)) * scale
+        k = min(5, len(v))
+        p[:k] = v[:k]
+        p = np.round(p * 4 / scale) * scale / 4 if i % 2 else p  # lattice points: rays through edges
+        label = f"winding/{kind}/{i}"
+        try:
+            w1, c1, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 1)
+            w3, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 3)
+            ws, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, True, 2)
+        except Exception as exc:  # noqa: BLE001
+            fail(f"{label}: raised on a valid input: {exc!r}")
+            continue
+        COUNTS["winding"] += 1
+        if len(f) and scale < 1e40:  # closest points from far away: finite, batch-independent
+            far = p * 10.0 ** float(rng.integers(25, 34))
+            both = voxax.closest_points((v, f), far)
+            alone = voxax.closest_points((v, f), far[1:2])
+            if not np.all(np.isfinite(both.distance)) or not np.all(np.isfinite(both.point)):
+                fail(f"{label}: closest points from far away are not finite")
+            elif both.distance[1] != alone.distance[0]:
+                fail(f"{label}: a far closest point depends on the batch")
+        if not np.array_equal(w1, w3):
+            fail(f"{label}: thread count changed the winding numbers")
+        if not np.all(np.isfinite(w1)) or np.max(np.abs(w1 - ws), initial=0) > 1e-6 * max(1, len(f)):
+            fail(f"{label}: winding numbers differ from the plain sum by {np.max(np.abs(w1 - ws), initial=0)}")
+    lib = spk.library()
+    err = ctypes.create_string_buffer(256)
+    out = np.zeros(4)
+    stats = np.zeros(2, np.int64)
+    good_v = np.eye(3)
+    bad_f = np.array([[0, 1, 5]], np.int32)
+    good_f = np.array([[0, 1, 2]], np.int32)
+    nan = np.full((3, 3), np.nan)
+    pts = np.zeros((1, 3))
+    for v_, nv, f_, nf, p_, n, mode in (
+        (nan, 3, good_f, 1, pts, 1, 0),
+        (good_v, 3, bad_f, 1, pts, 1, 0),
+        (good_v, 3, good_f, 1, nan, 1, 0),
+        (good_v, -1, good_f, 1, pts, 1, 0),
+        (good_v, 3, good_f, 1, pts, 1, 7),
+        (good_v, 3, good_f, -2, pts, 1, 0),
+    ):
+        status = lib.voxax_winding_number(
+            _kernels.pointer(v_, _kernels.D), nv, _kernels.pointer(f_, _kernels.I32), nf,
+            _kernels.pointer(p_, _kernels.D), n, mode, 1, _kernels.pointer(out, _kernels.D),
+            _kernels.pointer(stats, _kernels.I64), err, len(err),
+        )  # fmt: skip
+        if status == 0:
+            fail("raw winding call accepted invalid input")
+        COUNTS["winding_raw"] += 1
+    m = voxax.data.box()
+    mv, mf = jnp.asarray(m.vertices, jnp.float64), jnp.asarray(m.faces, jnp.int32)
+    check = jax.jit(spk.winding_check_ffi)
+    bad = {
+        "nan vertices": (lambda: check(mv.at[0, 0].set(jnp.nan), mf, jnp.zeros((2, 3))), "NaN"),
+        "huge points": (lambda: check(mv, mf, jnp.full((2, 3), 1e80)), "1e75"),
+        "face index": (lambda: check(mv, mf.at[3, 1].set(8), jnp.zeros((2, 3))), "out of range"),
+        "negative index": (lambda: check(mv, mf.at[0, 0].set(-1), jnp.zeros((2, 3))), "out of range"),
+        "int points": (lambda: check(mv, mf, jnp.zeros((2, 3), jnp.int32)), "float32 or float64"),
+        "jit int64 faces": (
+            lambda: jax.jit(lambda g: voxax.winding_number(mv, g, jnp.zeros((1, 3))))(
+                jnp.asarray(m.faces, jnp.int64) + 2**32
+            ),
+            "out of range",
+        ),
+    }
+    expect_rejected("winding", bad, (ValueError, jax.errors.JaxRuntimeError))
+    if int(check(mv, mf, jnp.zeros((2, 3)))) != 0:
+        fail("winding check kernel: a valid input did not return 0")
 
 
 def pool_threads():
@@ -1731,6 +1820,7 @@ def main(argv=None):
         run_raw_tangent_ffi(rng)
         run_intersections(rng)
         run_cpu_features()
+        run_winding(rng, max(21, args.spatial_inputs // 5))
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]

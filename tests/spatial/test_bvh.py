@@ -304,7 +304,7 @@ def test_jit_path_matches_the_host_path():
     with pytest.raises(Exception, match="out of range"):
         jax.jit(lambda f: voxax.closest_points((V, f), jnp.zeros((1, 3))))(
             jnp.asarray(F).at[0, 0].set(10**6)
-        )
+        ).face.block_until_ready()  # (int64 faces: raised when the result is read)
     with pytest.raises(Exception, match="direction 1 is zero"):
         jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(
             jnp.array([[1.0, 0, 0], [0, 0, 0]])

@@ -20,15 +20,16 @@ vertex shared by consistently oriented triangles exactly once.
 
 from __future__ import annotations
 
-import ctypes
 import weakref
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from .. import _kernels
+from .. import _kernels, _validate
 from .._constants import MAX_ABS_COORDINATE
+from .._kernels import spatial as kernels
 from .._mesh import Mesh
 
 __all__ = [
@@ -42,65 +43,19 @@ __all__ = [
     "first_hits",
 ]
 
-_ERRLEN = _kernels.ERRLEN
-_D, _I32, _I64, _I8, _VP = _kernels.D, _kernels.I32, _kernels.I64, _kernels.I8, _kernels.VP
-_ptr, _check, _threads = _kernels.pointer, _kernels.check, _kernels.threads
+_threads = _kernels.threads
+
+# The kernel library with the BVH's and the kNN host call's signatures (used by `knn`).
+signed_library = kernels.library
 
 
-def signed_library():
-    i64, i32, dbl = ctypes.c_int64, ctypes.c_int32, ctypes.c_double
-    sig = {
-        "voxax_bvh_build": (
-            ctypes.c_int,
-            [_D, i64, _I32, i64, ctypes.POINTER(_VP), ctypes.c_char_p, i64],
-        ),
-        "voxax_bvh_free": (None, [_VP]),
-        "voxax_bvh_stats": (None, [_VP, _I64]),
-        "voxax_bvh_closest": (
-            ctypes.c_int,
-            [_VP, _D, i64, ctypes.c_double, i32, _D, _I32, _D, _D, ctypes.c_char_p, i64],
-        ),
-        "voxax_bvh_first_hit": (
-            ctypes.c_int,
-            [
-                _VP,
-                _D,
-                _D,
-                i64,
-                dbl,
-                dbl,
-                i32,
-                i32,
-                _D,
-                _I32,
-                _D,
-                _I8,
-                ctypes.c_char_p,
-                i64,
-            ],
-        ),
-        "voxax_bvh_all_hits": (
-            ctypes.c_int,
-            [
-                _VP,
-                _D,
-                _D,
-                i64,
-                dbl,
-                dbl,
-                i32,
-                _I64,
-                ctypes.POINTER(_VP),
-                ctypes.c_char_p,
-                i64,
-            ],
-        ),
-        "voxax_hits_size": (i64, [_VP]),
-        "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
-        "voxax_hits_free": (None, [_VP]),
-        "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
-    }
-    return _kernels.declare(sig)
+def real_vertices(where: str, x):
+    """`x` unchanged, refused unless its dtype is a float or an integer (not bool or complex)."""
+    kind = np.dtype(x.dtype).kind if hasattr(x, "dtype") else np.asarray(x).dtype.kind
+    if kind not in "fiu":
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+        raise TypeError(f"{where}: `vertices` must be a float (or integer) array, got {dtype}")
+    return x
 
 
 def as_coords(x, name: str) -> np.ndarray:
@@ -200,32 +155,20 @@ class BVH:
             if isinstance(vertices, Mesh):
                 mesh = vertices
             elif isinstance(vertices, tuple) and len(vertices) == 2:
-                mesh = Mesh(*vertices)
+                mesh = Mesh(real_vertices("voxax.BVH", vertices[0]), vertices[1])
             else:
                 raise TypeError(
                     "BVH needs a Mesh, a (vertices, faces) pair, or vertices and faces"
                 )
         else:
-            mesh = Mesh(vertices, faces)
+            mesh = Mesh(real_vertices("voxax.BVH", vertices), faces)
         if mesh.dim != 3:
             raise ValueError("BVH needs a 3D triangle mesh, got a 2D polyline")
         v = as_coords(mesh.vertices, "vertices")
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
-        lib = signed_library()
-        handle = _VP()
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = lib.voxax_bvh_build(
-            _ptr(v, _D),
-            len(v),
-            _ptr(f, _I32),
-            len(f),
-            ctypes.byref(handle),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        handle = kernels.bvh_build(v, f)
         self._handle = handle
-        self._finalizer = weakref.finalize(self, lib.voxax_bvh_free, handle)
+        self._finalizer = weakref.finalize(self, kernels.bvh_free, handle)
         self.mesh = mesh
 
     @property
@@ -236,9 +179,7 @@ class BVH:
     @property
     def n_nodes(self) -> int:
         """Number of tree nodes."""
-        out = np.zeros(2, np.int64)
-        signed_library().voxax_bvh_stats(self._handle, _ptr(out, _I64))
-        return int(out[0])
+        return kernels.bvh_stats(self._handle)[0]
 
     def __repr__(self) -> str:
         return f"BVH(n_faces={self.n_faces}, n_nodes={self.n_nodes})"
@@ -261,29 +202,10 @@ class BVH:
         p = as_coords(points, "points")
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
-        n = len(p)
         cap = np.inf if max_distance is None else float(max_distance)
         if not cap >= 0.0:
             raise ValueError(f"closest_points: max_distance must be >= 0, got {max_distance}")
-        dist = np.empty(n, np.float64)
-        face = np.empty(n, np.int32)
-        bary = np.empty((n, 3), np.float64)
-        point = np.empty((n, 3), np.float64)
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = signed_library().voxax_bvh_closest(
-            self._handle,
-            _ptr(p, _D),
-            n,
-            cap,
-            _threads(threads),
-            _ptr(dist, _D),
-            _ptr(face, _I32),
-            _ptr(bary, _D),
-            _ptr(point, _D),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _threads(threads))
         return ClosestPoints(
             dist.reshape(lead),
             face.reshape(lead),
@@ -314,29 +236,7 @@ class BVH:
 
     def _first(self, origins, directions, t_min, t_max, any_hit, threads):
         o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max)
-        n = len(o)
-        t = np.empty(n, np.float64)
-        face = np.empty(n, np.int32)
-        bary = np.empty((n, 3), np.float64)
-        sign = np.empty(n, np.int8)
-        err = ctypes.create_string_buffer(_ERRLEN)
-        status = signed_library().voxax_bvh_first_hit(
-            self._handle,
-            _ptr(o, _D),
-            _ptr(d, _D),
-            n,
-            t_min,
-            t_max,
-            int(any_hit),
-            _threads(threads),
-            _ptr(t, _D),
-            _ptr(face, _I32),
-            _ptr(bary, _D),
-            _ptr(sign, _I8),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
+        t, face, bary, sign = kernels.bvh_first_hits(self._handle, o, d, t_min, t_max, any_hit, _threads(threads))
         return RayHits(
             t.reshape(lead),
             face.reshape(lead),
@@ -402,35 +302,7 @@ class BVH:
         """
         o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max)
         n = len(o)
-        counts = np.zeros(n, np.int64)
-        out = _VP()
-        err = ctypes.create_string_buffer(_ERRLEN)
-        lib = signed_library()
-        status = lib.voxax_bvh_all_hits(
-            self._handle,
-            _ptr(o, _D),
-            _ptr(d, _D),
-            n,
-            t_min,
-            t_max,
-            _threads(threads),
-            _ptr(counts, _I64),
-            ctypes.byref(out),
-            err,
-            _ERRLEN,
-        )
-        _check(status, err)
-        try:
-            h = int(lib.voxax_hits_size(out))
-            t = np.empty(h, np.float64)
-            face = np.empty(h, np.int32)
-            bary = np.empty((h, 3), np.float64)
-            sign = np.empty(h, np.int8)
-            lib.voxax_hits_copy(
-                out, _ptr(t, _D), _ptr(face, _I32), _ptr(bary, _D), _ptr(sign, _I8)
-            )
-        finally:
-            lib.voxax_hits_free(out)
+        counts, t, face, bary, sign = kernels.bvh_all_hits(self._handle, o, d, t_min, t_max, _threads(threads))
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         ray = np.repeat(np.arange(n, dtype=np.int64), counts)
         return AllHits(offsets, ray, t, face, bary, sign)
@@ -462,14 +334,25 @@ def _mesh_arrays(mesh):
         raise ValueError(
             "the jit path of the BVH queries computes in float64: enable jax_enable_x64"
         )
-    v, f = jnp.asarray(v), jnp.asarray(f)
+    v, f = jnp.asarray(real_vertices("voxax.closest_points / first_hits", v)), jnp.asarray(f)
     if v.ndim != 2 or v.shape[-1] != 3:
         raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
     if f.ndim != 2 or f.shape[-1] != 3:
         raise ValueError(f"faces must have shape (F, 3), got {f.shape}")
     if not jnp.issubdtype(f.dtype, jnp.integer):
         raise TypeError(f"faces must be an integer array, got dtype {f.dtype}")
-    return v.astype(jnp.float64), f.astype(jnp.int32)
+    if f.dtype != jnp.int32:
+        if _validate.is_concrete(f) and f.size:
+            lo, hi = int(f.min()), int(f.max())
+            if lo < 0 or hi >= v.shape[0]:
+                raise ValueError(
+                    f"face indices out of range: they must lie in [0, {v.shape[0]}), got [{lo}, {hi}]"
+                )
+        # Indices beyond int32 become -1 or 2^31 - 1 (still out of range, so the kernel
+        # refuses them) instead of wrapping into range.
+        lo = -1 if jnp.issubdtype(f.dtype, jnp.signedinteger) else 0
+        f = jnp.clip(f, lo, _validate.INT32_MAX).astype(jnp.int32)
+    return v.astype(jnp.float64), f
 
 
 def as_rows(x, name):
@@ -485,21 +368,82 @@ def as_rows(x, name):
     return x.astype(jnp.float64)
 
 
+def _safe_div(num, den):
+    ok = den != 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+@jax.jit
+def _local_closest(corners, q, bary):
+    """`(distance, barycentric, point)` of the closest point of triangles `corners (n, 3, 3)`
+    to `q (n, 3)`, in the region that the kernel's weights `bary (n, 3)` name (three
+    non-zero weights: the face; two: the edge between them; one: that corner), as smooth
+    functions of the corners and the query: their derivatives are the closest point's
+    wherever the region does not change (and, by the envelope theorem, the distance's
+    everywhere it is differentiable)."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    nonzero = bary != 0
+    count = jnp.sum(nonzero, axis=-1)
+    # face: the projection onto the plane, with its barycentric weights
+    n = jnp.cross(b - a, c - a)
+    n2 = jnp.sum(n * n, axis=-1)
+    pf = q - n * _safe_div(jnp.sum((q - a) * n, axis=-1), n2)[:, None]
+    wb = _safe_div(jnp.sum(jnp.cross(pf - a, c - a) * n, axis=-1), n2)
+    wc = _safe_div(jnp.sum(jnp.cross(b - a, pf - a) * n, axis=-1), n2)
+    wf = jnp.stack([1.0 - wb - wc, wb, wc], axis=-1)
+    # edge: from corner k + 1 to corner k + 2, where k is the corner of weight 0
+    k = jnp.argmin(nonzero, axis=-1)
+    i, j = (k + 1) % 3, (k + 2) % 3
+    x = jnp.take_along_axis(corners, i[:, None, None], axis=1)[:, 0]
+    y = jnp.take_along_axis(corners, j[:, None, None], axis=1)[:, 0]
+    e = y - x
+    t = _safe_div(jnp.sum((q - x) * e, axis=-1), jnp.sum(e * e, axis=-1))
+    pe = x + t[:, None] * e
+    we = (jax.nn.one_hot(i, 3, dtype=q.dtype) * (1.0 - t)[:, None] + jax.nn.one_hot(j, 3, dtype=q.dtype) * t[:, None])
+    # corner: the one of weight 1
+    m = jnp.argmax(nonzero, axis=-1)
+    pv = jnp.take_along_axis(corners, m[:, None, None], axis=1)[:, 0]
+    wv = jax.nn.one_hot(m, 3, dtype=q.dtype)
+    face, edge = (count == 3)[:, None], (count == 2)[:, None]
+    point = jnp.where(face, pf, jnp.where(edge, pe, pv))
+    weights = jnp.where(face, wf, jnp.where(edge, we, wv))
+    diff = q - point
+    sq = jnp.sum(diff * diff, axis=-1)
+    pos = sq > 0
+    dist = jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+    return dist, weights, point
+
+
+@jax.custom_jvp
+def _closest_kernel(v, f, p):
+    return tuple(kernels.closest_points_ffi(v, f, p))
+
+
+@_closest_kernel.defjvp
+def _closest_kernel_jvp(primals, tangents):
+    v, f, p = primals
+    dv, _, dp = tangents
+    out = _closest_kernel(v, f, p)
+    dist, face, bary, point = out
+    zero_face = np.zeros(face.shape, dtype=jax.dtypes.float0)
+    if f.shape[0] == 0:  # no closest point: nothing moves
+        return out, (jnp.zeros_like(dist), zero_face, jnp.zeros_like(bary), jnp.zeros_like(point))
+    tri = f[jnp.clip(face, 0)]
+    bary0 = jax.lax.stop_gradient(bary)
+
+    def local(v_, p_):
+        return _local_closest(v_[tri], p_, bary0)
+
+    _, (dd, db, dq) = jax.jvp(local, (v, p), (dv, dp))
+    return out, (dd, zero_face, db, dq)
+
+
 def _closest_points_ffi(mesh, points) -> ClosestPoints:
     v, f = _mesh_arrays(mesh)
     p = as_rows(points, "points")
     lead = p.shape[:-1]
     flat = p.reshape(-1, 3)
-    n = flat.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((n,), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-    )
-    d, fc, b, q = jax.ffi.ffi_call(_kernels.CLOSEST_POINTS, out, vmap_method="sequential")(
-        v, f, flat
-    )
+    d, fc, b, q = _closest_kernel(v, f, flat)
     return ClosestPoints(
         d.reshape(lead),
         fc.reshape(lead),
@@ -526,15 +470,7 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
         raise ValueError(
             f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
         )
-    n = o.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((n,), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((n, 3), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-    )
-    call = jax.ffi.ffi_call(_kernels.FIRST_HITS, out, vmap_method="sequential")
-    t, fc, b, sg = call(v, f, o, d, t_min=np.float64(t_min), t_max=np.float64(t_max))
+    t, fc, b, sg = kernels.first_hits_ffi(v, f, o, d, t_min, t_max)
     return RayHits(
         t.reshape(lead),
         fc.reshape(lead),

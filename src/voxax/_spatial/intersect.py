@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import ctypes
-import os
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from .. import _kernels
 from .._constants import MAX_ABS_COORDINATE
+from .._kernels import intersect as kernels
 from .._mesh import Mesh
 
 __all__ = ["Intersections", "intersections", "MIN_ABS_COORDINATE"]
@@ -106,23 +105,6 @@ def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return np.ascontiguousarray(sv[new]), np.ascontiguousarray(inverse[faces], dtype=np.int32)
 
 
-def _setup(lib: ctypes.CDLL) -> None:
-    if getattr(lib, "_voxax_intersections_ready", False):
-        return
-    ptr = ctypes.c_void_p
-    lib.voxax_intersections.restype = ctypes.c_int64
-    lib.voxax_intersections.argtypes = [
-        ptr, ctypes.c_int64, ptr, ctypes.c_int64,
-        ptr, ctypes.c_int64, ptr, ctypes.c_int64,
-        ctypes.c_int64, ctypes.POINTER(ctypes.c_void_p), ctypes.c_char_p, ctypes.c_int64,
-    ]  # fmt: skip
-    lib.voxax_intersections_copy.restype = None
-    lib.voxax_intersections_copy.argtypes = [ptr, ptr]
-    lib.voxax_intersections_free.restype = None
-    lib.voxax_intersections_free.argtypes = [ptr]
-    lib._voxax_intersections_ready = True
-
-
 def intersections(
     vertices: Any,
     faces: Any = None,
@@ -162,7 +144,8 @@ def intersections(
     - `other`: a second mesh (`Mesh`, `trimesh.Trimesh` or `(vertices, faces)`): test the
       faces of the first against those of the second instead of the self test.
     - `weld`: merge vertices with identical coordinates before the self test.
-    - `threads`: worker threads (default: the CPU count); the result does not depend on it.
+    - `threads`: worker threads (default: all cores, or `VOXAX_NUM_THREADS`); the result
+      does not depend on it.
 
     **Returns:** [`Intersections`][voxax.Intersections] `(pairs (K, 2) int64, count)`.
 
@@ -187,29 +170,6 @@ def intersections(
         vb, fb = _arrays(other, None, "voxax.intersections (other)")
     elif weld:
         va, fa = _weld(va, fa)
-    threads = _kernels.threads(threads) or (os.cpu_count() or 1)
-    lib = _kernels.library()
-    _setup(lib)
-    handle = ctypes.c_void_p()
-    err = ctypes.create_string_buffer(1024)
-
-    def ptr(a):
-        return a.ctypes.data_as(ctypes.c_void_p) if a is not None and a.size else None
-
-    if other is None:
-        args = (ptr(va), va.shape[0], ptr(fa), fa.shape[0], None, 0, None, 0)
-    else:
-        # A non-null pointer marks the two-mesh test even when the other mesh is empty.
-        dummy = np.zeros(3)
-        pb = ptr(vb) or dummy.ctypes.data_as(ctypes.c_void_p)
-        args = (ptr(va), va.shape[0], ptr(fa), fa.shape[0], pb, vb.shape[0], ptr(fb), fb.shape[0])
-    count = lib.voxax_intersections(*args, int(threads), ctypes.byref(handle), err, len(err))
-    if count < 0:
-        raise ValueError(err.value.decode("utf-8", "replace"))
-    try:
-        pairs = np.empty((count, 2), dtype=np.int64)
-        if count:
-            lib.voxax_intersections_copy(handle, pairs.ctypes.data_as(ctypes.c_void_p))
-    finally:
-        lib.voxax_intersections_free(handle)
-    return Intersections(pairs, int(count))
+    other_arrays = (vb, fb) if other is not None else None
+    pairs = kernels.intersections(va, fa, other_arrays, _kernels.threads(threads))
+    return Intersections(pairs, len(pairs))

@@ -9,10 +9,13 @@ the smooth "generalised" winding number of Jacobson et al. (2013), which does no
 any ray direction. Compare `voxax.voxelize`, which averages the +z ray-crossing count over
 voxels: both agree for closed surfaces.
 
-This runs in JAX (no C++ kernel): every point meets every face, so the cost is
-O(points x faces). The points are processed in chunks with `jax.lax.map`, so the memory is
-O(chunk_size x faces) for the forward pass and, because every chunk is rematerialised
-(`jax.checkpoint`), for the backward pass too.
+Eagerly, for one 3D mesh, the values come from C++ (`csrc/spatial/winding*`): one
+watertight ray per point through a BVH where the faces form a cycle, the exact sum
+elsewhere (a hierarchy of the faces' boundaries, exact up to rounding). Traced, batched and
+2D calls run in JAX (differentiable): every point meets
+every face, so the cost is O(points x faces). The points are processed in chunks with
+`jax.lax.map`, so the memory is O(chunk_size x faces) for the forward pass and, because
+every chunk is rematerialised (`jax.checkpoint`), for the backward pass too.
 """
 
 from __future__ import annotations
@@ -24,8 +27,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _validate
-from .._constants import PAIR_BUDGET
+from .. import _kernels, _validate
+from .._constants import MAX_ABS_COORDINATE, PAIR_BUDGET
+from .._kernels import spatial as kernels
 
 __all__ = ["winding_number", "winding_flat"]
 
@@ -100,7 +104,39 @@ def _auto_chunk(n_faces: int, n_points: int) -> int:
     return int(max(1, min(max(n_points, 1), PAIR_BUDGET // max(n_faces, 1))))
 
 
-def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None = None) -> jax.Array:
+def _check_points(where: str, points, d: int):
+    """`points` as an array of shape (..., d), refused when not real or, if concrete, when
+    not finite or beyond MAX_ABS_COORDINATE."""
+    if not hasattr(points, "dtype"):
+        points = np.asarray(points)
+    kind = np.dtype(points.dtype).kind
+    if kind not in "fiu":
+        raise TypeError(f"{where}: `points` must be a real (float or integer) array, got {points.dtype}")
+    if points.ndim < 1 or points.shape[-1] != d:
+        raise ValueError(f"{where}: `points` must have shape (..., {d}), got {tuple(points.shape)}")
+    if _validate.is_concrete(points) and points.size:
+        p = np.asarray(points)
+        if not np.all(np.isfinite(p)):
+            raise ValueError(f"{where}: `points` contain NaN or Inf")
+        if float(np.max(np.abs(p))) > MAX_ABS_COORDINATE:
+            raise ValueError(f"{where}: `points` coordinates must have magnitude <= 1e75")
+    return points
+
+
+def _checked_under_jit(out, vertices, faces, points):
+    """`out`, with the kernel's checks of the (traced) input run first: under jit a NaN or
+    out-of-range input raises there instead of giving NaN. Face indices beyond int32 are
+    clipped to -1 or 2^31 - 1 (out of range either way) before the cast."""
+    kind = np.dtype(faces.dtype).kind
+    f32 = jnp.clip(faces, -1 if kind == "i" else 0, _validate.INT32_MAX).astype(jnp.int32)
+    pts = jax.lax.stop_gradient(jnp.asarray(points).astype(out.dtype))
+    flag = kernels.winding_check_ffi(jax.lax.stop_gradient(vertices), f32, pts)
+    return jnp.where(flag == 0, out, jnp.nan)
+
+
+def winding_number(
+    vertices, faces=None, points=None, *, chunk_size: int | None = None, threads: int | None = None
+) -> jax.Array:
     """The exact generalised winding number of a mesh (or polyline) at points.
 
     3D: the sum of the signed solid angles of the triangles, by the formula of Van Oosterom
@@ -112,21 +148,39 @@ def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None 
     a cube's edges). For open surfaces it is the generalised winding number, which is not
     an integer.
 
-    Pure JAX, works under `jax.jit`, `jax.grad` and `jax.vmap`; leading axes of
-    `vertices` and `faces` are batch axes that broadcast against each other, as for
-    `voxax.voxelize`, and every mesh of the batch is evaluated at all the points. Differentiable in `vertices` and `points` by plain autodiff (away from
-    the surface the gradient of a closed mesh's winding number is zero, up to rounding).
-    The cost is O(points x faces); the points are processed `chunk_size` at a time, so the
-    memory is O(chunk_size x faces) also when differentiating (every chunk is recomputed
-    in the backward pass).
+    Two paths compute the same values:
+
+    - **Eager, one 3D mesh** (no argument traced, no batch axes): C++ in float64. Where
+      the faces form a cycle (every edge used as often in each direction: a closed mesh,
+      also a non-manifold one or one with faces paired with their reverses) the sum is the
+      signed crossing count of one watertight ray per point through a BVH, O(log F) per
+      point and exactly the integer; points whose ray meets an edge or a vertex exactly, or
+      that lie within rounding of a face, take the exact sum instead (so points on the
+      surface still get 1/2). Other meshes (open surfaces, soups) and those points use a
+      hierarchy of the faces' boundaries (Jacobson et al. 2013): seen from outside a
+      node's box, a patch has the winding number of the fan over its boundary edges, so a
+      node costs its boundary's edges and only the nodes around the point descend to
+      their triangles; the value is the solid-angle sum's up to rounding (no
+      approximation). On all cores (`threads`); the result is cast to the input's float
+      dtype.
+    - **JAX** (under `jax.jit`, `jax.grad`, `jax.vmap`, for batch axes and for 2D): the
+      sum in plain JAX, differentiable in `vertices` and `points` by autodiff (away from
+      the surface the gradient of a closed mesh's winding number is zero, up to rounding).
+      Leading axes of `vertices` and `faces` are batch axes that broadcast against each
+      other, as for `voxax.voxelize`, and every mesh of the batch is evaluated at all the
+      points. The cost is O(points x faces); the points are processed `chunk_size` at a
+      time, so the memory is O(chunk_size x faces) also when differentiating (every chunk
+      is recomputed in the backward pass). Under jit a kernel checks the input first
+      (NaN, Inf or coordinates beyond 1e75, face indices out of range raise).
 
     **Arguments:**
 
     - `vertices`: `(..., V, 3)` or `(..., V, 2)` float32 or float64.
     - `faces`: `(..., F, 3)` int triangles or `(..., F, 2)` int segments, outward-oriented
       (or a mesh object in place of `vertices, faces`: `winding_number(mesh, points)`).
-    - `points`: `(..., d)` float, any leading shape.
-    - `chunk_size`: points per chunk; by default about 2^20 / F (at least 1).
+    - `points`: `(..., d)` float (or int), any leading shape; finite, magnitude <= 1e75.
+    - `chunk_size`: points per chunk of the JAX path; by default about 2^20 / F (at least 1).
+    - `threads`: threads of the eager path (default: all cores, or `VOXAX_NUM_THREADS`).
 
     **Returns:**
 
@@ -149,14 +203,22 @@ def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None 
     d = vertices.shape[-1]
     if points is None:
         raise TypeError(f"{where}: missing `points`")
-    points = jnp.asarray(points)
-    if points.ndim < 1 or points.shape[-1] != d:
-        raise ValueError(f"{where}: `points` must have shape (..., {d}), got {tuple(points.shape)}")
-    dtype = jnp.result_type(vertices.dtype, points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype)
+    points = _check_points(where, points, d)
+    nthreads = _kernels.threads(threads)
+    pdtype = points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype
+    dtype = jax.dtypes.canonicalize_dtype(np.result_type(vertices.dtype, pdtype))
+    batch = tuple(np.broadcast_shapes(vertices.shape[:-2], faces.shape[:-2]))
+    lead = tuple(points.shape[:-1])
+    traced = not all(_validate.is_concrete(x) for x in (vertices, faces, points))
+    if not traced and d == 3 and vertices.ndim == 2 and faces.ndim == 2:
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        f = np.ascontiguousarray(faces, dtype=np.int32)  # in range: checked above
+        p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        out, _, _ = kernels.winding_number(v, f, p, False, nthreads)
+        return jnp.asarray(out.astype(jax.dtypes.canonicalize_dtype(dtype)).reshape(lead))
     vertices = jnp.asarray(vertices).astype(dtype)
     faces = jnp.asarray(faces)
-    batch = tuple(np.broadcast_shapes(vertices.shape[:-2], faces.shape[:-2]))
-    lead = points.shape[:-1]
+    points = jnp.asarray(points)
     flat = points.astype(dtype).reshape(-1, d)
     if flat.shape[0] == 0:
         return jnp.zeros(batch + lead, dtype)
@@ -165,4 +227,7 @@ def winding_number(vertices, faces=None, points=None, *, chunk_size: int | None 
     chunk_size = _validate.positive_int(where, "chunk_size", chunk_size)
     one = lambda v, f: winding_flat(v, f, flat, chunk_size)
     out = jnp.vectorize(one, signature="(n,d),(m,k)->(p)")(vertices, faces)
-    return out.reshape(batch + lead)
+    out = out.reshape(batch + lead)
+    if traced:
+        out = _checked_under_jit(out, vertices, faces, points)
+    return out

@@ -1,0 +1,197 @@
+"""voxax's spatial queries against the libraries users pick for them, side by side.
+
+Each query runs on the same inputs in voxax and in the peers that are installed (benchmark
+only, never dependencies of voxax): first hits against embree (`embreex`), exact winding
+numbers against libigl's `winding_number` (and its `fast_winding_number`, approximate),
+closest points against libigl's AABB (`point_mesh_squared_distance`), k nearest neighbours
+against pykdtree and scipy's cKDTree. Calls alternate (voxax, peer, voxax, peer, ...) and
+the best of `--repeat` rounds is kept; results are checked for agreement.
+
+`--cores 1` pins the process to one core (`os.sched_setaffinity`), which holds every
+library, thread pools included, to one thread; voxax is also passed `threads`.
+
+    nice -n 10 python benchmarks/spatial_peers.py --faces 300000 --rays 300000 --cores 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+import voxax
+
+
+def _best(fn, repeat):
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def _interleave(fns, repeat):
+    """{name: (best seconds, last result)}, the calls alternating round by round."""
+    times = {k: np.inf for k in fns}
+    outs = {}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t = time.perf_counter()
+            outs[k] = fn()
+            times[k] = min(times[k], time.perf_counter() - t)
+    return {k: (times[k], outs[k]) for k in fns}
+
+
+def _row(query, peer, tv, tp, agree):
+    print(f"| {query} | {peer} | {tv:.3f} s | {tp:.3f} s | {tp / tv:.2f}x | {agree} |", flush=True)
+
+
+def first_hits(mesh, n_rays, threads, repeat, rng):
+    try:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+    except ImportError:
+        print("| first hits | embree | (embreex not installed) |")
+        return
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    lo, hi = v.min(0), v.max(0)
+    o = rng.uniform(lo, hi, size=(n_rays, 3))
+    d = rng.normal(size=(n_rays, 3))
+    tb, bvh = _best(lambda: voxax.BVH(mesh), 1)
+
+    def build_embree():
+        scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene, v[f].astype(np.float32))
+        return scene
+
+    te, scene = _best(build_embree, 1)
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    r = _interleave(
+        {
+            "voxax": lambda: bvh.first_hits(o, d, threads=threads),
+            "embree": lambda: scene.run(o32, d32, output=1),
+        },
+        repeat,
+    )
+    hv, he = r["voxax"][1], r["embree"][1]
+    same = np.mean(hv.face == he["primID"])
+    both = (hv.face >= 0) & (he["primID"] >= 0)
+    t_err = np.max(np.abs(hv.t[both] - he["tfar"][both]) / np.maximum(hv.t[both], 1e-12)) if both.any() else 0
+    agree = f"same face {100 * same:.2f}% of rays, t rel. diff <= {t_err:.1e} where both hit"
+    _row(f"BVH build, {len(f)} faces", "embree", tb, te, "-")
+    _row(f"first hits, {n_rays} rays", "embree", r["voxax"][0], r["embree"][0], agree)
+
+
+def winding(mesh, n_points, threads, repeat, rng, open_faces=False):
+    try:
+        import igl
+    except ImportError:
+        print("| winding numbers | libigl | (libigl not installed) |")
+        return
+    v = np.ascontiguousarray(mesh.vertices, np.float64)
+    f = np.ascontiguousarray(mesh.faces, np.int64)
+    if open_faces:
+        f = f[: len(f) * 9 // 10]
+    lo, hi = v.min(0), v.max(0)
+    p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(n_points, 3))
+    r = _interleave(
+        {
+            "voxax": lambda: np.asarray(voxax.winding_number(v, f, p, threads=threads)),
+            "igl": lambda: igl.winding_number(v, f.astype(np.int32), p),
+        },
+        repeat,
+    )
+    wv, wi = r["voxax"][1], r["igl"][1]
+    kind = "open" if open_faces else "closed"
+    _row(
+        f"exact winding numbers, {kind}, {len(f)} faces, {n_points} points",
+        "libigl winding_number",
+        r["voxax"][0],
+        r["igl"][0],
+        f"max |diff| {np.max(np.abs(wv - wi)):.1e}",
+    )
+    tf, wf = _best(lambda: igl.fast_winding_number(v, f.astype(np.int32), p), repeat)
+    _row(
+        f"winding numbers, {kind}, {len(f)} faces, {n_points} points",
+        "libigl fast_winding_number",
+        r["voxax"][0],
+        tf,
+        f"fast's max |error| {np.max(np.abs(wf - wv)):.1e}",
+    )
+
+
+def closest(mesh, n_points, threads, repeat, rng):
+    try:
+        import igl
+    except ImportError:
+        print("| closest points | libigl | (libigl not installed) |")
+        return
+    v = np.ascontiguousarray(mesh.vertices, np.float64)
+    f = np.ascontiguousarray(mesh.faces, np.int32)
+    p = v[rng.integers(0, len(v), n_points)] + rng.normal(scale=0.01, size=(n_points, 3))
+    bvh = voxax.BVH(mesh)
+    r = _interleave(
+        {
+            "voxax": lambda: bvh.closest_points(p, threads=threads).distance,
+            "igl": lambda: np.sqrt(igl.point_mesh_squared_distance(p, v, f)[0]),
+        },
+        repeat,
+    )
+    _row(
+        f"closest points near the surface, {len(f)} faces, {n_points} points (voxax prebuilt, libigl builds)",
+        "libigl AABB",
+        r["voxax"][0],
+        r["igl"][0],
+        f"max |diff| {np.max(np.abs(r['voxax'][1] - r['igl'][1])):.1e}",
+    )
+
+
+def knn(n_points, threads, repeat, rng, k=8):
+    pts = rng.uniform(size=(n_points, 3))
+    q = rng.uniform(size=(n_points, 3))
+    fns = {"voxax": lambda: voxax.nearest_neighbors(pts, q, k, threads=threads)[0]}
+    try:
+        from pykdtree.kdtree import KDTree
+
+        fns["pykdtree"] = lambda: KDTree(pts).query(q, k)[0]
+    except ImportError:
+        pass
+    from scipy.spatial import cKDTree
+
+    fns["cKDTree"] = lambda: cKDTree(pts).query(q, k, workers=threads)[0]
+    r = _interleave(fns, repeat)
+    for name in fns:
+        if name != "voxax":
+            diff = np.max(np.abs(r["voxax"][1] - r[name][1]))
+            _row(f"k = {k} nearest neighbours, {n_points} points and queries", name, r["voxax"][0], r[name][0],
+                 f"max |diff| {diff:.1e}")  # fmt: skip
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--faces", type=int, default=300_000)
+    parser.add_argument("--rays", type=int, default=300_000)
+    parser.add_argument("--points", type=int, default=100_000)
+    parser.add_argument("--cores", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args(argv)
+    os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
+    threads = args.cores
+    rng = np.random.default_rng(0)
+    big = voxax.data.large(args.faces)
+    mid = voxax.data.large(min(args.faces, 100_000))
+    print(f"{args.cores} core(s), voxax threads={threads}, best of {args.repeat} alternating rounds\n")
+    print("| query | peer | voxax | peer | voxax speed-up | agreement |")
+    print("|---|---|---|---|---|---|")
+    first_hits(big, args.rays, threads, args.repeat, rng)
+    winding(mid, args.points, threads, args.repeat, rng)
+    winding(voxax.data.large(2_000), args.points // 10, threads, args.repeat, rng, open_faces=True)
+    closest(mid, args.points, threads, args.repeat, rng)
+    knn(args.points, threads, args.repeat, rng)
+
+
+if __name__ == "__main__":
+    main()
