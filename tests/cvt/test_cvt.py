@@ -8,6 +8,9 @@ jax.config.update("jax_enable_x64", True)
 
 import voxax  # noqa: E402
 from voxax import cvt, fields, metrics  # noqa: E402
+from voxax._kernels import cvt as kernels  # noqa: E402
+from voxax.cvt._manifold import problem_edges  # noqa: E402
+from voxax.cvt._remesh import open_lines  # noqa: E402
 
 
 def _mesh_area(m):
@@ -33,7 +36,7 @@ def test_mesh_fragments_on_surface_area_and_cap(ico_fragments):
     assert np.allclose(np.linalg.norm(fr.normals, axis=1), 1.0)
     assert np.all(np.sum(fr.normals * fr.points, axis=1) > 0)
     # every line holds an even number of crossings, alternating enter/exit
-    assert cvt._open_lines(fr) == 0
+    assert open_lines(fr) == 0
     # weights integrate the (exact) area of the mesh
     assert abs(fr.weights.sum() / _mesh_area(mesh) - 1) < 0.005
     # cap z > h (h on a grid plane): Archimedes' centroid (R + h) / 2 of a spherical zone
@@ -97,7 +100,7 @@ def test_dexel_csg_against_the_fields():
         assert len(got) == len(expect)
         key = lambda p: np.lexsort(p.T[::-1])  # noqa: E731
         assert np.allclose(got[key(got)], expect[key(expect)])
-        assert cvt._open_lines(fr) == 0
+        assert open_lines(fr) == 0
         # normals: outward of the result (the difference flips B's)
         on_b = np.abs(np.asarray(b(fr.points))) < 1e-9
         if op == "difference":
@@ -125,14 +128,14 @@ def test_dexel_csg_with_an_operand_beyond_the_grid():
         key = lambda p: np.lexsort(p.T[::-1])  # noqa: E731
         assert len(fr.points) == len(expect) > 0
         assert np.allclose(fr.points[key(fr.points)], expect[key(expect)])
-        assert cvt._open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
+        assert open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
     # a box face through cell centres: lines along y and z run inside the face, where the
     # normal is perpendicular to them; enter/exit comes from the samples' order
     c = g.lower[0] + 15.5 * g.spacing[0]
     fr = cvt.fragments(Partial(fields.box, half_extents=(0.25, 0.3, 0.3), center=(c - 0.25, 0.01, 0.02)), g)
     along = fr.normals[np.arange(fr.size), fr.axis.astype(np.int64)]
     assert np.any(np.abs(along) < 1e-6)  # grazing fragments exist
-    assert cvt._open_lines(fr) == 0
+    assert open_lines(fr) == 0
 
 
 def test_dexel_csg_with_operands_without_surface():
@@ -229,8 +232,6 @@ def _brute_nearest(s, x):
 
 
 def test_assignment_kernel_with_hints_is_exact():
-    from voxax.cvt._optimize import _assign_moments, assign_moments_host
-
     rng = np.random.default_rng(5)
     # seeds on a sphere on a coarse lattice of directions (many ties), points on and near it
     s = np.round(rng.normal(size=(300, 3)), 1)
@@ -256,7 +257,7 @@ def test_assignment_kernel_with_hints_is_exact():
     runs = []
     for name, hint in hints.items():
         for threads in (1, 2):
-            idx, mom, count, e = assign_moments_host(s, x, w, hint, threads=threads)
+            idx, mom, count, e = kernels.assign_host(s, x, w, hint, threads=threads)
             assert np.array_equal(idx, ref), name
             assert np.abs(mom[:, 0] - mass).max() <= 1e-12 and np.abs(mom[:, 1:] - first).max() <= 1e-12
             assert np.array_equal(count, np.bincount(ref, w > 0, minlength=len(s)))
@@ -264,12 +265,12 @@ def test_assignment_kernel_with_hints_is_exact():
             runs.append((mom.tobytes(), e))
     assert len(set(runs)) == 1  # same bits for any hint and thread count
     # the FFI kernel under jit: the same bits
-    out = jax.jit(_assign_moments)(s, x, w, jax.numpy.asarray(ref, jax.numpy.int32))
+    out = jax.jit(kernels.assign)(s, x, w, jax.numpy.asarray(ref, jax.numpy.int32))
     assert np.array_equal(np.asarray(out[0]), ref) and np.asarray(out[1]).tobytes() == runs[0][0]
     with pytest.raises(ValueError, match="NaN"):
-        assign_moments_host(np.full((3, 3), np.nan), x, w)
+        kernels.assign_host(np.full((3, 3), np.nan), x, w)
     with pytest.raises(ValueError, match="weights"):
-        assign_moments_host(s, x, -w)
+        kernels.assign_host(s, x, -w)
 
 
 def test_optimizer_energy_gradient_is_eq2(small):
@@ -386,7 +387,7 @@ def test_remesh_keeps_a_small_component():
 
 
 def test_relax_evens_out_a_mesh_on_the_surface(small):
-    from voxax.cvt import _relax
+    from voxax.cvt._relax import relax
 
     fr, _ = small
     ico = voxax.data.icosphere(3)  # radius 1, like the fixture's sphere
@@ -397,7 +398,7 @@ def test_relax_evens_out_a_mesh_on_the_surface(small):
     n0 = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     assert np.all(np.sum(n0 * v[f[:, 0]], axis=1) > 0)  # still oriented outward
     q0 = metrics.triangle_quality(voxax.Mesh(v, f))
-    out = _relax(v, f, fr, 3)
+    out = relax(v, f, fr, 3)
     q1 = metrics.triangle_quality(voxax.Mesh(out, f))
     assert q1.mean() > q0.mean() + 0.02 and q1.min() > q0.min()
     assert np.abs(np.linalg.norm(out, axis=1) - 1).max() < 2e-3  # on the sphere (tangent planes)
@@ -405,14 +406,14 @@ def test_relax_evens_out_a_mesh_on_the_surface(small):
     assert np.all(np.sum(n0 * n1, axis=1) > 0)  # no triangle turned over
     # the quality floor: no triangle ends a step below min(floor, its quality before it)
     # (without the floor, some do: the step evens out the mesh as a whole)
-    one = _relax(v, f, fr, 1)
+    one = relax(v, f, fr, 1)
     assert np.any(metrics.triangle_quality(voxax.Mesh(one, f)) < q0 - 1e-3)
-    guarded = _relax(v, f, fr, 1, floor=0.99)
+    guarded = relax(v, f, fr, 1, floor=0.99)
     qg = metrics.triangle_quality(voxax.Mesh(guarded, f))
     assert np.all(qg >= np.minimum(0.99, q0)) and not np.array_equal(guarded, v)
     # an open mesh: the vertices of its boundary edges stay
     part = f[:-40]
-    kept = _relax(v, part, fr, 2)
+    kept = relax(v, part, fr, 2)
     edges = np.sort(np.concatenate([part[:, [0, 1]], part[:, [1, 2]], part[:, [2, 0]]]), axis=1)
     uniq, count = np.unique(edges, axis=0, return_counts=True)
     rim = np.unique(uniq[count == 1])
@@ -459,7 +460,7 @@ def test_ball_fragments_and_union_are_exact():
     u = union_all([balls])
     # survivors are outside the other ball, and the union is closed on every line
     inside_any = (np.linalg.norm(u.points[:, None] - c[None], axis=2) < r[None] - 1e-9).any(axis=1)
-    assert not inside_any.any() and cvt._open_lines(u) == 0
+    assert not inside_any.any() and open_lines(u) == 0
     # and every crossing outside the other ball survives (an independent count)
     dist = np.linalg.norm(balls.points[:, None] - c[None], axis=2)
     outside = (dist > r[None] - 1e-9).all(axis=1)
@@ -468,15 +469,15 @@ def test_ball_fragments_and_union_are_exact():
 
 def test_problem_edges_match_manifold_report():
     mesh = voxax.data.icosphere(2)
-    assert len(cvt._problem_edges(np.asarray(mesh.faces), mesh.n_vertices)) == 0
+    assert len(problem_edges(np.asarray(mesh.faces), mesh.n_vertices)) == 0
     holed = np.asarray(mesh.faces[1:])
-    bad = cvt._problem_edges(holed, mesh.n_vertices)
+    bad = problem_edges(holed, mesh.n_vertices)
     assert len(bad) == metrics.manifold_report(voxax.Mesh(mesh.vertices, holed)).n_boundary_edges == 3
     # two tetrahedra sharing one vertex: a non-manifold vertex, all its edges reported
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1.0]])
     t = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     f = np.concatenate([t, np.where(t == 0, 0, t + 3)])
-    bad = cvt._problem_edges(f, len(v))
+    bad = problem_edges(f, len(v))
     assert metrics.manifold_report(voxax.Mesh(v, f)).n_nonmanifold_vertices == 1
     assert len(bad) == 6 and np.all((bad == 0).any(axis=1))
 

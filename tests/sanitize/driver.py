@@ -904,7 +904,8 @@ def run_spatial(rng, n_inputs):
                     fail(f"{label}: column inside-tests differ from the direct casts")
                 CALLS["esi_column_casts"] += 4
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
-            from voxax.cvt._optimize import _assign_moments, assign_moments_host
+            from voxax._kernels.cvt import assign as _assign_moments
+            from voxax._kernels.cvt import assign_host as assign_moments_host
 
             if len(v):
                 wq = rng.uniform(0.0, 1.0, len(p))
@@ -920,7 +921,8 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
-    from voxax.cvt._optimize import _assign_moments, assign_moments_host
+    from voxax._kernels.cvt import assign as _assign_moments
+    from voxax._kernels.cvt import assign_host as assign_moments_host
     from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)

@@ -9,19 +9,17 @@ energy is `F(S) = sum_j w_j |x_j - s_a(j)|^2` and, the assignment being piecewis
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 from typing import Any
 
 import numpy as np
 
-from .. import _kernels
+from .._kernels import cvt as _kernels
 from ._fragments import Fragments
 
 __all__ = [
     "CVTResult",
     "assign",
-    "assign_moments_host",
     "energy",
     "energy_gradient",
     "init_seeds",
@@ -128,58 +126,8 @@ def _assign_moments(s, x, w, hint):
     (n, 4) [weight, weighted first moment], count (n,) int32 of weight > 0, energy ())`."""
     import jax
 
-    from .. import _kernels
-
-    n, m = s.shape[0], x.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((m,), np.int32),
-        jax.ShapeDtypeStruct((n, 4), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((1,), np.float64),
-    )
-    idx, mom, count, e = jax.ffi.ffi_call(_kernels.CVT_ASSIGN, out, vmap_method="sequential")(
-        jax.lax.stop_gradient(s), x, w, hint
-    )
+    idx, mom, count, e = _kernels.assign(jax.lax.stop_gradient(s), x, w, hint)
     return idx, mom, count, e[0]
-
-
-def assign_moments_host(seeds, points, weights, hint=None, *, threads=None):
-    """Eager twin of the optimiser's assignment kernel (for checks): the nearest seed of
-    every point (ties: the smaller index), the regions' weights and weighted first
-    moments, their counts of positive-weight points, and the energy, with `threads`
-    threads. **Returns:** `(idx (m,) int32, moments (n, 4), count (n,) int32, energy)`."""
-    s = np.ascontiguousarray(seeds, np.float64).reshape(-1, 3)
-    x = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    w = np.ascontiguousarray(weights, np.float64).reshape(-1)
-    m = len(x)
-    if len(w) != m:
-        raise ValueError(f"cvt: {m} points but {len(w)} weights")
-    h = np.full(m, -1, np.int32) if hint is None else np.ascontiguousarray(hint, np.int32).reshape(-1)
-    if len(h) != m:
-        raise ValueError(f"cvt: {m} points but {len(h)} hints")
-    lib = _kernels.declare(_HOST_SIGNATURES)
-    idx = np.empty(m, np.int32)
-    mom = np.empty((len(s), 4))
-    count = np.empty(len(s), np.int32)
-    energy = np.zeros(1)
-    err = _kernels.error_buffer()
-    status = lib.voxax_cvt_assign_host(
-        _kernels.pointer(s, _kernels.D), len(s), _kernels.pointer(x, _kernels.D), _kernels.pointer(w, _kernels.D), m,
-        _kernels.pointer(h, _kernels.I32), _kernels.threads(threads), _kernels.pointer(idx, _kernels.I32),
-        _kernels.pointer(mom, _kernels.D), _kernels.pointer(count, _kernels.I32), _kernels.pointer(energy, _kernels.D),
-        err, _kernels.ERRLEN,
-    )  # fmt: skip
-    _kernels.check(status, err)
-    return idx, mom, count, float(energy[0])
-
-
-_HOST_SIGNATURES = {
-    "voxax_cvt_assign_host": (
-        ctypes.c_int,
-        [_kernels.D, ctypes.c_int64, _kernels.D, _kernels.D, ctypes.c_int64, _kernels.I32, ctypes.c_int32, _kernels.I32, _kernels.D,
-         _kernels.I32, _kernels.D, ctypes.c_char_p, ctypes.c_int64],
-    )
-}  # fmt: skip
 
 
 def _lloyd_arrays(s, x, w, hint):

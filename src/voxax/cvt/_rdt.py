@@ -2,38 +2,14 @@
 
 from __future__ import annotations
 
-import ctypes
 from typing import NamedTuple
 
 import numpy as np
 
-from .. import _kernels
+from .._kernels import cvt as _kernels
 from ._fragments import Fragments
 
 __all__ = ["RdtReport", "rdt"]
-
-_SIGNATURES = {
-    "voxax_rdt_run": (
-        ctypes.c_int,
-        [
-            _kernels.D,
-            ctypes.c_int64,
-            _kernels.D,
-            _kernels.D,
-            ctypes.c_int64,
-            ctypes.c_double,
-            ctypes.c_int32,
-            ctypes.c_int32,
-            ctypes.POINTER(_kernels.VP),
-            ctypes.c_char_p,
-            ctypes.c_int64,
-        ],
-    ),
-    "voxax_rdt_size": (ctypes.c_int64, [_kernels.VP]),
-    "voxax_rdt_copy": (None, [_kernels.VP, _kernels.I32, _kernels.I64]),
-    "voxax_rdt_free": (None, [_kernels.VP]),
-}
-
 
 class RdtReport(NamedTuple):
     """Counts from [`rdt`][voxax.cvt.rdt].
@@ -89,30 +65,5 @@ def rdt(frag: Fragments, seeds, *, tau: float | None = None, max_hole: int = 8, 
         raise ValueError(f"cvt.rdt: seeds must have shape (n, 3), got {s.shape}")
     if tau is None:
         tau = 2.0 * np.sqrt(3.0) * frag.spacing
-    x = np.ascontiguousarray(frag.points, np.float64)
-    nrm = np.ascontiguousarray(frag.normals, np.float64)
-    lib = _kernels.declare(_SIGNATURES)
-    handle = _kernels.VP()
-    err = _kernels.error_buffer()
-    status = lib.voxax_rdt_run(
-        _kernels.pointer(s, _kernels.D),
-        len(s),
-        _kernels.pointer(x, _kernels.D),
-        _kernels.pointer(nrm, _kernels.D),
-        len(x),
-        float(tau),
-        int(max_hole),
-        _kernels.threads(threads),
-        ctypes.byref(handle),
-        err,
-        _kernels.ERRLEN,
-    )
-    _kernels.check(status, err)
-    try:
-        nf = int(lib.voxax_rdt_size(handle))
-        faces = np.empty((nf, 3), np.int32)
-        stats = np.zeros(6, np.int64)
-        lib.voxax_rdt_copy(handle, _kernels.pointer(faces, _kernels.I32), _kernels.pointer(stats, _kernels.I64))
-    finally:
-        lib.voxax_rdt_free(handle)
+    faces, stats = _kernels.rdt(s, frag.points, frag.normals, float(tau), int(max_hole), threads)
     return faces, RdtReport(*(int(v) for v in stats))
