@@ -1,5 +1,7 @@
 """CVT meshing from surface samples: fragments, the restricted CVT, RDT extraction, remesh."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -10,7 +12,7 @@ import voxax  # noqa: E402
 from voxax import cvt, fields, metrics  # noqa: E402
 from voxax._kernels import cvt as kernels  # noqa: E402
 from voxax.cvt._manifold import problem_edges  # noqa: E402
-from voxax.cvt._remesh import open_lines  # noqa: E402
+from voxax.cvt._remesh import line_faults, open_lines, topology_seeds  # noqa: E402
 
 
 def _mesh_area(m):
@@ -170,7 +172,7 @@ def test_fragments_bad_input():
         cvt.fragments(voxax.data.icosphere(1, radius=0.1, center=(5.0, 5.0, 5.0)), g)
     with pytest.raises(TypeError):
         cvt.fragments("sphere", g)
-    with pytest.raises(ValueError, match="op must be"):
+    with pytest.raises(ValueError, match="`op` must be"):
         cvt.CSG("xor", fields.sphere, fields.sphere)
     with pytest.raises(ValueError, match="shape"):
         cvt.fragments((np.zeros((4, 4, 4)), 0.5), g)
@@ -543,3 +545,174 @@ def test_sphere_4k_seeds():
     hull = ConvexHull(res.seeds / np.linalg.norm(res.seeds, axis=1, keepdims=True))
     ours = {tuple(sorted(f)) for f in faces.tolist()}
     assert len(ours & {tuple(sorted(f)) for f in hull.simplices.tolist()}) >= 0.99 * len(hull.simplices)
+
+
+# ------------------------------------------------------------------------------------
+# The API: the typed result, surface forms, bad input
+
+
+def test_remesh_result_is_typed_and_unpacks():
+    mesh = voxax.data.icosphere(2)
+    res = cvt.remesh(mesh, 80, method="lloyd", steps=5, polish=0, relax=0, progress=False)
+    assert isinstance(res, cvt.RemeshResult)
+    m, report = res
+    assert m is res.mesh and report is res and report["closed"] is res.closed
+    assert res.source_euler_characteristic == 2 == metrics.euler_characteristic(mesh)
+    with pytest.raises(KeyError):
+        res["no such field"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.closed = False
+    # the same mesh as a (V, F) pair, as vertices and faces, and as a trimesh: the same result
+    trimesh = pytest.importorskip("trimesh")
+    kw = dict(method="lloyd", steps=5, polish=0, relax=0, progress=False)
+    for form in [((mesh.vertices, mesh.faces), 80), (mesh.vertices, mesh.faces, 80),
+                 (trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), 80)]:
+        other = cvt.remesh(*form, **kw)
+        assert other.mesh == res.mesh
+    other = cvt.remesh(mesh, n_seeds=80, **kw)
+    assert other.mesh == res.mesh
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(n_seeds=3), ValueError, "`n_seeds` must be at least 4"),
+    (dict(n_seeds=2.5), TypeError, "`n_seeds` must be an int"),
+    (dict(alpha=float("inf")), ValueError, "`alpha` must be > 0 and finite"),
+    (dict(key="seven"), TypeError, "`key`"),
+    (dict(key=-1), ValueError, "`key`"),
+    (dict(threads=0), ValueError, "`threads` must be >= 1"),
+    (dict(method="newton"), ValueError, "`method`"),
+    (dict(steps=-1), ValueError, "`steps`"),
+    (dict(grid=voxax.Grid((-1.0, -1.0), (1.0, 1.0), (4, 4))), ValueError, "`grid` must be 3D"),
+])
+def test_remesh_bad_arguments(kwargs, error, match):
+    kw = dict(n_seeds=100, progress=False) | kwargs
+    with pytest.raises(error, match=match) as info:
+        cvt.remesh(voxax.data.icosphere(1), **kw)
+    assert str(info.value).startswith("voxax.cvt.remesh: ")
+
+
+def test_remesh_refuses_bool_and_complex_input():
+    mesh = voxax.data.icosphere(1)
+    for v in (mesh.vertices > 0, mesh.vertices + 0j):
+        with pytest.raises(TypeError, match="`vertices` must be float32 or float64"):
+            cvt.remesh((v, mesh.faces), 40, progress=False)
+    g = voxax.Grid.cube(8)
+    with pytest.raises(TypeError, match="real numbers"):
+        cvt.remesh((np.ones(g.shape, complex), 0.5), 40, grid=g, progress=False)
+    with pytest.raises(TypeError, match="real values"):
+        cvt.fragments(lambda p: fields.sphere(p) + 0j, g)
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(16, half_width=1.2))
+    with pytest.raises(TypeError, match="`seeds` must be a real"):
+        cvt.rdt(fr, np.ones((5, 3), bool))
+    with pytest.raises(TypeError, match="`seeds` must be a real"):
+        cvt.energy(np.ones((5, 3), complex), fr)
+
+
+def test_hostile_fragments_are_refused_before_the_kernels():
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(16, half_width=1.2))
+    s = cvt.init_seeds(fr, 20, key=0)
+    bad = {
+        "normals": fr._replace(normals=fr.normals[:5]),  # fewer normals than points (read past the end before)
+        "weights": fr._replace(weights=fr.weights[:-1]),
+        "points": fr._replace(points=fr.points[:, :2]),
+        "sign": fr._replace(sign=fr.sign[:3]),
+    }
+    for name, frag in bad.items():
+        for call, args, kw in ((cvt.rdt, (frag, s), {}), (cvt.optimize, (frag, s), {"steps": 1}),
+                               (cvt.energy, (s, frag), {}), (cvt.remesh, (frag, 20), {"progress": False})):
+            with pytest.raises(ValueError, match=f"`frag.{name}` must have shape"):
+                call(*args, **kw)
+    nan = fr.normals.copy()
+    nan[3] = np.nan
+    with pytest.raises(ValueError, match="`frag.normals` must be finite"):
+        cvt.rdt(fr._replace(normals=nan), s)
+    # the kernel checks the counts itself (the same call without the Python checks)
+    with pytest.raises(ValueError, match="one normal per fragment"):
+        kernels.rdt(s, fr.points, fr.normals[:5], 1.0, 8)
+
+
+# ------------------------------------------------------------------------------------
+# Surfaces that bound no solid: the true reason
+
+
+def _cube_with_wall():
+    """Two unit cubes side by side with their shared square kept once: closed (no boundary
+    edge) but the wall's edges have three faces."""
+    v = np.array([[x, y, z] for x in (0.0, 1.0, 2.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]) * 0.4 - 0.4
+    i = lambda x, y, z: 4 * x + 2 * y + z  # noqa: E731
+    quads = [(i(0, 0, 0), i(0, 0, 1), i(0, 1, 1), i(0, 1, 0)), (i(2, 0, 0), i(2, 1, 0), i(2, 1, 1), i(2, 0, 1)),
+             (i(1, 0, 0), i(1, 1, 0), i(1, 1, 1), i(1, 0, 1))]  # the two ends and the wall
+    for x in (0, 1):
+        quads += [(i(x, 0, 0), i(x + 1, 0, 0), i(x + 1, 0, 1), i(x, 0, 1)), (i(x, 1, 0), i(x, 1, 1), i(x + 1, 1, 1), i(x + 1, 1, 0)),
+                  (i(x, 0, 0), i(x, 1, 0), i(x + 1, 1, 0), i(x + 1, 0, 0)), (i(x, 0, 1), i(x + 1, 0, 1), i(x + 1, 1, 1), i(x, 1, 1))]
+    f = np.array([[a, b, c] for a, b, c, d in quads] + [[a, c, d] for a, b, c, d in quads])
+    return voxax.Mesh(v, f)
+
+
+def test_remesh_names_why_a_surface_bounds_no_solid():
+    ico = voxax.data.icosphere(2)
+    cases = {
+        "inside out": (ico.flipped(), "inside out \\(enclosed volume -"),
+        "an inside-out part": (voxax.data.with_inverted_component(subdivisions=2), "parts of the mesh are inside out"),
+        "overlapping parts": (voxax.data.overlapping_cubes(), "the surface overlaps itself"),
+        "internal wall": (_cube_with_wall(), "closed but not a 2-manifold \\(4 edges have more than two faces"),
+        "open": (voxax.Mesh(ico.vertices, ico.faces[:-5]), "the mesh is open"),
+    }
+    mr = metrics.manifold_report(cases["internal wall"][0])
+    assert mr.n_boundary_edges == 0 and mr.n_nonmanifold_edges == 4
+    for name, (mesh, match) in cases.items():
+        with pytest.raises(ValueError, match=match) as info:
+            cvt.remesh(mesh, 100, progress=False)
+        assert "orient=False" in str(info.value), name
+    # and the line counts behind the messages, on exact fragments
+    faults = line_faults(cvt.fragments(voxax.data.overlapping_cubes(), voxax.Grid.cube(16)))
+    assert faults["nested"] > 0 and faults["negative"] == 0 and faults["unbalanced"] == 0
+    faults = line_faults(cvt.fragments(ico.flipped(), voxax.Grid.cube(16)))
+    assert faults["negative"] > 0 and faults["nested"] == 0
+
+
+def test_cli_remesh_names_its_own_option(tmp_path, capsys):
+    from voxax.cli import main
+
+    path = tmp_path / "flipped.ply"
+    voxax.io.save(voxax.data.icosphere(2).flipped(), str(path))
+    assert main(["remesh", str(path), "--seeds", "100"]) == 2
+    err = capsys.readouterr().err
+    assert "inside out" in err and "--open" in err and "orient=False" not in err
+
+
+# ------------------------------------------------------------------------------------
+# Topology against the source's
+
+
+def test_topology_seeds_split_a_region_spanning_two_sheets():
+    # two parallel sheets 0.1 apart facing away from each other (a thin plate's faces): 10
+    # fragments on top, 4 below; one seed's region holds both, so its mean normal points up
+    # and a seed goes at the first fragment below (ties by index)
+    xy = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 5), [0.0, 0.1]), -1).reshape(-1, 2)
+    top = np.column_stack([xy, np.full(10, 0.05)])
+    bottom = np.column_stack([xy[3:7], np.full(4, -0.05)])
+    points = np.concatenate([top, bottom])
+    normals = np.repeat([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], [10, 4], axis=0)
+    n = len(points)
+    fr = cvt.Fragments(points, normals, np.ones(n), np.full(n, 2, np.int8), np.arange(n), np.ones(n, np.int8),
+                       voxax.Grid.cube(4))
+    new = topology_seeds(fr, np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0]]))
+    assert np.array_equal(new, bottom[:1])
+    # a seed on each sheet: every region faces one way, nothing to add
+    assert len(topology_seeds(fr, np.array([[0.0, 0.0, 0.5], [0.0, 0.0, -0.5]]))) == 0
+
+
+def test_remesh_keeps_the_source_topology_or_warns():
+    # a 1 x 1 x 0.05 plate at 300 seeds: the seed spacing (about 0.085) exceeds the
+    # thickness, and with key 0 one region spans both faces, which gives the triangulation
+    # a handle (chi 0); the topology round adds seeds there and gets the sphere's chi back
+    plate = voxax.data.box((-0.5, -0.5, -0.025), (0.5, 0.5, 0.025))
+    kw = dict(method="lloyd", steps=20, key=0, progress=False)
+    with pytest.warns(UserWarning, match="Euler characteristic is 0, the source's 2"):
+        res = cvt.remesh(plate, 300, topology_rounds=0, **kw)
+    assert res.closed and res.manifold and res.euler_characteristic == 0 and res.source_euler_characteristic == 2
+    res = cvt.remesh(plate, 300, **kw)
+    assert res.closed and res.manifold and res.euler_characteristic == 2
+    assert res.topology_rounds >= 1 and res.topology_seeds > 0
+    assert metrics.hausdorff(res.mesh, plate) < 0.08  # the seed spacing is 0.085: the corners are cut

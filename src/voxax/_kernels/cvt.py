@@ -19,8 +19,8 @@ __all__ = ["CVT_ASSIGN", "assign", "assign_host", "rdt"]
 _SIGNATURES = {
     "voxax_rdt_run": (
         ctypes.c_int,
-        [D, ctypes.c_int64, D, D, ctypes.c_int64, ctypes.c_double, ctypes.c_int32, ctypes.c_int32, ctypes.POINTER(VP),
-         ctypes.c_char_p, ctypes.c_int64],
+        [D, ctypes.c_int64, D, ctypes.c_int64, D, ctypes.c_int64, ctypes.c_double, ctypes.c_int32, ctypes.c_int32,
+         ctypes.POINTER(VP), ctypes.c_char_p, ctypes.c_int64],
     ),
     "voxax_rdt_size": (ctypes.c_int64, [VP]),
     "voxax_rdt_copy": (None, [VP, I32, I64]),
@@ -40,15 +40,15 @@ def _rows(a, width: int | None = 3) -> np.ndarray:
 
 
 def rdt(seeds, points, normals, tau: float, max_hole: int, threads=None) -> tuple[np.ndarray, np.ndarray]:
-    """`voxax_rdt_run` on `seeds (n, 3)`, fragment `points (P, 3)` and `normals (P, 3)`
-    **Returns:** `(faces (F, 3) int32, stats (6,) int64)`:
+    """`voxax_rdt_run` on `seeds (n, 3)`, fragment `points (P, 3)` and `normals (P, 3)` (the
+    kernel refuses other counts of normals). **Returns:** `(faces (F, 3) int32, stats (6,) int64)`:
     candidates, greedy, filled, flipped, boundary edges, components."""
     s, x, nrm = _rows(seeds), _rows(points), _rows(normals)
     lib = declare(_SIGNATURES)
     handle = VP()
     err = error_buffer()
     status = lib.voxax_rdt_run(
-        pointer(s, D), len(s), pointer(x, D), pointer(nrm, D), len(x), float(tau), int(max_hole),
+        pointer(s, D), len(s), pointer(x, D), len(x), pointer(nrm, D), len(nrm), float(tau), int(max_hole),
         _ctypes.threads(threads), ctypes.byref(handle), err, ERRLEN,
     )  # fmt: skip
     check(status, err)

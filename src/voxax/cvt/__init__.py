@@ -12,8 +12,8 @@ runs it all.
 ```python
 >>> import jax; jax.config.update("jax_enable_x64", True)
 >>> import voxax
->>> mesh, report = voxax.cvt.remesh(voxax.data.icosphere(3), 300, method="lloyd", steps=20)
->>> report["closed"], report["euler_characteristic"]
+>>> mesh, report = voxax.cvt.remesh(voxax.data.icosphere(3), 300, method="lloyd", steps=20, progress=False)
+>>> report.closed, report.euler_characteristic
 (True, 2)
 
 ```
@@ -24,13 +24,14 @@ from __future__ import annotations
 from ._fragments import CSG, Fragments, fragments
 from ._optimize import CVTResult, assign, energy, energy_gradient, init_seeds, lloyd_step, optimize, respawn
 from ._rdt import RdtReport, rdt
-from ._remesh import remesh
+from ._remesh import RemeshResult, remesh
 
 __all__ = [
     "CSG",
     "CVTResult",
     "Fragments",
     "RdtReport",
+    "RemeshResult",
     "assign",
     "energy",
     "energy_gradient",

@@ -6,8 +6,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import _validate
+from .._constants import MAX_ABS_COORDINATE
 from .._kernels import cvt as _kernels
-from ._fragments import Fragments
+from ._fragments import Fragments, checked, real_array
 
 __all__ = ["RdtReport", "rdt"]
 
@@ -58,12 +60,20 @@ def rdt(frag: Fragments, seeds, *, tau: float | None = None, max_hole: int = 8, 
 
     **Returns:** `(faces (F, 3) int32, RdtReport)`; faces index `seeds`.
     """
-    if not isinstance(frag, Fragments):
-        raise TypeError(f"cvt.rdt: expected Fragments, got {type(frag).__name__}")
-    s = np.ascontiguousarray(np.asarray(seeds, np.float64))
+    where = "voxax.cvt.rdt"
+    frag = checked(where, frag)
+    s = real_array(where, "seeds", seeds)
     if s.ndim != 2 or s.shape[1] != 3:
-        raise ValueError(f"cvt.rdt: seeds must have shape (n, 3), got {s.shape}")
-    if tau is None:
-        tau = 2.0 * np.sqrt(3.0) * frag.spacing
-    faces, stats = _kernels.rdt(s, frag.points, frag.normals, float(tau), int(max_hole), threads)
+        raise ValueError(f"{where}: `seeds` must have shape (n, 3), got {s.shape}")
+    if not 3 <= len(s) < 1 << 21:
+        raise ValueError(f"{where}: `seeds` must hold at least 3 seeds and fewer than 2^21, got {len(s)}")
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"{where}: `seeds` must be finite (they contain NaN or Inf)")
+    if np.max(np.abs(s)) > MAX_ABS_COORDINATE:
+        raise ValueError(f"{where}: `seeds` coordinates must have magnitude <= 1e75")
+    tau = 2.0 * np.sqrt(3.0) * frag.spacing if tau is None else _validate.positive_float(where, "tau", tau, allow_zero=True)
+    max_hole = _validate.positive_int(where, "max_hole", max_hole, minimum=3)
+    if max_hole > 64:
+        raise ValueError(f"{where}: `max_hole` must lie in [3, 64], got {max_hole}")
+    faces, stats = _kernels.rdt(s, frag.points, frag.normals, tau, max_hole, threads)
     return faces, RdtReport(*(int(v) for v in stats))

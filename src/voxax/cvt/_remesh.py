@@ -4,20 +4,91 @@ its Delaunay triangulation made a closed 2-manifold, and the finishing passes.""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
+import warnings
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
+from .. import _validate
 from .._grid import Grid
+from .._kernels import _ctypes
 from .._mesh import Mesh
+from .._values import ValueEquality
 from . import _relax
 from ._components import cover_components
-from ._fragments import Fragments, ball_fragments, fragments, union_all
+from ._fragments import CSG, Fragments, as_mesh, ball_fragments, checked, fragments, union_all
 from ._manifold import Balls, problem_edges
-from ._optimize import init_seeds, optimize
-from ._rdt import rdt
+from ._optimize import init_seeds, run
+from ._rdt import RdtReport, rdt
 
-__all__ = ["open_lines", "remesh"]
+__all__ = ["RemeshResult", "line_faults", "open_lines", "remesh", "topology_seeds"]
+
+_WHERE = "voxax.cvt.remesh"
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RemeshResult(ValueEquality):
+    """What [`remesh`][voxax.cvt.remesh] returns: the mesh and the report of the run.
+
+    - `mesh`: the [`Mesh`][voxax.Mesh].
+    - `n_fragments`, `n_seeds`, `n_vertices`, `alpha`, `grid`: the samples (fragments per
+      seed, on `grid`), the seeds asked for and the vertices made.
+    - `method`, `steps`, `polish`, `polish_steps`, `relax`, `respawned`,
+      `component_seeds`, `energy`: the optimiser's run (seeds moved out of empty regions,
+      seeds moved onto small pieces of the surface, the final CVT energy).
+    - `rdt`: the last [`RdtReport`][voxax.cvt.RdtReport]; `rounds`, `balls`: the
+      2-manifold step's rounds and regularisation balls.
+    - `closed`, `manifold`, `euler_characteristic`, `manifold_report`: the result's
+      topology ([`ManifoldReport`][voxax.metrics.ManifoldReport]).
+    - `source_euler_characteristic`: the closed source mesh's (None for other sources);
+      `topology_rounds`, `topology_seeds`: the rounds that added seeds where they differed,
+      and the seeds added.
+    - `quality_min`, `quality_mean`: triangle quality.
+    - `time`, `cpu_time`: wall-clock and process CPU seconds per stage.
+
+    It unpacks as `(mesh, result)`, and `result[name]` is `getattr(result, name)` (the
+    report was a dict before).
+    """
+
+    mesh: Mesh
+    n_fragments: int
+    n_seeds: int
+    n_vertices: int
+    alpha: float
+    grid: Grid
+    method: str
+    steps: int
+    polish: int
+    polish_steps: int
+    relax: int
+    respawned: int
+    component_seeds: int
+    energy: float
+    rdt: RdtReport
+    rounds: int
+    balls: int
+    closed: bool
+    manifold: bool
+    euler_characteristic: int
+    manifold_report: Any
+    source_euler_characteristic: int | None
+    topology_rounds: int
+    topology_seeds: int
+    quality_min: float
+    quality_mean: float
+    time: Mapping
+    cpu_time: Mapping
+
+    def __iter__(self):
+        return iter((self.mesh, self))
+
+    def __getitem__(self, name: str):
+        if name not in {f.name for f in dataclasses.fields(self)}:
+            raise KeyError(name)
+        return getattr(self, name)
 
 
 def open_lines(frag: Fragments) -> int:
@@ -36,12 +107,110 @@ def open_lines(frag: Fragments) -> int:
     return int(bad.sum())
 
 
+def line_faults(frag: Fragments) -> dict:
+    """Why lines fail [`open_lines`][voxax.cvt._remesh.open_lines], counted per line: `"nested"`
+    lines enter the solid again before leaving it (overlapping parts, self-intersections,
+    internal walls), `"negative"` ones leave it before entering (inside-out parts, or a solid
+    beyond the grid), `"unbalanced"` ones end inside it (an odd number of crossings)."""
+    if frag.size == 0:
+        return {"nested": 0, "negative": 0, "unbalanced": 0}
+    key = frag.axis.astype(np.int64) * (1 << 40) + frag.line
+    start = np.concatenate([[True], key[1:] != key[:-1]])
+    gid = np.cumsum(start) - 1
+    step = -frag.sign.astype(np.int64)  # +1 entering the solid
+    depth = np.cumsum(step)
+    depth -= np.concatenate([[0], depth[:-1]])[start][gid]  # the depth after each crossing, per line
+    n = gid[-1] + 1
+    high = np.zeros(n, np.int64)
+    np.maximum.at(high, gid, depth)
+    low = np.zeros(n, np.int64)
+    np.minimum.at(low, gid, depth)
+    final = np.bincount(gid, step, minlength=n)
+    return {"nested": int(np.sum(high > 1)), "negative": int(np.sum(low < 0)), "unbalanced": int(np.sum(final != 0))}
+
+
+def _not_a_solid(frag: Fragments, mesh_report) -> str:
+    """The message for fragments whose lines do not alternate entering and leaving a solid."""
+    bad = open_lines(frag)
+    faults = line_faults(frag)
+    counts = f"{bad} grid lines do not enter and leave a solid alternately"
+    if mesh_report is not None and mesh_report.n_nonmanifold_edges:
+        why = (f"the mesh is closed but not a 2-manifold: {mesh_report.n_nonmanifold_edges} edges have more than two "
+               "faces (internal walls, or parts joined along edges), so it bounds no single solid")
+    elif faults["nested"]:
+        why = (f"the surface overlaps itself: {faults['nested']} lines enter the solid again before leaving it "
+               "(overlapping closed parts or a self-intersecting surface); union the parts first")
+    elif faults["negative"] and mesh_report is not None:
+        why = (f"parts of the mesh are inside out: {faults['negative']} lines leave the solid before entering it "
+               "(faces wound clockwise seen from outside); flip those parts' faces")
+    elif mesh_report is not None:
+        why = "the surface is open"
+    else:
+        why = "the surface is open or reaches beyond the grid; pass a grid that contains the whole surface"
+    return f"{_WHERE}: `source` must bound a solid to be oriented: {why} ({counts}); or pass orient=False"
+
+
 def _mesh_source(source):
-    if isinstance(source, Mesh):
-        return source
-    if isinstance(source, tuple) and len(source) == 2 and np.ndim(source[1]) == 2:
-        return Mesh(*source)
-    return None
+    return as_mesh(_WHERE, source) if _validate.is_mesh_object(source) or _validate.is_mesh_pair(source) else None
+
+
+def _arguments(source, faces, n_seeds, grid, alpha, method, steps, polish, relax, max_rounds, round_steps, inside,
+               topology_rounds, key, threads) -> tuple:
+    """The checked arguments: `(source, {name: value})`, a mesh source given as vertices and
+    faces made one."""
+    if _validate.is_mesh_object(source) or _validate.is_mesh_pair(source) or faces is not None:
+        if not (_validate.is_mesh_object(source) or _validate.is_mesh_pair(source)) and np.ndim(faces) < 2:
+            faces, n_seeds = None, faces  # remesh(field, n_seeds, ...)
+        else:
+            v, f, (n_seeds,) = _validate.unpack_mesh(_WHERE, source, faces, n_seeds)
+            source = as_mesh(_WHERE, (v, f))
+    if not (isinstance(source, Mesh) or callable(source) or isinstance(source, (CSG, Fragments, tuple))):
+        raise TypeError(f"{_WHERE}: `source` must be a mesh, a field, a (values, level) grid, a CSG expression or "
+                        f"Fragments, got {type(source).__name__}")
+    if n_seeds is None:
+        raise TypeError(f"{_WHERE}: missing `n_seeds`")
+    if not isinstance(key, (int, np.integer)) and not hasattr(key, "dtype"):
+        raise TypeError(f"{_WHERE}: `key` must be an int or a JAX PRNG key, got {type(key).__name__}")
+    _validate.numpy_rng(_WHERE, key)
+    if grid is not None:
+        _validate.grid(_WHERE, grid, 3)
+    if method not in ("lbfgs", "lloyd"):
+        raise ValueError(f'{_WHERE}: `method` must be "lbfgs" or "lloyd", got {method!r}')
+    if inside not in ("below", "above"):
+        raise ValueError(f'{_WHERE}: `inside` must be "below" or "above", got {inside!r}')
+    try:
+        _ctypes.threads(threads)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{_WHERE}: {err}") from None
+    checks = {"n_seeds": (n_seeds, 4), "steps": (steps, 0), "polish": (polish, 0), "relax": (relax, 0),
+              "max_rounds": (max_rounds, 0), "round_steps": (round_steps, 0), "topology_rounds": (topology_rounds, 0)}
+    a = {name: _validate.positive_int(_WHERE, name, value, minimum) for name, (value, minimum) in checks.items()}
+    a["alpha"] = _validate.positive_float(_WHERE, "alpha", alpha)
+    return source, a
+
+
+class _Bar:
+    """A progress bar over the optimiser's steps (off with `enabled=False`), whose total
+    grows when the 2-manifold or the topology rounds add steps."""
+
+    def __init__(self, total: int, enabled: bool):
+        from .._progress import ProgressBar
+
+        self.bar = ProgressBar(max(total, 1), desc="voxax.cvt.remesh") if enabled else None
+
+    def step(self, energy: float) -> None:
+        if self.bar is not None:
+            self.bar.update({"energy": f"{energy:.4g}"})
+
+    def extend(self, steps: int) -> None:
+        if self.bar is not None and steps:
+            self.bar.total += steps
+            self.bar.bar.total = self.bar.total
+            self.bar.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 @contextlib.contextmanager
@@ -92,44 +261,66 @@ def _refine(source, grid: Grid, frag: Fragments, n_seeds: int, alpha: float, ins
     return frag
 
 
-def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str, threads) -> Fragments:
-    """The source's fragments, at about `alpha` per seed (a `(values, level)` grid as given)."""
+def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str, threads) -> tuple:
+    """The source's fragments, at about `alpha` per seed (a `(values, level)` grid as given),
+    checked to bound a solid with `orient`, and the Euler characteristic of a closed mesh
+    source (None for other sources). **Returns:** `(frag, euler characteristic)`."""
     from .. import metrics
 
     mesh = _mesh_source(source)
+    report = expected = None
     if mesh is not None:
-        if mesh.vertices.shape[1:] != (3,) or len(mesh.faces) == 0:
-            raise ValueError("cvt.remesh: the mesh must be a non-empty 3D triangle mesh")
-        if orient and not metrics.manifold_report(mesh).closed:
-            raise ValueError("cvt.remesh: the mesh is open, so it cannot be oriented; pass orient=False")
+        if len(mesh.faces) == 0:
+            raise ValueError(f"{_WHERE}: `source` must be a non-empty triangle mesh, got no faces")
+        report = metrics.manifold_report(mesh)
+        if orient and report.n_boundary_edges:
+            raise ValueError(f"{_WHERE}: `source` must be closed to be oriented: the mesh is open "
+                             f"({report.n_boundary_edges} boundary edges); or pass orient=False")
+        if orient and not report.closed:
+            raise ValueError(f"{_WHERE}: `source` must bound a solid to be oriented: the mesh is closed but not a "
+                             f"2-manifold ({report.n_nonmanifold_edges} edges have more than two faces: internal "
+                             "walls, or parts joined along edges); or pass orient=False")
+        volume = mesh.signed_volume()
+        if orient and report.edge_manifold and volume < 0:
+            raise ValueError(f"{_WHERE}: `source` must be oriented outward: the mesh is inside out (enclosed volume "
+                             f"{volume:.6g} < 0); flip its faces, Mesh(vertices, faces[:, ::-1]), or pass orient=False")
+        if report.closed and report.edge_manifold and report.vertex_manifold:
+            expected = report.euler_characteristic
     if isinstance(source, Fragments):
-        return source
-    fixed = isinstance(source, tuple) and mesh is None
-    if grid is None:
-        if mesh is None:
-            raise ValueError("cvt.remesh: fields, grids and CSG expressions need a grid")
-        grid = _default_grid(mesh, n_seeds)
-    frag = fragments(source, grid, inside=inside, threads=threads)
-    return frag if fixed else _refine(source, grid, frag, n_seeds, alpha, inside, threads)
+        frag = checked(_WHERE, source)
+    else:
+        if grid is None:
+            if mesh is None:
+                raise ValueError(f"{_WHERE}: `grid` must be given for fields, grids and CSG expressions")
+            grid = _default_grid(mesh, n_seeds)
+        frag = fragments(mesh if mesh is not None else source, grid, inside=inside, threads=threads)
+        if not (isinstance(source, tuple) and mesh is None):
+            frag = _refine(mesh if mesh is not None else source, grid, frag, n_seeds, alpha, inside, threads)
+    if frag.size < n_seeds:
+        raise ValueError(f"{_WHERE}: `n_seeds` must be at most the number of fragments: {n_seeds} seeds but only "
+                         f"{frag.size} fragments; use fewer seeds or a finer grid")
+    if orient and open_lines(frag):
+        raise ValueError(_not_a_solid(frag, report))
+    return frag, expected
 
 
-def _optimized_seeds(frag, n_seeds, key, components, method, steps, polish, weighted, threads) -> dict:
+def _optimized_seeds(frag, n_seeds, key, components, method, steps, polish, weighted, threads, bar) -> dict:
     """Seeds placed by area (and on every piece with `components`), optimised by `method`
     and polished by Lloyd steps after L-BFGS."""
     seeds0 = init_seeds(frag, n_seeds, key)
     seeds0, covered = cover_components(frag, seeds0, threads) if components else (seeds0, 0)
-    res = optimize(frag, seeds0, method=method, steps=steps, weighted=weighted)
+    res = run(frag, np.asarray(seeds0, np.float64), method, steps, weighted, step_done=bar.step)
     seeds = res.seeds
     polish = polish if method == "lbfgs" else 0
     energy = float(res.energy[-1])
     polish_steps = 0
     if polish:
-        pol = optimize(frag, seeds, method="lloyd", steps=polish, weighted=weighted)
+        pol = run(frag, seeds, "lloyd", polish, weighted, step_done=bar.step)
         seeds, energy, polish_steps = pol.seeds, float(pol.energy[-1]), pol.steps
     return dict(seeds=seeds, result=res, polish=polish, polish_steps=polish_steps, energy=energy, covered=covered)
 
 
-def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads) -> dict:
+def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads, bar) -> dict:
     """The restricted Delaunay triangulation, with rounds of Lloyd steps (and, from the
     second round on, regularisation balls on the defective edges) while it is not a
     2-manifold, at most `max_rounds`."""
@@ -144,13 +335,64 @@ def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads) ->
         if rounds > 0:  # the first round only optimises further: most defects are unconverged seeds
             balls.add(seeds, bad, frag.spacing)
             frag = union_all([base, ball_fragments(balls.center, balls.radius, base.grid)])
-        seeds = optimize(frag, seeds, method="lloyd", steps=round_steps, weighted=weighted).seeds
+        bar.extend(round_steps)
+        seeds = run(frag, seeds, "lloyd", round_steps, weighted, step_done=bar.step).seeds
         faces, rep = rdt(frag, seeds, threads=threads)
         rounds += 1
-    return dict(frag=frag, seeds=seeds, faces=faces, rdt=rep, rounds=rounds, balls=len(balls))
+    return dict(frag=frag, seeds=seeds, faces=faces, rdt=rep, rounds=rounds, balls=len(balls),
+                topology_rounds=0, topology_seeds=0)
 
 
-def _finish(seeds, faces, frag, base, project: bool, relax: int, relax_on_source: bool) -> Mesh:
+def euler_characteristic(faces: np.ndarray) -> int:
+    """`V - E + F` of a triangulation (its vertices: those its faces use)."""
+    if len(faces) == 0:
+        return 0
+    f = np.asarray(faces, np.int64)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return int(len(np.unique(f)) - len(np.unique(e, axis=0)) + len(f))
+
+
+def topology_seeds(frag: Fragments, seeds: np.ndarray, threads=None) -> np.ndarray:
+    """New seeds where a region is not a topological disk of one sheet: in every region
+    (the fragments nearest one seed) with fragments whose normal points against the
+    region's weighted mean normal (the region spans two sheets facing each other, which
+    joins them in the triangulation), at its fragment most against it. Deterministic.
+    **Returns:** `(k, 3)`."""
+    from .._spatial import nearest_neighbors
+
+    _, idx = nearest_neighbors(seeds, frag.points, k=1, threads=threads)
+    idx = np.asarray(idx[:, 0], np.int64)
+    n = len(seeds)
+    mean = np.stack([np.bincount(idx, frag.weights * frag.normals[:, a], minlength=n) for a in range(3)], axis=1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    dot = np.sum(frag.normals * mean[idx], axis=1)
+    order = np.lexsort((np.arange(frag.size), dot, idx))  # per region, the most opposed fragment first
+    first = order[np.concatenate([[True], idx[order][1:] != idx[order][:-1]])]
+    pick = first[dot[first] < 0.0]
+    return frag.points[np.sort(pick)].copy()
+
+
+def _topology_rounds(base, tri, expected, max_rounds, rounds, round_steps, weighted, threads, bar) -> dict:
+    """While the triangulation's Euler characteristic differs from `expected`, seeds are
+    added by [`topology_seeds`][voxax.cvt._remesh.topology_seeds] on the source's fragments
+    and optimised again (Lloyd steps, then the 2-manifold step), at most `max_rounds` times;
+    a round that finds no place for a seed ends them."""
+    done = added = 0
+    while expected is not None and done < max_rounds and euler_characteristic(tri["faces"]) != expected:
+        new = topology_seeds(base, tri["seeds"], threads)
+        if len(new) == 0:
+            break
+        seeds = np.concatenate([tri["seeds"], new])
+        bar.extend(round_steps)
+        seeds = run(base, seeds, "lloyd", round_steps, weighted, step_done=bar.step).seeds
+        again = _manifold_rounds(base, seeds, rounds, round_steps, weighted, threads, bar)
+        tri = {**again, "rounds": tri["rounds"] + again["rounds"]}
+        done += 1
+        added += len(new)
+    return {**tri, "topology_rounds": done, "topology_seeds": added}
+
+
+def _finish(seeds, faces, frag, base, project: bool, relax: int, relax_on_source: bool, threads) -> Mesh:
     """The seeds that have triangles, projected and relaxed, as a mesh."""
     used = np.unique(faces)
     remap = np.full(len(seeds), -1, np.int64)
@@ -163,43 +405,30 @@ def _finish(seeds, faces, frag, base, project: bool, relax: int, relax_on_source
     return Mesh(verts, remap[faces].astype(np.int32))
 
 
-def _report(out: Mesh, n_seeds, seeded, tri, relax, times, cpu) -> dict:
+def _result(out: Mesh, n_seeds, seeded, tri, relax, expected, times, cpu) -> RemeshResult:
     from .. import metrics
 
     res = seeded["result"]
     mr = metrics.manifold_report(out)
     q = metrics.triangle_quality(out)
-    return {
-        "n_fragments": tri["frag"].size,
-        "n_seeds": n_seeds,
-        "n_vertices": out.n_vertices,
-        "alpha": tri["frag"].size / n_seeds,
-        "grid": tri["frag"].grid,
-        "method": res.method,
-        "steps": res.steps,
-        "polish": seeded["polish"],
-        "polish_steps": seeded["polish_steps"],
-        "relax": relax,
-        "respawned": res.respawned,
-        "component_seeds": seeded["covered"],
-        "energy": seeded["energy"],
-        "rdt": tri["rdt"],
-        "rounds": tri["rounds"],
-        "balls": tri["balls"],
-        "closed": mr.closed,
-        "manifold": mr.edge_manifold and mr.vertex_manifold,
-        "euler_characteristic": mr.euler_characteristic,
-        "manifold_report": mr,
-        "quality_min": float(q.min()) if len(q) else 0.0,
-        "quality_mean": float(q.mean()) if len(q) else 0.0,
-        "time": times,
-        "cpu_time": cpu,
-    }
+    frag = tri["frag"]
+    return RemeshResult(
+        mesh=out, n_fragments=frag.size, n_seeds=n_seeds, n_vertices=out.n_vertices, alpha=frag.size / n_seeds,
+        grid=frag.grid, method=res.method, steps=res.steps, polish=seeded["polish"],
+        polish_steps=seeded["polish_steps"], relax=relax, respawned=res.respawned,
+        component_seeds=seeded["covered"], energy=seeded["energy"], rdt=tri["rdt"], rounds=tri["rounds"],
+        balls=tri["balls"], closed=mr.closed, manifold=mr.edge_manifold and mr.vertex_manifold,
+        euler_characteristic=mr.euler_characteristic, manifold_report=mr, source_euler_characteristic=expected,
+        topology_rounds=tri["topology_rounds"], topology_seeds=tri["topology_seeds"],
+        quality_min=float(q.min()) if len(q) else 0.0, quality_mean=float(q.mean()) if len(q) else 0.0,
+        time=times, cpu_time=cpu,
+    )  # fmt: skip
 
 
 def remesh(
     source,
-    n_seeds: int,
+    faces=None,
+    n_seeds: int | None = None,
     *,
     grid: Grid | None = None,
     alpha: float = 50.0,
@@ -215,14 +444,17 @@ def remesh(
     max_rounds: int = 30,
     round_steps: int = 20,
     inside: str = "below",
+    topology_rounds: int = 3,
     key=0,
-    threads=None,
-):
+    threads: int | None = None,
+    progress: bool = True,
+) -> RemeshResult:
     """A quality triangle mesh of a surface with about `n_seeds` vertices (discrete CVT).
 
     **Arguments:**
 
-    - `source`: a closed [`Mesh`][voxax.Mesh], a field `f(points) -> values` (negative
+    - `source`: a closed, outward-oriented surface mesh (a [`Mesh`][voxax.Mesh], a
+      `trimesh.Trimesh`, a `(vertices, faces)` pair, or `vertices` with `faces` next), a field `f(points) -> values` (negative
       inside; needs `grid`), a `(values, level)` grid (needs `grid`), a
       [`CSG`][voxax.cvt.CSG] expression (needs `grid`) or ready [`Fragments`][voxax.cvt.Fragments].
       Fields given as `jax.tree_util.Partial(fields.sphere, radius=r, center=c)` compile
@@ -248,7 +480,10 @@ def remesh(
       point (the report's `"polish_steps"` says how many ran).
     - `orient`: require a closed surface (every grid line enters and exits the solid
       alternately) and orient the result outward; `False` meshes open surfaces too
-      (triangles still oriented consistently per component, direction unspecified).
+      (triangles still oriented consistently per component, direction unspecified). A
+      mesh with a negative enclosed volume (inside out), overlapping closed parts, or
+      closed but non-manifold (internal walls) bounds no solid of this kind, and the error
+      says which of these it is.
     - `project`: move each vertex onto the tangent plane of its nearest fragment.
     - `relax`: tangential smoothing steps of the final mesh (connectivity kept): each moves
       every vertex to the mean of its neighbours within its tangent plane, then onto the
@@ -284,47 +519,48 @@ def remesh(
       again; at most `max_rounds` times. The report says how many rounds ran, how many balls
       were placed, and whether the result is a closed 2-manifold.
     - `inside`: for `(values, level)` sources, `"below"` or `"above"` the level.
-    - `key`: seed of the random seeding.
-    - `threads`: threads for the C++ passes.
+    - `topology_rounds`: when the source is a closed mesh, its Euler characteristic is
+      the one expected: while the triangulation's differs (a spurious handle where one
+      seed's region spans two nearby sheets, or a missing piece), seeds are added in the
+      regions whose fragments face opposite ways (their normals against the region's
+      mean) and the seeds take `round_steps` Lloyd steps and the 2-manifold step again, at
+      most this many times. If they still differ a `UserWarning` names both Euler
+      characteristics (the result's `source_euler_characteristic` and
+      `euler_characteristic`; `topology_rounds` and `topology_seeds` say what ran).
+    - `key`: the random seeding's key, an int or a JAX PRNG key.
+    - `threads`: threads for the C++ passes (None: `VOXAX_NUM_THREADS`, else every core).
+    - `progress`: a progress bar over the optimiser's steps on standard error.
 
-    **Returns:** `(Mesh, report)`; the report is a dict with the fragment and seed counts,
-    `alpha`, the energies, the [`RdtReport`][voxax.cvt.RdtReport] (`"rdt"`), the topology
-    (`"closed"`, `"manifold"`, `"euler_characteristic"`), triangle quality (`"quality_min"`,
-    `"quality_mean"`), wall-clock timings in seconds per stage (`"time"`) and the process's
-    CPU time per stage (`"cpu_time"`, all threads).
+    **Returns:** a [`RemeshResult`][voxax.cvt.RemeshResult]: the mesh (`.mesh`) and the
+    report's fields. It unpacks as `mesh, report = cvt.remesh(...)` (the report being the
+    result itself), and `report["closed"]` reads a field as `report.closed` does.
     """
-    n_seeds = int(n_seeds)
-    if n_seeds < 4:
-        raise ValueError(f"cvt.remesh: n_seeds must be >= 4, got {n_seeds}")
-    relax = int(relax)
-    if relax < 0:
-        raise ValueError(f"cvt.remesh: relax must be >= 0, got {relax}")
-    polish = int(polish)
-    if polish < 0:
-        raise ValueError(f"cvt.remesh: polish must be >= 0, got {polish}")
-    alpha = float(alpha)
-    if not alpha > 0:
-        raise ValueError(f"cvt.remesh: alpha must be > 0, got {alpha}")
+    source, a = _arguments(source, faces, n_seeds, grid, alpha, method, steps, polish, relax, max_rounds,
+                           round_steps, inside, topology_rounds, key, threads)
     times, cpu = {}, {}
     t0, c0 = time.perf_counter(), time.process_time()
     with _timed(times, cpu, "fragments"):
-        frag = _sample(source, grid, n_seeds, alpha, orient, inside, threads)
-    if frag.size < n_seeds:
-        raise ValueError(f"cvt.remesh: {n_seeds} seeds but only {frag.size} fragments; use fewer seeds or a finer grid")
-    if orient:
-        bad = open_lines(frag)
-        if bad:
-            raise ValueError(
-                f"cvt.remesh: the surface is open ({bad} grid lines do not enter and exit a solid); "
-                "it cannot be oriented: pass orient=False or a grid that contains the whole surface"
-            )
-    with _timed(times, cpu, "optimize"):
-        seeded = _optimized_seeds(frag, n_seeds, key, components, method, steps, polish, weighted, threads)
-    with _timed(times, cpu, "rdt"):
-        tri = _manifold_rounds(frag, seeded["seeds"], max_rounds if orient else 0, round_steps, weighted, threads)
+        frag, expected = _sample(source, grid, a["n_seeds"], a["alpha"], orient, inside, threads)
+    bar = _Bar(a["steps"] + (a["polish"] if method == "lbfgs" else 0), progress)
+    try:
+        with _timed(times, cpu, "optimize"):
+            seeded = _optimized_seeds(frag, a["n_seeds"], key, components, method, a["steps"], a["polish"], weighted,
+                                      threads, bar)
+        with _timed(times, cpu, "rdt"):
+            rounds = a["max_rounds"] if orient else 0
+            tri = _manifold_rounds(frag, seeded["seeds"], rounds, a["round_steps"], weighted, threads, bar)
+            tri = _topology_rounds(frag, tri, expected, a["topology_rounds"], rounds, a["round_steps"], weighted,
+                                   threads, bar)
+    finally:
+        bar.close()
     with _timed(times, cpu, "relax"):
-        out = _finish(tri["seeds"], tri["faces"], tri["frag"], frag, project, relax, relax_on_source)
-    report = _report(out, n_seeds, seeded, tri, relax, times, cpu)
+        out = _finish(tri["seeds"], tri["faces"], tri["frag"], frag, project, a["relax"], relax_on_source, threads)
+    result = _result(out, a["n_seeds"], seeded, tri, a["relax"], expected, times, cpu)
     times["total"] = time.perf_counter() - t0
     cpu["total"] = time.process_time() - c0
-    return out, report
+    if expected is not None and result.euler_characteristic != expected:
+        warnings.warn(
+            f"voxax.cvt.remesh: the result's Euler characteristic is {result.euler_characteristic}, the source's "
+            f"{expected}: the topology changed (after {tri['topology_rounds']} topology rounds); use more seeds "
+            "(n_seeds) or denser samples (alpha)", UserWarning, stacklevel=2)  # fmt: skip
+    return result
