@@ -576,6 +576,8 @@ def test_remesh_result_is_typed_and_unpacks():
 @pytest.mark.parametrize("kwargs, error, match", [
     (dict(n_seeds=3), ValueError, "`n_seeds` must be at least 4"),
     (dict(n_seeds=2.5), TypeError, "`n_seeds` must be an int"),
+    (dict(n_seeds=2**21), ValueError, "`n_seeds` must be below 2\\^21"),
+    (dict(n_seeds=2**20, alpha=1e5), MemoryError, "GiB"),
     (dict(alpha=float("inf")), ValueError, "`alpha` must be > 0 and finite"),
     (dict(key="seven"), TypeError, "`key`"),
     (dict(key=-1), ValueError, "`key`"),
@@ -664,6 +666,9 @@ def test_remesh_names_why_a_surface_bounds_no_solid():
         with pytest.raises(ValueError, match=match) as info:
             cvt.remesh(mesh, 100, progress=False)
         assert "orient=False" in str(info.value), name
+    # a solid cut by the grid's box: lines that start inside it without a crossing
+    with pytest.raises(ValueError, match="240 grid lines start inside it"):
+        cvt.remesh(fields.sphere, 50, grid=voxax.Grid.cube(12, half_width=0.8), progress=False)
     # and the line counts behind the messages, on exact fragments
     faults = line_faults(cvt.fragments(voxax.data.overlapping_cubes(), voxax.Grid.cube(16)))
     assert faults["nested"] > 0 and faults["negative"] == 0 and faults["unbalanced"] == 0

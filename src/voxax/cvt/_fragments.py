@@ -22,7 +22,7 @@ from .._constants import MAX_ABS_COORDINATE
 from .._grid import Grid
 from .._mesh import Mesh
 
-__all__ = ["CSG", "Fragments", "as_mesh", "checked", "fragments", "real_array"]
+__all__ = ["CSG", "Fragments", "as_mesh", "checked", "checked_key", "checked_threads", "fragments", "real_array", "sample"]
 
 _OPS = ("union", "intersection", "difference")
 
@@ -85,6 +85,26 @@ def as_mesh(where: str, source) -> Mesh:
     v, f = _validate.mesh(where, v, f, dim=3, integer_vertices=True, allow_empty=True,
                           context="a triangle mesh in 3D")
     return source if isinstance(source, Mesh) else Mesh(v, f)
+
+
+def checked_threads(where: str, threads):
+    """`threads` checked by the one threads rule (`voxax._kernels.threads`), the message
+    naming `where`; returns it unchanged (None stays None)."""
+    from .._kernels import _ctypes
+
+    try:
+        _ctypes.threads(threads)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{where}: {err}") from None
+    return threads
+
+
+def checked_key(where: str, key):
+    """`key` checked: an int (>= 0) or a JAX PRNG key; returns it unchanged."""
+    if not isinstance(key, (int, np.integer)) and not hasattr(key, "dtype"):
+        raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(key).__name__}")
+    _validate.numpy_rng(where, key)
+    return key
 
 
 def checked(where: str, frag, *, allow_empty: bool = False) -> Fragments:
@@ -702,7 +722,15 @@ def fragments(
     if inside not in ("below", "above"):
         raise ValueError(f'voxax.cvt.fragments: `inside` must be "below" or "above", got {inside!r}')
     iterations = _validate.positive_int("voxax.cvt.fragments", "iterations", iterations)
-    frag, _ = _sample(source, grid, inside, iterations, threads)
+    checked_threads("voxax.cvt.fragments", threads)
+    return sample(source, grid, inside=inside, iterations=iterations, threads=threads)[0]
+
+
+def sample(source, grid=None, *, inside: str = "below", iterations: int = 30, threads=None) -> tuple:
+    """[`fragments`][voxax.cvt.fragments] with, per axis, which lines start inside the solid
+    (`(n_u * n_v,)` bool): a line that starts inside without crossing the surface shows
+    that the solid reaches beyond the grid. **Returns:** `(Fragments, starts)`."""
+    frag, starts = _sample(source, grid, inside, iterations, threads)
     if frag.size == 0 and not isinstance(source, Fragments):
         # checked here, for the whole: the operands of a CSG node may have no surface on
         # the grid (a solid that covers it, or one between its lines)
@@ -715,7 +743,7 @@ def fragments(
         else:
             what = "no grid line crosses the mesh (empty surface on this grid)"
         raise ValueError(f"voxax.cvt.fragments: {what}")
-    return frag
+    return frag, starts
 
 
 def _sample(source, grid, inside: str, iterations: int, threads) -> tuple:

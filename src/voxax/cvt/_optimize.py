@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import _validate
 from .._kernels import cvt as _kernels
-from ._fragments import Fragments, checked
+from ._fragments import Fragments, checked, checked_key
 
 __all__ = [
     "CVTResult",
@@ -43,6 +43,8 @@ def _seeds(seeds, where: str):
         raise ValueError(f"{where}: `seeds` must have shape (n, 3) with n >= 1, got {s.shape}")
     if not jnp.issubdtype(s.dtype, jnp.floating):
         s = s.astype(jnp.float64)
+    if _validate.is_concrete(s) and not bool(jnp.all(jnp.isfinite(s))):  # under jit: the kernels check
+        raise ValueError(f"{where}: `seeds` must be finite (they contain NaN or Inf)")
     return s
 
 
@@ -247,7 +249,7 @@ def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
     if n > frag.size:
         raise ValueError(f"{where}: `n` must be at most the number of fragments: {n} seeds but only {frag.size} "
                          "fragments; use a finer grid or fewer seeds")
-    rng = _validate.numpy_rng(where, key)
+    rng = _validate.numpy_rng(where, checked_key(where, key))
     total = frag.weights.sum()
     if not total > 0:
         raise ValueError(f"{where}: `frag.weights` must not all be zero")

@@ -9,7 +9,7 @@ import numpy as np
 from .. import _validate
 from .._constants import MAX_ABS_COORDINATE
 from .._kernels import cvt as _kernels
-from ._fragments import Fragments, checked, real_array
+from ._fragments import Fragments, checked, checked_threads, real_array
 
 __all__ = ["RdtReport", "rdt"]
 
@@ -75,5 +75,5 @@ def rdt(frag: Fragments, seeds, *, tau: float | None = None, max_hole: int = 8, 
     max_hole = _validate.positive_int(where, "max_hole", max_hole, minimum=3)
     if max_hole > 64:
         raise ValueError(f"{where}: `max_hole` must lie in [3, 64], got {max_hole}")
-    faces, stats = _kernels.rdt(s, frag.points, frag.normals, tau, max_hole, threads)
+    faces, stats = _kernels.rdt(s, frag.points, frag.normals, tau, max_hole, checked_threads(where, threads))
     return faces, RdtReport(*(int(v) for v in stats))

@@ -14,12 +14,22 @@ import numpy as np
 
 from .. import _validate
 from .._grid import Grid
-from .._kernels import _ctypes
 from .._mesh import Mesh
 from .._values import ValueEquality
 from . import _relax
 from ._components import cover_components
-from ._fragments import CSG, Fragments, as_mesh, ball_fragments, checked, fragments, union_all
+from ._fragments import (
+    CSG,
+    Fragments,
+    as_mesh,
+    ball_fragments,
+    checked,
+    checked_key,
+    checked_threads,
+    fragments,
+    sample,
+    union_all,
+)
 from ._manifold import Balls, problem_edges
 from ._optimize import init_seeds, run
 from ._rdt import RdtReport, rdt
@@ -169,24 +179,43 @@ def _arguments(source, faces, n_seeds, grid, alpha, method, steps, polish, relax
                         f"Fragments, got {type(source).__name__}")
     if n_seeds is None:
         raise TypeError(f"{_WHERE}: missing `n_seeds`")
-    if not isinstance(key, (int, np.integer)) and not hasattr(key, "dtype"):
-        raise TypeError(f"{_WHERE}: `key` must be an int or a JAX PRNG key, got {type(key).__name__}")
-    _validate.numpy_rng(_WHERE, key)
+    checked_key(_WHERE, key)
     if grid is not None:
         _validate.grid(_WHERE, grid, 3)
     if method not in ("lbfgs", "lloyd"):
         raise ValueError(f'{_WHERE}: `method` must be "lbfgs" or "lloyd", got {method!r}')
     if inside not in ("below", "above"):
         raise ValueError(f'{_WHERE}: `inside` must be "below" or "above", got {inside!r}')
-    try:
-        _ctypes.threads(threads)
-    except (TypeError, ValueError) as err:
-        raise type(err)(f"{_WHERE}: {err}") from None
+    checked_threads(_WHERE, threads)
     checks = {"n_seeds": (n_seeds, 4), "steps": (steps, 0), "polish": (polish, 0), "relax": (relax, 0),
               "max_rounds": (max_rounds, 0), "round_steps": (round_steps, 0), "topology_rounds": (topology_rounds, 0)}
     a = {name: _validate.positive_int(_WHERE, name, value, minimum) for name, (value, minimum) in checks.items()}
     a["alpha"] = _validate.positive_float(_WHERE, "alpha", alpha)
+    if a["n_seeds"] >= 1 << 21:
+        raise ValueError(f"{_WHERE}: `n_seeds` must be below 2^21 (the restricted Delaunay step's limit), "
+                         f"got {a['n_seeds']}")
+    need = _BYTES_PER_FRAGMENT * a["alpha"] * a["n_seeds"]
+    total = _physical_memory()
+    if total and need > total:
+        raise MemoryError(f"{_WHERE}: {a['n_seeds']} seeds at `alpha` {a['alpha']:g} need about "
+                          f"{a['alpha'] * a['n_seeds']:.3g} fragments, {need / 2**30:.1f} GiB, more than this "
+                          f"machine's {total / 2**30:.1f} GiB; use fewer seeds or a smaller alpha")
     return source, a
+
+
+#: working memory per fragment while sampling and optimising: its 66 bytes, the sorting
+#: and padding copies and the optimiser's device arrays (an estimate, checked before sampling)
+_BYTES_PER_FRAGMENT = 400
+
+
+def _physical_memory() -> int:
+    """The machine's memory in bytes (0 when unknown)."""
+    import os
+
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return 0
 
 
 class _Bar:
@@ -293,7 +322,18 @@ def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str,
             if mesh is None:
                 raise ValueError(f"{_WHERE}: `grid` must be given for fields, grids and CSG expressions")
             grid = _default_grid(mesh, n_seeds)
-        frag = fragments(mesh if mesh is not None else source, grid, inside=inside, threads=threads)
+        frag, starts = sample(mesh if mesh is not None else source, grid, inside=inside, threads=threads)
+        beyond = sum(int(np.sum(st)) for st in starts) if mesh is None else 0  # a mesh's: from its signs
+        if mesh is not None and orient and open_lines(frag):
+            lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)
+            v = mesh.vertices[np.unique(mesh.faces)]
+            if np.any(v < lo) or np.any(v > hi):
+                raise ValueError(f"{_WHERE}: `grid` must contain the whole mesh to orient its surface: the mesh "
+                                 "reaches beyond the grid's box; pass a larger grid (or none), or pass orient=False")
+        if orient and beyond:
+            raise ValueError(f"{_WHERE}: `grid` must contain the whole solid to orient its surface: {beyond} grid "
+                             "lines start inside it (the surface is cut by the grid's box); pass a larger grid, "
+                             "or pass orient=False")
         if not (isinstance(source, tuple) and mesh is None):
             frag = _refine(mesh if mesh is not None else source, grid, frag, n_seeds, alpha, inside, threads)
     if frag.size < n_seeds:
