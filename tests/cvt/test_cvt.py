@@ -679,11 +679,14 @@ def test_remesh_names_why_a_surface_bounds_no_solid():
 def test_cli_remesh_names_its_own_option(tmp_path, capsys):
     from voxax.cli import main
 
-    path = tmp_path / "flipped.ply"
-    voxax.io.save(voxax.data.icosphere(2).flipped(), str(path))
-    assert main(["remesh", str(path), "--seeds", "100"]) == 2
+    path = tmp_path / "overlapping.ply"
+    voxax.io.save(voxax.data.overlapping_cubes(), str(path))
+    assert main(["remesh", str(path), "--seeds", "100", "--method", "lloyd", "--steps", "5"]) == 2
     err = capsys.readouterr().err
-    assert "inside out" in err and "--open" in err and "orient=False" not in err
+    assert "overlaps itself" in err and "pass --open" in err and "orient=False" not in err
+    out = tmp_path / "r.ply"
+    status = main(["remesh", str(path), "--seeds", "100", "--method", "lloyd", "--steps", "5", "--open", "-o", str(out)])
+    assert status in (0, 1) and voxax.io.load(str(out)).n_faces > 0  # 1: the result is not a closed 2-manifold
 
 
 # ------------------------------------------------------------------------------------

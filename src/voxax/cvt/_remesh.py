@@ -313,7 +313,7 @@ def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str,
         if orient and report.edge_manifold and volume < 0:
             raise ValueError(f"{_WHERE}: `source` must be oriented outward: the mesh is inside out (enclosed volume "
                              f"{volume:.6g} < 0); flip its faces, Mesh(vertices, faces[:, ::-1]), or pass orient=False")
-        if report.closed and report.edge_manifold and report.vertex_manifold:
+        if orient and report.closed and report.vertex_manifold:  # it bounds the solid sampled
             expected = report.euler_characteristic
     if isinstance(source, Fragments):
         frag = checked(_WHERE, source)
@@ -559,8 +559,8 @@ def remesh(
       again; at most `max_rounds` times. The report says how many rounds ran, how many balls
       were placed, and whether the result is a closed 2-manifold.
     - `inside`: for `(values, level)` sources, `"below"` or `"above"` the level.
-    - `topology_rounds`: when the source is a closed mesh, its Euler characteristic is
-      the one expected: while the triangulation's differs (a spurious handle where one
+    - `topology_rounds`: when the source is a closed 2-manifold mesh (with `orient`), its
+      Euler characteristic is the one expected: while the triangulation's differs (a spurious handle where one
       seed's region spans two nearby sheets, or a missing piece), seeds are added in the
       regions whose fragments face opposite ways (their normals against the region's
       mean) and the seeds take `round_steps` Lloyd steps and the 2-manifold step again, at
