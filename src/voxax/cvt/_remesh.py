@@ -118,7 +118,7 @@ def open_lines(frag: Fragments) -> int:
 
 
 def line_faults(frag: Fragments) -> dict:
-    """Why lines fail [`open_lines`][voxax.cvt._remesh.open_lines], counted per line: `"nested"`
+    """Why lines fail `open_lines`, counted per line: `"nested"`
     lines enter the solid again before leaving it (overlapping parts, self-intersections,
     internal walls), `"negative"` ones leave it before entering (inside-out parts, or a solid
     beyond the grid), `"unbalanced"` ones end inside it (an odd number of crossings)."""
@@ -414,7 +414,7 @@ def topology_seeds(frag: Fragments, seeds: np.ndarray, threads=None) -> np.ndarr
 
 def _topology_rounds(base, tri, expected, max_rounds, rounds, round_steps, weighted, threads, bar) -> dict:
     """While the triangulation's Euler characteristic differs from `expected`, seeds are
-    added by [`topology_seeds`][voxax.cvt._remesh.topology_seeds] on the source's fragments
+    added by `topology_seeds` on the source's fragments
     and optimised again (Lloyd steps, then the 2-manifold step), at most `max_rounds` times;
     a round that finds no place for a seed ends them."""
     done = added = 0
@@ -463,6 +463,34 @@ def _result(out: Mesh, n_seeds, seeded, tri, relax, expected, times, cpu) -> Rem
         quality_min=float(q.min()) if len(q) else 0.0, quality_mean=float(q.mean()) if len(q) else 0.0,
         time=times, cpu_time=cpu,
     )  # fmt: skip
+
+
+def _pipeline(source, grid, a: dict, o: dict) -> RemeshResult:
+    """The stages of [`remesh`][voxax.cvt.remesh] on checked arguments `a` and options `o`,
+    timed."""
+    times, cpu = {}, {}
+    t0, c0 = time.perf_counter(), time.process_time()
+    with _timed(times, cpu, "fragments"):
+        frag, expected = _sample(source, grid, a["n_seeds"], a["alpha"], o["orient"], o["inside"], o["threads"])
+    bar = _Bar(a["steps"] + (a["polish"] if o["method"] == "lbfgs" else 0), o["progress"])
+    try:
+        with _timed(times, cpu, "optimize"):
+            seeded = _optimized_seeds(frag, a["n_seeds"], o["key"], o["components"], o["method"], a["steps"],
+                                      a["polish"], o["weighted"], o["threads"], bar)
+        with _timed(times, cpu, "rdt"):
+            rounds = a["max_rounds"] if o["orient"] else 0
+            tri = _manifold_rounds(frag, seeded["seeds"], rounds, a["round_steps"], o["weighted"], o["threads"], bar)
+            tri = _topology_rounds(frag, tri, expected, a["topology_rounds"], rounds, a["round_steps"], o["weighted"],
+                                   o["threads"], bar)
+    finally:
+        bar.close()
+    with _timed(times, cpu, "relax"):
+        out = _finish(tri["seeds"], tri["faces"], tri["frag"], frag, o["project"], a["relax"], o["relax_on_source"],
+                      o["threads"])
+    result = _result(out, a["n_seeds"], seeded, tri, a["relax"], expected, times, cpu)
+    times["total"] = time.perf_counter() - t0
+    cpu["total"] = time.process_time() - c0
+    return result
 
 
 def remesh(
@@ -577,30 +605,13 @@ def remesh(
     """
     source, a = _arguments(source, faces, n_seeds, grid, alpha, method, steps, polish, relax, max_rounds,
                            round_steps, inside, topology_rounds, key, threads)
-    times, cpu = {}, {}
-    t0, c0 = time.perf_counter(), time.process_time()
-    with _timed(times, cpu, "fragments"):
-        frag, expected = _sample(source, grid, a["n_seeds"], a["alpha"], orient, inside, threads)
-    bar = _Bar(a["steps"] + (a["polish"] if method == "lbfgs" else 0), progress)
-    try:
-        with _timed(times, cpu, "optimize"):
-            seeded = _optimized_seeds(frag, a["n_seeds"], key, components, method, a["steps"], a["polish"], weighted,
-                                      threads, bar)
-        with _timed(times, cpu, "rdt"):
-            rounds = a["max_rounds"] if orient else 0
-            tri = _manifold_rounds(frag, seeded["seeds"], rounds, a["round_steps"], weighted, threads, bar)
-            tri = _topology_rounds(frag, tri, expected, a["topology_rounds"], rounds, a["round_steps"], weighted,
-                                   threads, bar)
-    finally:
-        bar.close()
-    with _timed(times, cpu, "relax"):
-        out = _finish(tri["seeds"], tri["faces"], tri["frag"], frag, project, a["relax"], relax_on_source, threads)
-    result = _result(out, a["n_seeds"], seeded, tri, a["relax"], expected, times, cpu)
-    times["total"] = time.perf_counter() - t0
-    cpu["total"] = time.process_time() - c0
+    o = dict(orient=orient, inside=inside, key=key, components=components, method=method, weighted=weighted,
+             project=project, relax_on_source=relax_on_source, threads=threads, progress=progress)
+    result = _pipeline(source, grid, a, o)
+    expected = result.source_euler_characteristic
     if expected is not None and result.euler_characteristic != expected:
         warnings.warn(
             f"voxax.cvt.remesh: the result's Euler characteristic is {result.euler_characteristic}, the source's "
-            f"{expected}: the topology changed (after {tri['topology_rounds']} topology rounds); use more seeds "
+            f"{expected}: the topology changed (after {result.topology_rounds} topology rounds); use more seeds "
             "(n_seeds) or denser samples (alpha)", UserWarning, stacklevel=2)  # fmt: skip
     return result
