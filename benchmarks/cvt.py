@@ -233,7 +233,7 @@ def topology_cases(keys=(0, 1, 2), only=None) -> list:
 
     lloyd = {"method": "lloyd", "steps": 20}  # fewer, cheaper steps: the test's setting
     cases = [("hand", voxax.data.hand(), 5000, {}), ("mug", voxax.data.mug(), 5000, {}),
-             ("plate 0.05", plate(0.05), 300, {}), ("plate 0.05, Lloyd 20", plate(0.05), 300, lloyd),
+             ("plate 0.05", plate(0.05), 300, {}), ("plate 0.05 lloyd20", plate(0.05), 300, lloyd),
              ("plate 0.02", plate(0.02), 2000, {})]
     if only:
         cases = [c for c in cases if c[0] in only]
