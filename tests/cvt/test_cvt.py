@@ -571,6 +571,8 @@ def test_remesh_result_is_typed_and_unpacks():
         assert other.mesh == res.mesh
     other = cvt.remesh(mesh, n_seeds=80, **kw)
     assert other.mesh == res.mesh
+    for threads in (1, 2):  # the same bits on every thread count
+        assert cvt.remesh(mesh, 80, threads=threads, **kw).mesh == res.mesh
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
