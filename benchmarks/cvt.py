@@ -6,6 +6,7 @@ reference, time), marching cubes at the same vertex count, marching cubes follow
 pymeshlab's isotropic remeshing, and the time ratio t(40k) / t(20k).
 
     PYTHONPATH=src python benchmarks/cvt.py [--seeds 20000] [--steps 60] [--polish 40] [--relax 2] [--method lbfgs|lloyd] [--alpha 50] [--quick]
+    PYTHONPATH=src python benchmarks/cvt.py --topology    # the source's Euler characteristic kept or not
 """
 
 from __future__ import annotations
@@ -220,6 +221,44 @@ def kernel_times(n: int, alpha: float, repeat: int = 7) -> dict:
     return out
 
 
+def topology_cases(keys=(0, 1, 2), only=None) -> list:
+    """`remesh` of closed genus-0 meshes whose thin parts are near the seed spacing, without
+    topology rounds and (where the Euler characteristic changed) with the default three:
+    the result's Euler characteristic against the source's, the rounds, the seeds they
+    added and the wall-clock time."""
+    import warnings
+
+    def plate(t):
+        return voxax.data.box((-0.5, -0.5, -t / 2), (0.5, 0.5, t / 2))
+
+    lloyd = {"method": "lloyd", "steps": 20}  # fewer, cheaper steps: the test's setting
+    cases = [("hand", voxax.data.hand(), 5000, {}), ("mug", voxax.data.mug(), 5000, {}),
+             ("plate 0.05", plate(0.05), 300, {}), ("plate 0.05 lloyd20", plate(0.05), 300, lloyd),
+             ("plate 0.02", plate(0.02), 2000, {})]
+    if only:
+        cases = [c for c in cases if c[0] in only]
+    out = []
+    for name, mesh, n, options in cases:
+        for key in keys:
+            row = {"mesh": name, "seeds": n, "key": key}
+            for rounds in (0, 3):
+                t = time.perf_counter()
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    res = cvt.remesh(mesh, n, key=key, topology_rounds=rounds, progress=False, **options)
+                row[f"rounds={rounds}"] = {
+                    "chi": res.euler_characteristic, "source_chi": res.source_euler_characteristic,
+                    "closed_manifold": bool(res.closed and res.manifold), "topology_rounds": res.topology_rounds,
+                    "topology_seeds": res.topology_seeds, "warned": any(w.category is UserWarning for w in caught),
+                    "seconds": round(time.perf_counter() - t, 1),
+                }
+                if res.euler_characteristic == res.source_euler_characteristic:
+                    break  # the rounds would not run: the same result
+            print(json.dumps(row), flush=True)
+            out.append(row)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20000)
@@ -240,12 +279,19 @@ def main():
         "--no-components", action="store_true", help="CSG meshes without seeds moved onto the surface's small pieces"
     )
     ap.add_argument("--only", default=None, help="comma-separated CSG scene indices to mesh (with --csg)")
+    ap.add_argument("--topology", action="store_true", help="only the topology cases (source chi kept or not)")
+    ap.add_argument("--cases", default=None, help="comma-separated names of topology cases to run (with --topology)")
     ap.add_argument(
         "--kernels",
         action="store_true",
         help="only the nearest-seed pass and the Lloyd step at --seeds seeds and about alpha x seeds fragments",
     )
     args = ap.parse_args()
+    if args.topology:
+        print(json.dumps({"load_average_start": os.getloadavg()}), flush=True)
+        topology_cases(only=args.cases.split(",") if args.cases else None)
+        print(json.dumps({"load_average_end": os.getloadavg()}), flush=True)
+        return
     if args.kernels:
         print(json.dumps(kernel_times(args.seeds, args.alpha), indent=1))
         return

@@ -26,7 +26,7 @@ NAMESPACES = (
 # Callables whose first parameter is named like a surface but is not one: value types built
 # from arrays, and energies of a deformation (deformed and rest vertices on fixed faces).
 NOT_SURFACE_ARGUMENTS = {
-    "voxax.Mesh", "voxax.IsoMesh", "voxax.curves.Curve",
+    "voxax.Mesh", "voxax.IsoMesh", "voxax.curves.Curve", "voxax.cvt.RemeshResult",
     "voxax.energies.arap", "voxax.energies.arap_rotations", "voxax.energies.cotangent_weights",
 }
 
@@ -54,7 +54,7 @@ def _params(rule: str, entries, name_of=lambda e: e[0]):
 # The drivers that run longer than a second: each takes `progress`.
 LONG_DRIVERS = (
     "voxax.minimize", "voxax.apps.resolve_self_intersections", "voxax.apps.optimize_for_bandsaw",
-    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding",
+    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding", "voxax.cvt.remesh",
 )
 
 

@@ -2,8 +2,8 @@
 // ctypes (which releases the GIL while they run). Every function validates its input,
 // catches every exception and reports failures as a non-zero status with a message.
 //
-//   voxax_rdt_run(S (ns, 3), ns, X (np, 3), N (np, 3), np, tau, max_hole, threads, &handle,
-//                 err, errlen)
+//   voxax_rdt_run(S (ns, 3), ns, X (np, 3), np, N (nn, 3), nn, tau, max_hole, threads,
+//                 &handle, err, errlen)   (nn must equal np: one normal per fragment)
 //   voxax_rdt_size(handle) -> number of faces
 //   voxax_rdt_copy(handle, faces (nf, 3) i32, stats (6,) i64)
 //   voxax_rdt_free(handle)
@@ -18,9 +18,9 @@
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 
-VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, const double* N,
-                               int64_t np, double tau, int32_t max_hole, int32_t threads,
-                               void** handle, char* err, int64_t errlen) {
+VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, int64_t np,
+                               const double* N, int64_t nn, double tau, int32_t max_hole,
+                               int32_t threads, void** handle, char* err, int64_t errlen) {
   *handle = nullptr;
   return voxax::host_guarded("the RDT", err, errlen, [&](std::string* msg) {
     if (ns < 3) {
@@ -33,6 +33,11 @@ VOXAX_EXPORT int voxax_rdt_run(const double* S, int64_t ns, const double* X, con
     }
     if (np < 1) {
       *msg = "voxax: the RDT needs fragments (empty surface)";
+      return false;
+    }
+    if (nn != np) {
+      *msg = "voxax: the RDT needs one normal per fragment (" + std::to_string(np) +
+             " fragments, " + std::to_string(nn) + " normals)";
       return false;
     }
     if (!(tau >= 0.0) || !std::isfinite(tau)) {

@@ -722,6 +722,9 @@ def _remesh_arguments(p) -> None:
                    help="surface samples per seed (default 50)")
     p.add_argument("--method", choices=("lbfgs", "lloyd"), default="lbfgs", help="the CVT optimiser (default lbfgs)")
     p.add_argument("--steps", type=_at_least(0), default=60, metavar="K", help="optimiser steps (default 60)")
+    p.add_argument("--open", action="store_true",
+                   help="mesh a surface that bounds no solid too (open, overlapping or inside-out parts), "
+                        "without orienting it; the result is then not required to be a closed 2-manifold")
     p.add_argument("--output", "-o", default="remeshed.ply", metavar="FILE",
                    help="output mesh file, any format trimesh writes (default remeshed.ply)")
 
@@ -732,13 +735,20 @@ def _remesh(args) -> int:
     _setup_jax(False)
     import voxax
 
-    out, rep = voxax.cvt.remesh(mesh, args.seeds, alpha=args.alpha, method=args.method, steps=args.steps)
+    try:
+        rep = voxax.cvt.remesh(mesh, args.seeds, alpha=args.alpha, method=args.method, steps=args.steps,
+                               orient=not args.open)
+    except ValueError as err:  # the API's option, named as this command's
+        raise UsageError(str(err).replace("pass orient=False", "pass --open")) from None
+    out = rep.mesh
     voxax.io.save(out, args.output)
     print(f"wrote {args.output}: {out.n_vertices} vertices, {out.n_faces} faces, "
-          f"{'closed 2-manifold' if rep['closed'] and rep['manifold'] else 'NOT a closed 2-manifold'}, "
-          f"Euler characteristic {rep['euler_characteristic']}, triangle quality min {rep['quality_min']:.3f} "
-          f"mean {rep['quality_mean']:.3f}, {rep['n_fragments']} surface samples, {rep['time']['total']:.1f} s")
-    return 0 if rep["closed"] and rep["manifold"] else 1
+          f"{'closed 2-manifold' if rep.closed and rep.manifold else 'NOT a closed 2-manifold'}, "
+          f"Euler characteristic {rep.euler_characteristic}"
+          + ("" if rep.source_euler_characteristic is None else f" (the input's {rep.source_euler_characteristic})")
+          + f", triangle quality min {rep.quality_min:.3f} mean {rep.quality_mean:.3f}, {rep.n_fragments} surface "
+          f"samples, {rep.time['total']:.1f} s")
+    return 0 if rep.closed and rep.manifold else 1
 
 
 # -- the table of subcommands -----------------------------------------------------------------

@@ -1,5 +1,7 @@
 """CVT meshing from surface samples: fragments, the restricted CVT, RDT extraction, remesh."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -8,6 +10,9 @@ jax.config.update("jax_enable_x64", True)
 
 import voxax  # noqa: E402
 from voxax import cvt, fields, metrics  # noqa: E402
+from voxax._kernels import cvt as kernels  # noqa: E402
+from voxax.cvt._manifold import problem_edges  # noqa: E402
+from voxax.cvt._remesh import line_faults, open_lines, topology_seeds  # noqa: E402
 
 
 def _mesh_area(m):
@@ -33,7 +38,7 @@ def test_mesh_fragments_on_surface_area_and_cap(ico_fragments):
     assert np.allclose(np.linalg.norm(fr.normals, axis=1), 1.0)
     assert np.all(np.sum(fr.normals * fr.points, axis=1) > 0)
     # every line holds an even number of crossings, alternating enter/exit
-    assert cvt._open_lines(fr) == 0
+    assert open_lines(fr) == 0
     # weights integrate the (exact) area of the mesh
     assert abs(fr.weights.sum() / _mesh_area(mesh) - 1) < 0.005
     # cap z > h (h on a grid plane): Archimedes' centroid (R + h) / 2 of a spherical zone
@@ -97,7 +102,7 @@ def test_dexel_csg_against_the_fields():
         assert len(got) == len(expect)
         key = lambda p: np.lexsort(p.T[::-1])  # noqa: E731
         assert np.allclose(got[key(got)], expect[key(expect)])
-        assert cvt._open_lines(fr) == 0
+        assert open_lines(fr) == 0
         # normals: outward of the result (the difference flips B's)
         on_b = np.abs(np.asarray(b(fr.points))) < 1e-9
         if op == "difference":
@@ -125,14 +130,14 @@ def test_dexel_csg_with_an_operand_beyond_the_grid():
         key = lambda p: np.lexsort(p.T[::-1])  # noqa: E731
         assert len(fr.points) == len(expect) > 0
         assert np.allclose(fr.points[key(fr.points)], expect[key(expect)])
-        assert cvt._open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
+        assert open_lines(fr) == 0  # closed: the cap at x = 0.2 closes the sphere's part
     # a box face through cell centres: lines along y and z run inside the face, where the
     # normal is perpendicular to them; enter/exit comes from the samples' order
     c = g.lower[0] + 15.5 * g.spacing[0]
     fr = cvt.fragments(Partial(fields.box, half_extents=(0.25, 0.3, 0.3), center=(c - 0.25, 0.01, 0.02)), g)
     along = fr.normals[np.arange(fr.size), fr.axis.astype(np.int64)]
     assert np.any(np.abs(along) < 1e-6)  # grazing fragments exist
-    assert cvt._open_lines(fr) == 0
+    assert open_lines(fr) == 0
 
 
 def test_dexel_csg_with_operands_without_surface():
@@ -167,7 +172,7 @@ def test_fragments_bad_input():
         cvt.fragments(voxax.data.icosphere(1, radius=0.1, center=(5.0, 5.0, 5.0)), g)
     with pytest.raises(TypeError):
         cvt.fragments("sphere", g)
-    with pytest.raises(ValueError, match="op must be"):
+    with pytest.raises(ValueError, match="`op` must be"):
         cvt.CSG("xor", fields.sphere, fields.sphere)
     with pytest.raises(ValueError, match="shape"):
         cvt.fragments((np.zeros((4, 4, 4)), 0.5), g)
@@ -229,8 +234,6 @@ def _brute_nearest(s, x):
 
 
 def test_assignment_kernel_with_hints_is_exact():
-    from voxax.cvt._optimize import _assign_moments, assign_moments_host
-
     rng = np.random.default_rng(5)
     # seeds on a sphere on a coarse lattice of directions (many ties), points on and near it
     s = np.round(rng.normal(size=(300, 3)), 1)
@@ -256,7 +259,7 @@ def test_assignment_kernel_with_hints_is_exact():
     runs = []
     for name, hint in hints.items():
         for threads in (1, 2):
-            idx, mom, count, e = assign_moments_host(s, x, w, hint, threads=threads)
+            idx, mom, count, e = kernels.assign_host(s, x, w, hint, threads=threads)
             assert np.array_equal(idx, ref), name
             assert np.abs(mom[:, 0] - mass).max() <= 1e-12 and np.abs(mom[:, 1:] - first).max() <= 1e-12
             assert np.array_equal(count, np.bincount(ref, w > 0, minlength=len(s)))
@@ -264,12 +267,12 @@ def test_assignment_kernel_with_hints_is_exact():
             runs.append((mom.tobytes(), e))
     assert len(set(runs)) == 1  # same bits for any hint and thread count
     # the FFI kernel under jit: the same bits
-    out = jax.jit(_assign_moments)(s, x, w, jax.numpy.asarray(ref, jax.numpy.int32))
+    out = jax.jit(kernels.assign)(s, x, w, jax.numpy.asarray(ref, jax.numpy.int32))
     assert np.array_equal(np.asarray(out[0]), ref) and np.asarray(out[1]).tobytes() == runs[0][0]
     with pytest.raises(ValueError, match="NaN"):
-        assign_moments_host(np.full((3, 3), np.nan), x, w)
+        kernels.assign_host(np.full((3, 3), np.nan), x, w)
     with pytest.raises(ValueError, match="weights"):
-        assign_moments_host(s, x, -w)
+        kernels.assign_host(s, x, -w)
 
 
 def test_optimizer_energy_gradient_is_eq2(small):
@@ -386,7 +389,7 @@ def test_remesh_keeps_a_small_component():
 
 
 def test_relax_evens_out_a_mesh_on_the_surface(small):
-    from voxax.cvt import _relax
+    from voxax.cvt._relax import relax
 
     fr, _ = small
     ico = voxax.data.icosphere(3)  # radius 1, like the fixture's sphere
@@ -397,7 +400,7 @@ def test_relax_evens_out_a_mesh_on_the_surface(small):
     n0 = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     assert np.all(np.sum(n0 * v[f[:, 0]], axis=1) > 0)  # still oriented outward
     q0 = metrics.triangle_quality(voxax.Mesh(v, f))
-    out = _relax(v, f, fr, 3)
+    out = relax(v, f, fr, 3)
     q1 = metrics.triangle_quality(voxax.Mesh(out, f))
     assert q1.mean() > q0.mean() + 0.02 and q1.min() > q0.min()
     assert np.abs(np.linalg.norm(out, axis=1) - 1).max() < 2e-3  # on the sphere (tangent planes)
@@ -405,14 +408,14 @@ def test_relax_evens_out_a_mesh_on_the_surface(small):
     assert np.all(np.sum(n0 * n1, axis=1) > 0)  # no triangle turned over
     # the quality floor: no triangle ends a step below min(floor, its quality before it)
     # (without the floor, some do: the step evens out the mesh as a whole)
-    one = _relax(v, f, fr, 1)
+    one = relax(v, f, fr, 1)
     assert np.any(metrics.triangle_quality(voxax.Mesh(one, f)) < q0 - 1e-3)
-    guarded = _relax(v, f, fr, 1, floor=0.99)
+    guarded = relax(v, f, fr, 1, floor=0.99)
     qg = metrics.triangle_quality(voxax.Mesh(guarded, f))
     assert np.all(qg >= np.minimum(0.99, q0)) and not np.array_equal(guarded, v)
     # an open mesh: the vertices of its boundary edges stay
     part = f[:-40]
-    kept = _relax(v, part, fr, 2)
+    kept = relax(v, part, fr, 2)
     edges = np.sort(np.concatenate([part[:, [0, 1]], part[:, [1, 2]], part[:, [2, 0]]]), axis=1)
     uniq, count = np.unique(edges, axis=0, return_counts=True)
     rim = np.unique(uniq[count == 1])
@@ -459,7 +462,7 @@ def test_ball_fragments_and_union_are_exact():
     u = union_all([balls])
     # survivors are outside the other ball, and the union is closed on every line
     inside_any = (np.linalg.norm(u.points[:, None] - c[None], axis=2) < r[None] - 1e-9).any(axis=1)
-    assert not inside_any.any() and cvt._open_lines(u) == 0
+    assert not inside_any.any() and open_lines(u) == 0
     # and every crossing outside the other ball survives (an independent count)
     dist = np.linalg.norm(balls.points[:, None] - c[None], axis=2)
     outside = (dist > r[None] - 1e-9).all(axis=1)
@@ -468,15 +471,15 @@ def test_ball_fragments_and_union_are_exact():
 
 def test_problem_edges_match_manifold_report():
     mesh = voxax.data.icosphere(2)
-    assert len(cvt._problem_edges(np.asarray(mesh.faces), mesh.n_vertices)) == 0
+    assert len(problem_edges(np.asarray(mesh.faces), mesh.n_vertices)) == 0
     holed = np.asarray(mesh.faces[1:])
-    bad = cvt._problem_edges(holed, mesh.n_vertices)
+    bad = problem_edges(holed, mesh.n_vertices)
     assert len(bad) == metrics.manifold_report(voxax.Mesh(mesh.vertices, holed)).n_boundary_edges == 3
     # two tetrahedra sharing one vertex: a non-manifold vertex, all its edges reported
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1.0]])
     t = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     f = np.concatenate([t, np.where(t == 0, 0, t + 3)])
-    bad = cvt._problem_edges(f, len(v))
+    bad = problem_edges(f, len(v))
     assert metrics.manifold_report(voxax.Mesh(v, f)).n_nonmanifold_vertices == 1
     assert len(bad) == 6 and np.all((bad == 0).any(axis=1))
 
@@ -542,3 +545,184 @@ def test_sphere_4k_seeds():
     hull = ConvexHull(res.seeds / np.linalg.norm(res.seeds, axis=1, keepdims=True))
     ours = {tuple(sorted(f)) for f in faces.tolist()}
     assert len(ours & {tuple(sorted(f)) for f in hull.simplices.tolist()}) >= 0.99 * len(hull.simplices)
+
+
+# ------------------------------------------------------------------------------------
+# The API: the typed result, surface forms, bad input
+
+
+def test_remesh_result_is_typed_and_unpacks():
+    mesh = voxax.data.icosphere(2)
+    res = cvt.remesh(mesh, 80, method="lloyd", steps=5, polish=0, relax=0, progress=False)
+    assert isinstance(res, cvt.RemeshResult)
+    m, report = res
+    assert m is res.mesh and report is res and report["closed"] is res.closed
+    assert res.source_euler_characteristic == 2 == metrics.euler_characteristic(mesh)
+    with pytest.raises(KeyError):
+        res["no such field"]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.closed = False
+    # the same mesh as a (V, F) pair, as vertices and faces, and as a trimesh: the same result
+    trimesh = pytest.importorskip("trimesh")
+    kw = dict(method="lloyd", steps=5, polish=0, relax=0, progress=False)
+    for form in [((mesh.vertices, mesh.faces), 80), (mesh.vertices, mesh.faces, 80),
+                 (trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), 80)]:
+        other = cvt.remesh(*form, **kw)
+        assert other.mesh == res.mesh
+    other = cvt.remesh(mesh, n_seeds=80, **kw)
+    assert other.mesh == res.mesh
+    for threads in (1, 2):  # the same bits on every thread count
+        assert cvt.remesh(mesh, 80, threads=threads, **kw).mesh == res.mesh
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(n_seeds=3), ValueError, "`n_seeds` must be at least 4"),
+    (dict(n_seeds=2.5), TypeError, "`n_seeds` must be an int"),
+    (dict(n_seeds=2**21), ValueError, "`n_seeds` must be below 2\\^21"),
+    (dict(n_seeds=2**20, alpha=1e5), MemoryError, "GiB"),
+    (dict(alpha=float("inf")), ValueError, "`alpha` must be > 0 and finite"),
+    (dict(key="seven"), TypeError, "`key`"),
+    (dict(key=-1), ValueError, "`key`"),
+    (dict(threads=0), ValueError, "`threads` must be >= 1"),
+    (dict(method="newton"), ValueError, "`method`"),
+    (dict(steps=-1), ValueError, "`steps`"),
+    (dict(grid=voxax.Grid((-1.0, -1.0), (1.0, 1.0), (4, 4))), ValueError, "`grid` must be 3D"),
+])
+def test_remesh_bad_arguments(kwargs, error, match):
+    kw = dict(n_seeds=100, progress=False) | kwargs
+    with pytest.raises(error, match=match) as info:
+        cvt.remesh(voxax.data.icosphere(1), **kw)
+    assert str(info.value).startswith("voxax.cvt.remesh: ")
+
+
+def test_remesh_refuses_bool_and_complex_input():
+    mesh = voxax.data.icosphere(1)
+    for v in (mesh.vertices > 0, mesh.vertices + 0j):
+        with pytest.raises(TypeError, match="`vertices` must be float32 or float64"):
+            cvt.remesh((v, mesh.faces), 40, progress=False)
+    g = voxax.Grid.cube(8)
+    with pytest.raises(TypeError, match="real numbers"):
+        cvt.remesh((np.ones(g.shape, complex), 0.5), 40, grid=g, progress=False)
+    with pytest.raises(TypeError, match="real values"):
+        cvt.fragments(lambda p: fields.sphere(p) + 0j, g)
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(16, half_width=1.2))
+    with pytest.raises(TypeError, match="`seeds` must be a real"):
+        cvt.rdt(fr, np.ones((5, 3), bool))
+    with pytest.raises(TypeError, match="`seeds` must be a real"):
+        cvt.energy(np.ones((5, 3), complex), fr)
+
+
+def test_hostile_fragments_are_refused_before_the_kernels():
+    fr = cvt.fragments(fields.sphere, voxax.Grid.cube(16, half_width=1.2))
+    s = cvt.init_seeds(fr, 20, key=0)
+    bad = {
+        "normals": fr._replace(normals=fr.normals[:5]),  # fewer normals than points (read past the end before)
+        "weights": fr._replace(weights=fr.weights[:-1]),
+        "points": fr._replace(points=fr.points[:, :2]),
+        "sign": fr._replace(sign=fr.sign[:3]),
+    }
+    for name, frag in bad.items():
+        for call, args, kw in ((cvt.rdt, (frag, s), {}), (cvt.optimize, (frag, s), {"steps": 1}),
+                               (cvt.energy, (s, frag), {}), (cvt.remesh, (frag, 20), {"progress": False})):
+            with pytest.raises(ValueError, match=f"`frag.{name}` must have shape"):
+                call(*args, **kw)
+    nan = fr.normals.copy()
+    nan[3] = np.nan
+    with pytest.raises(ValueError, match="`frag.normals` must be finite"):
+        cvt.rdt(fr._replace(normals=nan), s)
+    # the kernel checks the counts itself (the same call without the Python checks)
+    with pytest.raises(ValueError, match="one normal per fragment"):
+        kernels.rdt(s, fr.points, fr.normals[:5], 1.0, 8)
+
+
+# ------------------------------------------------------------------------------------
+# Surfaces that bound no solid: the true reason
+
+
+def _cube_with_wall():
+    """Two unit cubes side by side with their shared square kept once: closed (no boundary
+    edge) but the wall's edges have three faces."""
+    v = np.array([[x, y, z] for x in (0.0, 1.0, 2.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]) * 0.4 - 0.4
+    i = lambda x, y, z: 4 * x + 2 * y + z  # noqa: E731
+    quads = [(i(0, 0, 0), i(0, 0, 1), i(0, 1, 1), i(0, 1, 0)), (i(2, 0, 0), i(2, 1, 0), i(2, 1, 1), i(2, 0, 1)),
+             (i(1, 0, 0), i(1, 1, 0), i(1, 1, 1), i(1, 0, 1))]  # the two ends and the wall
+    for x in (0, 1):
+        quads += [(i(x, 0, 0), i(x + 1, 0, 0), i(x + 1, 0, 1), i(x, 0, 1)), (i(x, 1, 0), i(x, 1, 1), i(x + 1, 1, 1), i(x + 1, 1, 0)),
+                  (i(x, 0, 0), i(x, 1, 0), i(x + 1, 1, 0), i(x + 1, 0, 0)), (i(x, 0, 1), i(x + 1, 0, 1), i(x + 1, 1, 1), i(x, 1, 1))]
+    f = np.array([[a, b, c] for a, b, c, d in quads] + [[a, c, d] for a, b, c, d in quads])
+    return voxax.Mesh(v, f)
+
+
+def test_remesh_names_why_a_surface_bounds_no_solid():
+    ico = voxax.data.icosphere(2)
+    cases = {
+        "inside out": (ico.flipped(), "inside out \\(enclosed volume -"),
+        "an inside-out part": (voxax.data.with_inverted_component(subdivisions=2), "parts of the mesh are inside out"),
+        "overlapping parts": (voxax.data.overlapping_cubes(), "the surface overlaps itself"),
+        "internal wall": (_cube_with_wall(), "closed but not a 2-manifold \\(4 edges have more than two faces"),
+        "open": (voxax.Mesh(ico.vertices, ico.faces[:-5]), "the mesh is open"),
+    }
+    mr = metrics.manifold_report(cases["internal wall"][0])
+    assert mr.n_boundary_edges == 0 and mr.n_nonmanifold_edges == 4
+    for name, (mesh, match) in cases.items():
+        with pytest.raises(ValueError, match=match) as info:
+            cvt.remesh(mesh, 100, progress=False)
+        assert "orient=False" in str(info.value), name
+    # a solid cut by the grid's box: lines that start inside it without a crossing
+    with pytest.raises(ValueError, match="240 grid lines start inside it"):
+        cvt.remesh(fields.sphere, 50, grid=voxax.Grid.cube(12, half_width=0.8), progress=False)
+    # and the line counts behind the messages, on exact fragments
+    faults = line_faults(cvt.fragments(voxax.data.overlapping_cubes(), voxax.Grid.cube(16)))
+    assert faults["nested"] > 0 and faults["negative"] == 0 and faults["unbalanced"] == 0
+    faults = line_faults(cvt.fragments(ico.flipped(), voxax.Grid.cube(16)))
+    assert faults["negative"] > 0 and faults["nested"] == 0
+
+
+def test_cli_remesh_names_its_own_option(tmp_path, capsys):
+    from voxax.cli import main
+
+    path = tmp_path / "overlapping.ply"
+    voxax.io.save(voxax.data.overlapping_cubes(), str(path))
+    assert main(["remesh", str(path), "--seeds", "100", "--method", "lloyd", "--steps", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "overlaps itself" in err and "pass --open" in err and "orient=False" not in err
+    out = tmp_path / "r.ply"
+    status = main(["remesh", str(path), "--seeds", "100", "--method", "lloyd", "--steps", "5", "--open", "-o", str(out)])
+    assert status in (0, 1) and voxax.io.load(str(out)).n_faces > 0  # 1: the result is not a closed 2-manifold
+
+
+# ------------------------------------------------------------------------------------
+# Topology against the source's
+
+
+def test_topology_seeds_split_a_region_spanning_two_sheets():
+    # two parallel sheets 0.1 apart facing away from each other (a thin plate's faces): 10
+    # fragments on top, 4 below; one seed's region holds both, so its mean normal points up
+    # and a seed goes at the first fragment below (ties by index)
+    xy = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 5), [0.0, 0.1]), -1).reshape(-1, 2)
+    top = np.column_stack([xy, np.full(10, 0.05)])
+    bottom = np.column_stack([xy[3:7], np.full(4, -0.05)])
+    points = np.concatenate([top, bottom])
+    normals = np.repeat([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], [10, 4], axis=0)
+    n = len(points)
+    fr = cvt.Fragments(points, normals, np.ones(n), np.full(n, 2, np.int8), np.arange(n), np.ones(n, np.int8),
+                       voxax.Grid.cube(4))
+    new = topology_seeds(fr, np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0]]))
+    assert np.array_equal(new, bottom[:1])
+    # a seed on each sheet: every region faces one way, nothing to add
+    assert len(topology_seeds(fr, np.array([[0.0, 0.0, 0.5], [0.0, 0.0, -0.5]]))) == 0
+
+
+def test_remesh_keeps_the_source_topology_or_warns():
+    # a 1 x 1 x 0.05 plate at 300 seeds: the seed spacing (about 0.085) exceeds the
+    # thickness, and with key 0 one region spans both faces, which gives the triangulation
+    # a handle (chi 0); the topology round adds seeds there and gets the sphere's chi back
+    plate = voxax.data.box((-0.5, -0.5, -0.025), (0.5, 0.5, 0.025))
+    kw = dict(method="lloyd", steps=20, key=0, progress=False)
+    with pytest.warns(UserWarning, match="Euler characteristic is 0, the source's 2"):
+        res = cvt.remesh(plate, 300, topology_rounds=0, **kw)
+    assert res.closed and res.manifold and res.euler_characteristic == 0 and res.source_euler_characteristic == 2
+    res = cvt.remesh(plate, 300, **kw)
+    assert res.closed and res.manifold and res.euler_characteristic == 2
+    assert res.topology_rounds >= 1 and res.topology_seeds > 0
+    assert metrics.hausdorff(res.mesh, plate) < 0.08  # the seed spacing is 0.085: the corners are cut

@@ -904,7 +904,8 @@ def run_spatial(rng, n_inputs):
                     fail(f"{label}: column inside-tests differ from the direct casts")
                 CALLS["esi_column_casts"] += 4
             # the CVT assignment (nearest seed and region moments) from random hints, host and FFI
-            from voxax.cvt._optimize import _assign_moments, assign_moments_host
+            from voxax._kernels.cvt import assign as _assign_moments
+            from voxax._kernels.cvt import assign_host as assign_moments_host
 
             if len(v):
                 wq = rng.uniform(0.0, 1.0, len(p))
@@ -920,7 +921,8 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
-    from voxax.cvt._optimize import _assign_moments, assign_moments_host
+    from voxax._kernels.cvt import assign as _assign_moments
+    from voxax._kernels.cvt import assign_host as assign_moments_host
     from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
@@ -1141,11 +1143,46 @@ def run_rdt(rng, n_inputs):
         "two seeds": (lambda: cvt.rdt(frag, s[:2]), "3 seeds"),
         "NaN seed": (lambda: cvt.rdt(frag, np.where(np.arange(30).reshape(10, 3) == 4, np.nan, s)), "NaN or Inf"),
         "huge seed": (lambda: cvt.rdt(frag, s * 1e80), "1e75"),
-        "negative tau": (lambda: cvt.rdt(frag, s, tau=-1.0), "tolerance"),
-        "no fragments": (lambda: cvt.rdt(frag._replace(points=np.zeros((0, 3)), normals=np.zeros((0, 3))), s), "fragments"),
+        "negative tau": (lambda: cvt.rdt(frag, s, tau=-1.0), "tau"),
+        "no fragments": (lambda: cvt.rdt(cvt.Fragments(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8),
+                                                       np.zeros(0, np.int64), np.zeros(0, np.int8), g), s), "fragments"),
         "max_hole": (lambda: cvt.rdt(frag, s, max_hole=100), "max_hole"),
+        "bool seeds": (lambda: cvt.rdt(frag, s > 0), "real"),
+        "complex seeds": (lambda: cvt.rdt(frag, s + 1j), "real"),
     }
+    # hostile Fragments: every field's length, shape and values, through the public call
+    # and (without the Python checks) straight into the host entry point
+    from voxax._kernels import cvt as kernels
+
+    def hostile(**fields):
+        return frag._replace(**fields)
+
+    for name, short in (("normals", 5), ("weights", 19), ("axis", 0), ("line", 3), ("sign", 1)):
+        bad[f"short {name}"] = (lambda name=name, short=short: cvt.rdt(hostile(**{name: getattr(frag, name)[:short]}), s),
+                                f"frag.{name}")
+    bad["long normals"] = (lambda: cvt.rdt(hostile(normals=np.concatenate([x, x])), s), "frag.normals")
+    bad["2D points"] = (lambda: cvt.rdt(hostile(points=x[:, :2]), s), "frag.points")
+    bad["NaN normal"] = (lambda: cvt.rdt(hostile(normals=np.where(x == x[2], np.nan, x)), s), "finite")
+    bad["bool normals"] = (lambda: cvt.rdt(hostile(normals=x > 0), s), "real")
+    bad["negative weight"] = (lambda: cvt.rdt(hostile(weights=-np.ones(20)), s), "weights")
+    bad["no grid"] = (lambda: cvt.rdt(hostile(grid=None), s), "grid")
+    for short in (0, 1, 5, 19):
+        bad[f"kernel: {short} normals for 20 fragments"] = (
+            lambda short=short: kernels.rdt(s, x, np.ascontiguousarray(x[:short]), 1.0, 8, 1), "one normal per fragment")
+    bad["kernel: 40 normals for 20 fragments"] = (
+        lambda: kernels.rdt(s, x, np.concatenate([x, x]), 1.0, 8, 1), "one normal per fragment")
+    bad["optimize short weights"] = (lambda: cvt.optimize(hostile(weights=np.ones(3)), s, steps=1), "frag.weights")
+    bad["energy short normals"] = (lambda: cvt.energy(s, hostile(normals=x[:2])), "frag.normals")
+    bad["remesh short normals"] = (lambda: cvt.remesh(hostile(normals=x[:2]), 5, progress=False), "frag.normals")
+    bad["remesh bool mesh"] = (lambda: cvt.remesh((x > 0, np.arange(18).reshape(6, 3)), 5, progress=False), "vertices")
+    bad["remesh complex mesh"] = (lambda: cvt.remesh((x + 0j, np.arange(18).reshape(6, 3)), 5, progress=False),
+                                  "vertices")
     expect_rejected("rdt", bad, (ValueError, TypeError))
+    # the valid neighbours of those cases still run (the checks refuse only what is wrong)
+    faces, _ = kernels.rdt(s, x, x, 1.0, 8, 1)
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(s)):
+        fail("rdt kernel: face index out of range")
+    CALLS["rdt"] += 1
 
 
 def run_line_crossings(rng, n_inputs):

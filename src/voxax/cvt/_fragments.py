@@ -17,10 +17,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .. import _validate
+from .._constants import MAX_ABS_COORDINATE
 from .._grid import Grid
 from .._mesh import Mesh
 
-__all__ = ["CSG", "Fragments", "fragments"]
+__all__ = ["CSG", "Fragments", "as_mesh", "checked", "checked_key", "checked_threads", "fragments", "real_array", "sample"]
 
 _OPS = ("union", "intersection", "difference")
 
@@ -63,6 +65,82 @@ class Fragments(NamedTuple):
         return float(max(self.grid.spacing))
 
 
+def real_array(where: str, name: str, value, dtype=np.float64) -> np.ndarray:
+    """`value` as a C-contiguous NumPy array of `dtype`, refusing booleans, complex numbers
+    and objects (which would be cast silently)."""
+    a = np.asarray(value)
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: `{name}` must be a real (float or integer) array, got {a.dtype}")
+    return np.ascontiguousarray(a, dtype)
+
+
+def as_mesh(where: str, source) -> Mesh:
+    """A mesh source (a `voxax.Mesh`, a `trimesh.Trimesh`, a `(vertices, faces)` pair) as a
+    3D triangle `Mesh`, through `_validate`: real finite vertices (no booleans or complex
+    numbers), integer faces in range."""
+    v, f = _validate.mesh_object_arrays(where, source) if _validate.is_mesh_object(source) else source
+    v, f = np.asarray(v), np.asarray(f)
+    if v.dtype.kind == "b":
+        raise TypeError(f"{where}: `vertices` must be float32 or float64, got bool")
+    v, f = _validate.mesh(where, v, f, dim=3, integer_vertices=True, allow_empty=True,
+                          context="a triangle mesh in 3D")
+    return source if isinstance(source, Mesh) else Mesh(v, f)
+
+
+def checked_threads(where: str, threads):
+    """`threads` checked by the one threads rule (`voxax._kernels.threads`), the message
+    naming `where`; returns it unchanged (None stays None)."""
+    from .._kernels import _ctypes
+
+    try:
+        _ctypes.threads(threads)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{where}: {err}") from None
+    return threads
+
+
+def checked_key(where: str, key):
+    """`key` checked: an int (>= 0) or a JAX PRNG key; returns it unchanged."""
+    if not isinstance(key, (int, np.integer)) and not hasattr(key, "dtype"):
+        raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(key).__name__}")
+    _validate.numpy_rng(where, key)
+    return key
+
+
+def checked(where: str, frag, *, allow_empty: bool = False) -> Fragments:
+    """`frag` checked as [`Fragments`][voxax.cvt.Fragments] (a hand-made one too): every
+    field an array of one row per point (points and normals `(P, 3)` finite, weights finite
+    and `>= 0`), the grid a 3D [`Grid`][voxax.Grid]; returns it with C-contiguous arrays
+    of the documented dtypes."""
+    if not isinstance(frag, Fragments):
+        raise TypeError(f"{where}: `frag` must be voxax.cvt.Fragments (from voxax.cvt.fragments), got {type(frag).__name__}")
+    if not isinstance(frag.grid, Grid) or frag.grid.dim != 3:
+        raise TypeError(f"{where}: `frag.grid` must be a 3D voxax.Grid, got {frag.grid!r:.80}")
+    points = real_array(where, "frag.points", frag.points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{where}: `frag.points` must have shape (P, 3), got {points.shape}")
+    p = len(points)
+    out = {"points": points}
+    for name, dtype, shape in (("normals", np.float64, (p, 3)), ("weights", np.float64, (p,)),
+                               ("axis", np.int8, (p,)), ("line", np.int64, (p,)), ("sign", np.int8, (p,))):
+        value = np.asarray(getattr(frag, name))
+        if value.shape != shape:
+            raise ValueError(f"{where}: `frag.{name}` must have shape {shape} (one row per point), got {value.shape}")
+        if dtype != np.float64 and value.dtype.kind not in "iu":
+            raise TypeError(f"{where}: `frag.{name}` must be an integer array, got {value.dtype}")
+        out[name] = real_array(where, f"frag.{name}", value, dtype)
+    for name in ("points", "normals", "weights"):
+        if not np.all(np.isfinite(out[name])):
+            raise ValueError(f"{where}: `frag.{name}` must be finite (it contains NaN or Inf)")
+    if p and float(np.max(np.abs(points))) > MAX_ABS_COORDINATE:
+        raise ValueError(f"{where}: `frag.points` coordinates must have magnitude <= 1e75")
+    if np.any(out["weights"] < 0):
+        raise ValueError(f"{where}: `frag.weights` must be >= 0")
+    if p == 0 and not allow_empty:
+        raise ValueError(f"{where}: `frag` must hold fragments: there are none (empty surface)")
+    return Fragments(grid=frag.grid, **out)
+
+
 @dataclasses.dataclass(frozen=True)
 class CSG:
     """A boolean combination of two solids, evaluated on the rays of the grid (dexels).
@@ -91,7 +169,7 @@ class CSG:
 
     def __post_init__(self):
         if self.op not in _OPS:
-            raise ValueError(f"CSG: op must be one of {_OPS}, got {self.op!r}")
+            raise ValueError(f"voxax.cvt.CSG: `op` must be one of {_OPS}, got {self.op!r}")
 
 
 def _weights(normals: np.ndarray, grid: Grid) -> np.ndarray:
@@ -147,7 +225,7 @@ def _mesh_fragments(mesh: Mesh, grid: Grid, threads) -> Fragments:
     v = np.asarray(mesh.vertices, np.float64)
     f = np.asarray(mesh.faces, np.int64)
     if len(f) == 0:
-        raise ValueError("cvt.fragments: the mesh has no faces")
+        raise ValueError("voxax.cvt.fragments: `source` must have faces: the mesh has none")
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     norm = np.linalg.norm(fn, axis=1, keepdims=True)
     fn = fn / np.where(norm > 0, norm, 1.0)
@@ -205,7 +283,13 @@ def _dynamic(fn):
 def _values_impl(fn, p):
     import jax.numpy as jnp
 
-    return jnp.asarray(fn(p), jnp.float64).reshape(p.shape[0])
+    out = jnp.asarray(fn(p))
+    if not (jnp.issubdtype(out.dtype, jnp.floating) or jnp.issubdtype(out.dtype, jnp.integer)):
+        raise TypeError(f"voxax.cvt.fragments: the field `source` must return real values, got {out.dtype}")
+    if out.size != p.shape[0]:
+        raise ValueError(f"voxax.cvt.fragments: the field `source` must return one value per point, got shape "
+                         f"{out.shape} for {p.shape[0]} points")
+    return out.astype(jnp.float64).reshape(p.shape[0])
 
 
 class _Centers:
@@ -359,7 +443,7 @@ def _unit(g: np.ndarray, what: str) -> np.ndarray:
     n = np.linalg.norm(g, axis=1, keepdims=True)
     bad = ~(n[:, 0] > 0) | ~np.isfinite(n[:, 0])
     if np.any(bad):
-        raise ValueError(f"cvt.fragments: the {what} gradient vanishes or is not finite at {int(bad.sum())} crossings")
+        raise ValueError(f"voxax.cvt.fragments: the {what} gradient vanishes or is not finite at {int(bad.sum())} crossings")
     return g / n
 
 
@@ -387,11 +471,11 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | N
     import jax
 
     if not jax.config.jax_enable_x64:
-        raise ValueError("cvt.fragments: fields are sampled in float64; enable jax_enable_x64")
+        raise ValueError("voxax.cvt.fragments: fields are sampled in float64; enable jax_enable_x64")
     centers = _Centers(grid)
     values = _field_values(fn, centers)
     if not np.all(np.isfinite(values)):
-        raise ValueError("cvt.fragments: the field is not finite at some cell centres")
+        raise ValueError("voxax.cvt.fragments: the field `source` must be finite: it is not at some cell centres")
     if starts is not None:
         starts.append(_starts_from_values(values < 0))
     shape = grid.shape
@@ -438,11 +522,17 @@ def _field_fragments(fn: Callable, grid: Grid, iterations: int, starts: list | N
 
 
 def _grid_fragments(values, level: float, inside: str, grid: Grid, starts: list | None = None) -> Fragments:
-    w = np.asarray(values, np.float64)
+    where = "voxax.cvt.fragments"
+    w = np.asarray(values)
+    if w.dtype.kind not in "fiub":  # booleans too: an occupancy grid (level 0.5, inside="above")
+        raise TypeError(f"{where}: the grid values of `source` must be real numbers, got {w.dtype}")
+    w = w.astype(np.float64)
     if w.shape != tuple(grid.shape):
-        raise ValueError(f"cvt.fragments: grid values have shape {w.shape}, the grid {grid.shape}")
+        raise ValueError(f"{where}: the grid values of `source` must have the grid's shape {grid.shape}, got {w.shape}")
     if not np.all(np.isfinite(w)):
-        raise ValueError("cvt.fragments: grid values contain NaN or Inf")
+        raise ValueError(f"{where}: the grid values of `source` must be finite (they contain NaN or Inf)")
+    if not np.isfinite(level):
+        raise ValueError(f"{where}: the level of `source` must be finite, got {level}")
     s = (w - level) if inside == "below" else (level - w)  # negative inside
     if starts is not None:
         starts.append(_starts_from_values(s < 0))
@@ -530,7 +620,7 @@ def union_all(parts: list) -> Fragments:
     """The union of several closed solids' fragments on the same grid (dexel merge)."""
     parts = [p for p in parts if p.size]
     if not parts:
-        raise ValueError("cvt: the union is empty")
+        raise ValueError("voxax.cvt: the union is empty")
     grid = parts[0].grid
     pts = np.concatenate([p.points for p in parts])
     nrm = np.concatenate([p.normals for p in parts])
@@ -587,9 +677,9 @@ def ball_fragments(centers, radii, grid: Grid) -> Fragments:
 
 def _check_grid(grid) -> Grid:
     if not isinstance(grid, Grid):
-        raise TypeError(f"cvt.fragments: grid must be a voxax.Grid, got {type(grid).__name__}")
+        raise TypeError(f"voxax.cvt.fragments: `grid` must be a voxax.Grid, got {type(grid).__name__}")
     if grid.dim != 3:
-        raise ValueError(f"cvt.fragments: the grid must be 3D, got dimension {grid.dim}")
+        raise ValueError(f"voxax.cvt.fragments: `grid` must be 3D, got dimension {grid.dim}")
     return grid
 
 
@@ -630,11 +720,17 @@ def fragments(
     True
     """
     if inside not in ("below", "above"):
-        raise ValueError(f'cvt.fragments: inside must be "below" or "above", got {inside!r}')
-    iterations = int(iterations)
-    if iterations < 1:
-        raise ValueError(f"cvt.fragments: iterations must be >= 1, got {iterations}")
-    frag, _ = _sample(source, grid, inside, iterations, threads)
+        raise ValueError(f'voxax.cvt.fragments: `inside` must be "below" or "above", got {inside!r}')
+    iterations = _validate.positive_int("voxax.cvt.fragments", "iterations", iterations)
+    checked_threads("voxax.cvt.fragments", threads)
+    return sample(source, grid, inside=inside, iterations=iterations, threads=threads)[0]
+
+
+def sample(source, grid=None, *, inside: str = "below", iterations: int = 30, threads=None) -> tuple:
+    """[`fragments`][voxax.cvt.fragments] with, per axis, which lines start inside the solid
+    (`(n_u * n_v,)` bool): a line that starts inside without crossing the surface shows
+    that the solid reaches beyond the grid. **Returns:** `(Fragments, starts)`."""
+    frag, starts = _sample(source, grid, inside, iterations, threads)
     if frag.size == 0 and not isinstance(source, Fragments):
         # checked here, for the whole: the operands of a CSG node may have no surface on
         # the grid (a solid that covers it, or one between its lines)
@@ -646,8 +742,8 @@ def fragments(
             what = "the field has no zero crossing on the grid (empty surface)"
         else:
             what = "no grid line crosses the mesh (empty surface on this grid)"
-        raise ValueError(f"cvt.fragments: {what}")
-    return frag
+        raise ValueError(f"voxax.cvt.fragments: {what}")
+    return frag, starts
 
 
 def _sample(source, grid, inside: str, iterations: int, threads) -> tuple:
@@ -659,23 +755,23 @@ def _sample(source, grid, inside: str, iterations: int, threads) -> tuple:
         fb, sb = _sample(source.b, grid, inside, iterations, threads)
         return _csg(source.op, fa, fb, sa, sb)
     if isinstance(source, Fragments):
+        source = checked("voxax.cvt.fragments", source, allow_empty=True)
         return source, _starts_from_signs(source)
     starts: list = []
     if isinstance(source, tuple) and len(source) == 2 and np.ndim(source[1]) == 0:
         grid = _check_grid(grid)
-        return _grid_fragments(source[0], float(source[1]), inside, grid, starts), starts[0]
+        level = real_array("voxax.cvt.fragments", "source", source[1])
+        return _grid_fragments(source[0], float(level.reshape(-1)[0]), inside, grid, starts), starts[0]
     if callable(source) and not isinstance(source, Mesh):
         grid = _check_grid(grid)
         return _field_fragments(source, grid, iterations, starts), starts[0]
-    if isinstance(source, Mesh) or isinstance(source, tuple):
-        mesh = source if isinstance(source, Mesh) else Mesh(*source)
-        if mesh.vertices.shape[1:] != (3,):
-            raise ValueError("cvt.fragments: the mesh must be a 3D triangle mesh")
+    if _validate.is_mesh_object(source) or _validate.is_mesh_pair(source):
+        mesh = as_mesh("voxax.cvt.fragments", source)
         if grid is None:
             grid = Grid.around(mesh.vertices, 128)
         frag = _mesh_fragments(mesh, _check_grid(grid), threads)
         return frag, _starts_from_signs(frag)
     raise TypeError(
-        "cvt.fragments: source must be a Mesh, a callable field, a (values, level) tuple or a CSG, "
+        "voxax.cvt.fragments: `source` must be a Mesh, a callable field, a (values, level) tuple or a CSG, "
         f"got {type(source).__name__}"
     )

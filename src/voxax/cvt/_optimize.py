@@ -9,19 +9,18 @@ energy is `F(S) = sum_j w_j |x_j - s_a(j)|^2` and, the assignment being piecewis
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 from typing import Any
 
 import numpy as np
 
-from .. import _kernels
-from ._fragments import Fragments
+from .. import _validate
+from .._kernels import cvt as _kernels
+from ._fragments import Fragments, checked, checked_key
 
 __all__ = [
     "CVTResult",
     "assign",
-    "assign_moments_host",
     "energy",
     "energy_gradient",
     "init_seeds",
@@ -30,22 +29,22 @@ __all__ = [
 ]
 
 
-def _frag(frag) -> Fragments:
-    if not isinstance(frag, Fragments):
-        raise TypeError(f"cvt: expected Fragments (from voxax.cvt.fragments), got {type(frag).__name__}")
-    if frag.size == 0:
-        raise ValueError("cvt: there are no fragments (empty surface)")
-    return frag
+def _frag(frag, where: str) -> Fragments:
+    return checked(where, frag)
 
 
 def _seeds(seeds, where: str):
     import jax.numpy as jnp
 
     s = jnp.asarray(seeds)
+    if not (jnp.issubdtype(s.dtype, jnp.floating) or jnp.issubdtype(s.dtype, jnp.integer)):
+        raise TypeError(f"{where}: `seeds` must be a real (float or integer) array, got {s.dtype}")
     if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 1:
-        raise ValueError(f"{where}: seeds must have shape (n, 3) with n >= 1, got {s.shape}")
+        raise ValueError(f"{where}: `seeds` must have shape (n, 3) with n >= 1, got {s.shape}")
     if not jnp.issubdtype(s.dtype, jnp.floating):
         s = s.astype(jnp.float64)
+    if _validate.is_concrete(s) and not bool(jnp.all(jnp.isfinite(s))):  # under jit: the kernels check
+        raise ValueError(f"{where}: `seeds` must be finite (they contain NaN or Inf)")
     return s
 
 
@@ -61,8 +60,9 @@ def assign(seeds, frag: Fragments):
     """
     from .._spatial import nearest_neighbors
 
-    frag = _frag(frag)
-    _, idx = nearest_neighbors(seeds, frag.points, k=1)
+    frag = _frag(frag, "voxax.cvt.assign")
+    s = _seeds(seeds, "voxax.cvt.assign")
+    _, idx = nearest_neighbors(s, frag.points, k=1)
     return idx[:, 0]
 
 
@@ -78,8 +78,8 @@ def energy(seeds, frag: Fragments, *, weighted: bool = True):
     import jax
     import jax.numpy as jnp
 
-    frag = _frag(frag)
-    s = _seeds(seeds, "cvt.energy")
+    frag = _frag(frag, "voxax.cvt.energy")
+    s = _seeds(seeds, "voxax.cvt.energy")
     idx = assign(jax.lax.stop_gradient(s), frag)
     x = jnp.asarray(frag.points)
     w = jnp.asarray(_w(frag, weighted))
@@ -87,11 +87,11 @@ def energy(seeds, frag: Fragments, *, weighted: bool = True):
     return jnp.sum(w * jnp.sum(d * d, axis=-1))
 
 
-def _moments(seeds, frag: Fragments, weighted: bool):
+def _moments(seeds, frag: Fragments, weighted: bool, where: str):
     import jax
     import jax.numpy as jnp
 
-    s = _seeds(seeds, "cvt")
+    s = _seeds(seeds, where)
     idx = assign(jax.lax.stop_gradient(s), frag)
     w = jnp.asarray(_w(frag, weighted))
     x = jnp.asarray(frag.points)
@@ -103,8 +103,8 @@ def _moments(seeds, frag: Fragments, weighted: bool):
 
 def energy_gradient(seeds, frag: Fragments, *, weighted: bool = True):
     """Eq. 2 in closed form: `2 (W_i s_i - sum_{j in region i} w_j x_j)`, `(n, 3)`."""
-    frag = _frag(frag)
-    s, _, mass, first = _moments(seeds, frag, weighted)
+    frag = _frag(frag, "voxax.cvt.energy_gradient")
+    s, _, mass, first = _moments(seeds, frag, weighted, "voxax.cvt.energy_gradient")
     return 2.0 * (mass[:, None] * s - first)
 
 
@@ -114,8 +114,8 @@ def lloyd_step(seeds, frag: Fragments, *, weighted: bool = True):
     import jax
     import jax.numpy as jnp
 
-    frag = _frag(frag)
-    s, idx, mass, first = _moments(seeds, frag, weighted)
+    frag = _frag(frag, "voxax.cvt.lloyd_step")
+    s, idx, mass, first = _moments(seeds, frag, weighted, "voxax.cvt.lloyd_step")
     new = jnp.where(mass[:, None] > 0, first / jnp.where(mass > 0, mass, 1.0)[:, None], s)
     count = jax.ops.segment_sum(jnp.ones(idx.shape, jnp.int32), idx, num_segments=s.shape[0])
     return new, count
@@ -128,58 +128,8 @@ def _assign_moments(s, x, w, hint):
     (n, 4) [weight, weighted first moment], count (n,) int32 of weight > 0, energy ())`."""
     import jax
 
-    from .. import _kernels
-
-    n, m = s.shape[0], x.shape[0]
-    out = (
-        jax.ShapeDtypeStruct((m,), np.int32),
-        jax.ShapeDtypeStruct((n, 4), np.float64),
-        jax.ShapeDtypeStruct((n,), np.int32),
-        jax.ShapeDtypeStruct((1,), np.float64),
-    )
-    idx, mom, count, e = jax.ffi.ffi_call(_kernels.CVT_ASSIGN, out, vmap_method="sequential")(
-        jax.lax.stop_gradient(s), x, w, hint
-    )
+    idx, mom, count, e = _kernels.assign(jax.lax.stop_gradient(s), x, w, hint)
     return idx, mom, count, e[0]
-
-
-def assign_moments_host(seeds, points, weights, hint=None, *, threads=None):
-    """Eager twin of the optimiser's assignment kernel (for checks): the nearest seed of
-    every point (ties: the smaller index), the regions' weights and weighted first
-    moments, their counts of positive-weight points, and the energy, with `threads`
-    threads. **Returns:** `(idx (m,) int32, moments (n, 4), count (n,) int32, energy)`."""
-    s = np.ascontiguousarray(seeds, np.float64).reshape(-1, 3)
-    x = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    w = np.ascontiguousarray(weights, np.float64).reshape(-1)
-    m = len(x)
-    if len(w) != m:
-        raise ValueError(f"cvt: {m} points but {len(w)} weights")
-    h = np.full(m, -1, np.int32) if hint is None else np.ascontiguousarray(hint, np.int32).reshape(-1)
-    if len(h) != m:
-        raise ValueError(f"cvt: {m} points but {len(h)} hints")
-    lib = _kernels.declare(_HOST_SIGNATURES)
-    idx = np.empty(m, np.int32)
-    mom = np.empty((len(s), 4))
-    count = np.empty(len(s), np.int32)
-    energy = np.zeros(1)
-    err = _kernels.error_buffer()
-    status = lib.voxax_cvt_assign_host(
-        _kernels.pointer(s, _kernels.D), len(s), _kernels.pointer(x, _kernels.D), _kernels.pointer(w, _kernels.D), m,
-        _kernels.pointer(h, _kernels.I32), _kernels.threads(threads), _kernels.pointer(idx, _kernels.I32),
-        _kernels.pointer(mom, _kernels.D), _kernels.pointer(count, _kernels.I32), _kernels.pointer(energy, _kernels.D),
-        err, _kernels.ERRLEN,
-    )  # fmt: skip
-    _kernels.check(status, err)
-    return idx, mom, count, float(energy[0])
-
-
-_HOST_SIGNATURES = {
-    "voxax_cvt_assign_host": (
-        ctypes.c_int,
-        [_kernels.D, ctypes.c_int64, _kernels.D, _kernels.D, ctypes.c_int64, _kernels.I32, ctypes.c_int32, _kernels.I32, _kernels.D,
-         _kernels.I32, _kernels.D, ctypes.c_char_p, ctypes.c_int64],
-    )
-}  # fmt: skip
 
 
 def _lloyd_arrays(s, x, w, hint):
@@ -260,7 +210,7 @@ def _lbfgs_step(solver, y, state, args):
     return y_new, state, state.f_info.f, state.aux, done, result
 
 
-def _lbfgs(y, args, steps: int, rtol: float):
+def _lbfgs(y, args, steps: int, rtol: float, step_done=None):
     """optimistix L-BFGS driven step by step from Python (one energy evaluation per step), with its
     init and step compiled once per problem shape (the solver and the energy are static,
     the seeds and fragments arguments)."""
@@ -282,6 +232,8 @@ def _lbfgs(y, args, steps: int, rtol: float):
             break
         hist.append(e)
         y = y_new
+        if step_done is not None:
+            step_done(e)
         if bool(done):
             reason = "converged" if result == optx.RESULTS.successful else f"failed: {optx.RESULTS[result]}"
             break
@@ -291,37 +243,40 @@ def _lbfgs(y, args, steps: int, rtol: float):
 def init_seeds(frag: Fragments, n: int, key=0) -> np.ndarray:
     """`n` seeds drawn at distinct fragments with probability proportional to their weight
     (so uniformly by area). `key`: an int seed or a `jax.random` key. **Returns:** `(n, 3)`."""
-    frag = _frag(frag)
-    n = int(n)
-    if n < 1:
-        raise ValueError(f"cvt.init_seeds: n must be >= 1, got {n}")
+    where = "voxax.cvt.init_seeds"
+    frag = _frag(frag, where)
+    n = _validate.positive_int(where, "n", n)
     if n > frag.size:
-        raise ValueError(f"cvt.init_seeds: {n} seeds but only {frag.size} fragments; use a finer grid or fewer seeds")
-    rng = np.random.default_rng(_int_key(key))
-    p = frag.weights / frag.weights.sum()
-    pick = rng.choice(frag.size, size=n, replace=False, p=p)
+        raise ValueError(f"{where}: `n` must be at most the number of fragments: {n} seeds but only {frag.size} "
+                         "fragments; use a finer grid or fewer seeds")
+    rng = _validate.numpy_rng(where, checked_key(where, key))
+    total = frag.weights.sum()
+    if not total > 0:
+        raise ValueError(f"{where}: `frag.weights` must not all be zero")
+    pick = rng.choice(frag.size, size=n, replace=False, p=frag.weights / total)
     return frag.points[np.sort(pick)].copy()
-
-
-def _int_key(key) -> int:
-    if isinstance(key, (int, np.integer)):
-        return int(key)
-    k = np.asarray(key)
-    if k.dtype.kind == "V" or str(k.dtype).startswith("key"):
-        import jax
-
-        k = np.asarray(jax.random.key_data(key))
-    return int(np.sum(k.astype(np.uint64)) % (2**63))
 
 
 def respawn(seeds, frag: Fragments, count) -> tuple[np.ndarray, int]:
     """Moves the seeds with empty regions onto the fragments farthest from their own seed
     (largest first, ties by index): deterministic. **Returns:** `(seeds, moved)`."""
-    s = np.array(seeds, np.float64)
+    frag = _frag(frag, "voxax.cvt.respawn")
+    s = np.array(_seeds(seeds, "voxax.cvt.respawn"), np.float64)
+    count = np.asarray(count)
+    if count.shape != (len(s),):
+        raise ValueError(f"voxax.cvt.respawn: `count` must have shape ({len(s)},) (one per seed), got {count.shape}")
+    return _respawn(s, frag, count)
+
+
+def _respawn(s: np.ndarray, frag: Fragments, count) -> tuple[np.ndarray, int]:
+    from .._spatial import nearest_neighbors
+
     empty = np.nonzero(np.asarray(count) == 0)[0]
     if len(empty) == 0:
         return s, 0
-    idx = np.asarray(assign(s, frag))
+    s = s.copy()
+    _, idx = nearest_neighbors(s, frag.points, k=1)
+    idx = np.asarray(idx[:, 0])
     d = np.sum((frag.points - s[idx]) ** 2, axis=1)
     far = np.lexsort((np.arange(len(d)), -d))[: len(empty)]
     s[empty[: len(far)]] = frag.points[far]
@@ -368,17 +323,28 @@ def optimize(
     **Returns:** [`CVTResult`][voxax.cvt.CVTResult].
     """
     import jax
+
+    where = "voxax.cvt.optimize"
+    frag = _frag(frag, where)
+    if not jax.config.jax_enable_x64:
+        raise ValueError(f"{where} computes in float64: enable jax_enable_x64")
+    s = np.array(_seeds(seeds, where), np.float64)
+    if len(s) > frag.size:
+        raise ValueError(f"{where}: `seeds` must be at most as many as the fragments: {len(s)} seeds but only "
+                         f"{frag.size} fragments")
+    steps = _validate.positive_int(where, "steps", steps, minimum=0)
+    tol = _validate.positive_float(where, "tol", tol, allow_zero=True)
+    if method not in ("lloyd", "lbfgs"):
+        raise ValueError(f'{where}: `method` must be "lloyd" or "lbfgs", got {method!r}')
+    return run(frag, s, method, steps, weighted, tol)
+
+
+def run(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool, tol: float = 0.0,
+        step_done=None) -> CVTResult:
+    """[`optimize`][voxax.cvt.optimize] on checked arguments; `step_done(energy)` is called
+    after every step (a progress bar's hook)."""
     import jax.numpy as jnp
 
-    frag = _frag(frag)
-    if not jax.config.jax_enable_x64:
-        raise ValueError("cvt.optimize computes in float64: enable jax_enable_x64")
-    s = np.array(_seeds(seeds, "cvt.optimize"), np.float64)
-    if len(s) > frag.size:
-        raise ValueError(f"cvt.optimize: {len(s)} seeds but only {frag.size} fragments")
-    steps = int(steps)
-    if steps < 0:
-        raise ValueError(f"cvt.optimize: steps must be >= 0, got {steps}")
     if method == "lloyd":
         step = _jitted("lloyd", _lloyd_arrays)
         en = _jitted("energy", _energy_arrays)
@@ -394,11 +360,13 @@ def optimize(
             if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
                 hist.pop()
                 break
-            new, m = respawn(np.asarray(new), frag, count)
+            new, m = _respawn(np.array(new, np.float64), frag, count)
             moved += m
             fixed = m == 0 and np.array_equal(new, s)
             s = new
             taken += 1
+            if step_done is not None:
+                step_done(hist[-1])
             if fixed:  # an exact fixed point: every further step would return these seeds
                 break
         hist.append(float(en(jnp.asarray(s), (x, w, one, hint))[0]))
@@ -409,10 +377,10 @@ def optimize(
         scale = float(args[2])
         e0, hint = _jitted("energy", _energy_arrays)(jnp.asarray(s), args)
         e0 = float(e0) / scale
-        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12))
+        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12), step_done)
         y = np.asarray(y, np.float64)
         _, count, _, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
-        y, moved = respawn(y, frag, count)
+        y, moved = _respawn(y, frag, count)
         hist = np.concatenate([[e0], np.asarray(hist) / scale])
         return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason)
-    raise ValueError(f'cvt.optimize: method must be "lloyd" or "lbfgs", got {method!r}')
+    raise AssertionError(method)  # checked above

@@ -2,38 +2,16 @@
 
 from __future__ import annotations
 
-import ctypes
 from typing import NamedTuple
 
 import numpy as np
 
-from .. import _kernels
-from ._fragments import Fragments
+from .. import _validate
+from .._constants import MAX_ABS_COORDINATE
+from .._kernels import cvt as _kernels
+from ._fragments import Fragments, checked, checked_threads, real_array
 
 __all__ = ["RdtReport", "rdt"]
-
-_SIGNATURES = {
-    "voxax_rdt_run": (
-        ctypes.c_int,
-        [
-            _kernels.D,
-            ctypes.c_int64,
-            _kernels.D,
-            _kernels.D,
-            ctypes.c_int64,
-            ctypes.c_double,
-            ctypes.c_int32,
-            ctypes.c_int32,
-            ctypes.POINTER(_kernels.VP),
-            ctypes.c_char_p,
-            ctypes.c_int64,
-        ],
-    ),
-    "voxax_rdt_size": (ctypes.c_int64, [_kernels.VP]),
-    "voxax_rdt_copy": (None, [_kernels.VP, _kernels.I32, _kernels.I64]),
-    "voxax_rdt_free": (None, [_kernels.VP]),
-}
-
 
 class RdtReport(NamedTuple):
     """Counts from [`rdt`][voxax.cvt.rdt].
@@ -82,37 +60,20 @@ def rdt(frag: Fragments, seeds, *, tau: float | None = None, max_hole: int = 8, 
 
     **Returns:** `(faces (F, 3) int32, RdtReport)`; faces index `seeds`.
     """
-    if not isinstance(frag, Fragments):
-        raise TypeError(f"cvt.rdt: expected Fragments, got {type(frag).__name__}")
-    s = np.ascontiguousarray(np.asarray(seeds, np.float64))
+    where = "voxax.cvt.rdt"
+    frag = checked(where, frag)
+    s = real_array(where, "seeds", seeds)
     if s.ndim != 2 or s.shape[1] != 3:
-        raise ValueError(f"cvt.rdt: seeds must have shape (n, 3), got {s.shape}")
-    if tau is None:
-        tau = 2.0 * np.sqrt(3.0) * frag.spacing
-    x = np.ascontiguousarray(frag.points, np.float64)
-    nrm = np.ascontiguousarray(frag.normals, np.float64)
-    lib = _kernels.declare(_SIGNATURES)
-    handle = _kernels.VP()
-    err = _kernels.error_buffer()
-    status = lib.voxax_rdt_run(
-        _kernels.pointer(s, _kernels.D),
-        len(s),
-        _kernels.pointer(x, _kernels.D),
-        _kernels.pointer(nrm, _kernels.D),
-        len(x),
-        float(tau),
-        int(max_hole),
-        _kernels.threads(threads),
-        ctypes.byref(handle),
-        err,
-        _kernels.ERRLEN,
-    )
-    _kernels.check(status, err)
-    try:
-        nf = int(lib.voxax_rdt_size(handle))
-        faces = np.empty((nf, 3), np.int32)
-        stats = np.zeros(6, np.int64)
-        lib.voxax_rdt_copy(handle, _kernels.pointer(faces, _kernels.I32), _kernels.pointer(stats, _kernels.I64))
-    finally:
-        lib.voxax_rdt_free(handle)
+        raise ValueError(f"{where}: `seeds` must have shape (n, 3), got {s.shape}")
+    if not 3 <= len(s) < 1 << 21:
+        raise ValueError(f"{where}: `seeds` must hold at least 3 seeds and fewer than 2^21, got {len(s)}")
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"{where}: `seeds` must be finite (they contain NaN or Inf)")
+    if np.max(np.abs(s)) > MAX_ABS_COORDINATE:
+        raise ValueError(f"{where}: `seeds` coordinates must have magnitude <= 1e75")
+    tau = 2.0 * np.sqrt(3.0) * frag.spacing if tau is None else _validate.positive_float(where, "tau", tau, allow_zero=True)
+    max_hole = _validate.positive_int(where, "max_hole", max_hole, minimum=3)
+    if max_hole > 64:
+        raise ValueError(f"{where}: `max_hole` must lie in [3, 64], got {max_hole}")
+    faces, stats = _kernels.rdt(s, frag.points, frag.normals, tau, max_hole, checked_threads(where, threads))
     return faces, RdtReport(*(int(v) for v in stats))
