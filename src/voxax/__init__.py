@@ -51,6 +51,7 @@ from ._spatial import (
 )
 from ._kernels.export import export_safety_checks, ffi_targets
 from ._voxelize import slab_grids, voxelize_sharded, voxelize_slab
+from ._voxelize import SparseGrid, sparse_capacity, voxelize_sparse
 from ._spatial import Intersections, intersections
 
 __version__ = "0.1.0"
@@ -127,6 +128,9 @@ __all__ = [
     "least_squares",
     "voxelize_sharded",
     "voxelize_slab",
+    "voxelize_sparse",
+    "SparseGrid",
+    "sparse_capacity",
     "slab_grids",
     "LeastSquaresResult",
     "ffi_targets",
