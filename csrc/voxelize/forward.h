@@ -304,8 +304,8 @@ void sweep_tile_columns(const GridSpec& g, const Poly<3>& P, int64_t i0, int64_t
 // c = (i - ia) * wy + (j - ja). Triangles come in bin order and each one's pieces in
 // sweep order, the same for every tiling of the same grid's x axis and thread count.
 template <typename T, typename ColumnOf>
-void tile_pieces_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                    const int32_t* F, const Bins& bins, ColumnOf&& column_of) {
+void tile_pieces_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V, const int32_t* F,
+                    const Bins& bins, ColumnOf&& column_of) {
   const int64_t ti = tile / tl.nty, tj = tile % tl.nty;
   const int64_t ia = ti * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ja = tj * tl.ty, jb = std::min(g.n[1], ja + tl.ty);
