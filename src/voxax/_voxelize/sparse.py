@@ -314,13 +314,15 @@ def _lower_bound(keys, n, q):
     hi = jnp.full(q.shape[0], n, jnp.int32)
     if size == 0:
         return lo
-    for _ in range(max(1, int(size).bit_length())):
+
+    def step(_, lohi):
+        lo, hi = lohi
         active = lo < hi
         mid = (lo + hi) // 2
         less = _lex_less(keys[jnp.minimum(mid, size - 1)], q)
-        lo = jnp.where(active & less, mid + 1, lo)
-        hi = jnp.where(active & ~less, mid, hi)
-    return lo
+        return jnp.where(active & less, mid + 1, lo), jnp.where(active & ~less, mid, hi)
+
+    return jax.lax.fori_loop(0, max(1, int(size).bit_length()), step, (lo, hi))[0]
 
 
 # -- the public function --------------------------------------------------------------------
