@@ -1653,7 +1653,7 @@ def run_sparse(rng, count):
     voxelize bit for bit, finite gradients and tangents; then hostile direct calls of the
     three kernels (corrupt boundary cells and counts, wrong shapes and dtypes, overflowing
     capacities), each rejected with a message."""
-    from voxax import _sparse
+    from voxax._voxelize import sparse as _sparse
 
     families = list(FAMILIES)
     grids = list(GRIDS_3D.items())
@@ -1696,13 +1696,13 @@ def run_sparse(rng, count):
     C, R = sg.capacity
     ct = jnp.ones((1, C))
     tc = jnp.zeros((1, f.shape[0], 3, 3))
-    attrs = _ffi.grid_attributes(grid)
+    attrs = _kernels.grid_attributes(grid)
 
     def raw_forward(shapes, **over):
         a = dict(attrs, strict=np.int64(1))
         a.update(over)
         out = tuple(jax.ShapeDtypeStruct(s, d) for s, d in shapes)
-        return jax.ffi.ffi_call(_ffi.SPARSE_FORWARD, out)(vb, fb, **a)
+        return jax.ffi.ffi_call(_kernels.SPARSE_FORWARD, out)(vb, fb, **a)
 
     good = [((1, C, 3), jnp.int32), ((1, C), jnp.float64), ((1, R, 4), jnp.int32), ((1, R), jnp.float64),
             ((1, 2), jnp.int32)]

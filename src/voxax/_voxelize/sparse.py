@@ -186,7 +186,7 @@ class SparseGrid:
         (`kwargs` go to `voxax.isosurface`, e.g. `close=True` to close it at the window's
         sides). Returns an `IsoMesh` in world coordinates.
         """
-        from ._isosurface import isosurface
+        from .._isosurface import isosurface
 
         self._unbatched("isosurface")
         start = (0, 0, 0) if start is None else start

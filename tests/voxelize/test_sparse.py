@@ -327,7 +327,7 @@ np.savez({path!r}, cells=sg.cells, values=sg.values, runs=sg.runs, run_values=sg
 def test_deterministic_across_thread_counts(tmp_path):
     """Bit-identical forward, gradient and tangent with one thread (NPROC=1) and with this
     process's pool (see test_gradients.test_deterministic_across_thread_counts)."""
-    tests = str(Path(__file__).resolve().parent)
+    tests = str(Path(__file__).resolve().parents[1])  # where conftest.py is
     root = str(Path(voxax.__file__).resolve().parent.parent)
     procs = {}
     for nproc in ("1", "3"):
