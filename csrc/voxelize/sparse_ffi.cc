@@ -77,6 +77,12 @@ ffi::Error check_sparse_mesh(const ffi::AnyBuffer& vertices, const ffi::AnyBuffe
   if (err.failure()) return err;
   if (pb->dim != 3)
     return ffi::Error::InvalidArgument("voxax: the sparse voxelization takes 3D meshes only");
+  // Cells, run ends and the padding (n itself) are int32.
+  for (int a = 0; a < 3; ++a)
+    if (pb->grid.n[a] > INT32_MAX)
+      return ffi::Error::InvalidArgument(
+          "voxax: the sparse voxelization takes at most 2^31 - 1 cells per axis, got " +
+          std::to_string(pb->grid.n[a]));
   return ffi::Error::Success();
 }
 

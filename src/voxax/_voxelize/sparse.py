@@ -352,9 +352,11 @@ def voxelize_sparse(vertices, faces=None, grid: Grid | None = None, *, capacity=
     - `grid`: a 3D `voxax.Grid`.
     - `capacity`: the rows to hold, an int (for both) or `(cells, runs)`. `None`: eagerly,
       exactly as many as needed (estimated by [`sparse_capacity`][voxax.sparse_capacity],
-      and run again with the exact counts when the estimate was short); under `jax.jit`
-      (traced vertices), `sparse_capacity(grid=grid)`. A result that does not fit raises
-      an error naming the counts it needs — never a truncated grid.
+      and run again with the exact counts when the estimate was short); with traced
+      vertices (under `jax.jit`, `jax.grad`, `jax.vmap`), `sparse_capacity(grid=grid)`.
+      A result that does not fit raises an error naming the counts it needs — never a
+      truncated grid. Under transformations, pass the capacity of an eager call
+      (`voxelize_sparse(V, F, grid).capacity`) or a margin above it.
 
     **Returns:**
 
@@ -405,9 +407,12 @@ def voxelize_sparse(vertices, faces=None, grid: Grid | None = None, *, capacity=
 def sparse_capacity(vertices=None, faces=None, grid: Grid | None = None) -> tuple[int, int]:
     """An estimate of the rows `voxelize_sparse` needs: `(cells, runs)`.
 
-    With a concrete mesh, from its faces' areas and perimeters in cell units (each face
-    of area `A` and unit normal `n` crosses about `A (|n_x| + |n_y| + |n_z|)` cells, plus
-    its perimeter), with a margin; it is an estimate, not a bound. With `grid` alone, a
+    With a concrete mesh, from its faces' areas and perimeters in cell units: a surface
+    of area `A` and unit normal `n` crosses about `A (|n_x| + |n_y| + |n_z|)` cells and
+    makes about `A |n_z|` runs (on `voxax.data.large(100_000)` at 512^3 to 4096^3 the
+    cells are this sum to 0.1%, the runs 0.83 to 0.93 of it); the estimate adds 15% and
+    10% of the perimeters. It is an estimate, not a bound: `voxelize_sparse` runs again
+    with the exact counts when it falls short. With `grid` alone, a
     size that fits a closed surface of moderate complexity spanning the grid:
     `4 (nx ny + ny nz + nz nx)` cells and `2 nx ny` runs. Both at most `grid.size`.
     """
@@ -435,13 +440,10 @@ def sparse_capacity(vertices=None, faces=None, grid: Grid | None = None) -> tupl
         N = 0.5 * np.cross(b - a, c - a)
         per = (np.abs(b - a) + np.abs(c - b) + np.abs(a - c)).sum(axis=-1)
         per_xy = (np.abs(b - a) + np.abs(c - b) + np.abs(a - c))[:, :2].sum(axis=-1)
-        cells = np.abs(N).sum() + per.sum() + 2 * len(Fi)
-        runs = np.abs(N[:, 2]).sum() + per_xy.sum() + len(Fi)
+        cells = 1.15 * np.abs(N).sum() + 0.1 * per.sum()
+        runs = 1.1 * np.abs(N[:, 2]).sum() + 0.1 * per_xy.sum()
         best = (max(best[0], cells), max(best[1], runs))
-    return (
-        _clip_capacity(int(1.25 * best[0]) + 1024, size),
-        _clip_capacity(int(1.25 * best[1]) + 1024, size),
-    )
+    return _clip_capacity(int(best[0]) + 256, size), _clip_capacity(int(best[1]) + 256, size)
 
 
 def _clip_capacity(n, size):
