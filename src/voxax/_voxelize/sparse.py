@@ -126,7 +126,7 @@ class SparseGrid:
     def _unbatched(self, where: str) -> None:
         if self.values.ndim != 1:
             raise ValueError(
-                f"SparseGrid.{where}: takes an unbatched grid, got batch axes {self.batch_shape}; "
+                f"voxax.SparseGrid.{where}: takes an unbatched grid, got batch axes {self.batch_shape}; "
                 "use jax.vmap or index the batch first (e.g. `jax.tree.map(lambda a: a[0], sg)`)"
             )
 
@@ -212,7 +212,7 @@ class SparseGrid:
         self._unbatched("values_at")
         q = jnp.asarray(indices)
         if q.shape[-1:] != (3,) or not jnp.issubdtype(q.dtype, jnp.integer):
-            raise TypeError(f"SparseGrid.values_at: `indices` must be (..., 3) int, got {q.shape} {q.dtype}")
+            raise TypeError(f"voxax.SparseGrid.values_at: `indices` must be (..., 3) int, got {q.shape} {q.dtype}")
         shape = q.shape[:-1]
         out = _values_at(self.cells, self.values, self.runs, self.run_values, self.counts, q.reshape(-1, 3))
         return out.reshape(shape)
@@ -236,7 +236,7 @@ class SparseGrid:
 
 def operator_axis(axis) -> int:
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or not -3 <= axis < 3:
-        raise ValueError(f"SparseGrid.slab: `axis` must be 0, 1 or 2, got {axis!r}")
+        raise ValueError(f"voxax.SparseGrid.slab: `axis` must be 0, 1 or 2, got {axis!r}")
     return int(axis) % 3
 
 
@@ -245,13 +245,13 @@ def _window_bounds(where, grid, start, stop):
         start = tuple(int(s) for s in start)
         stop = tuple(int(s) for s in stop)
     except (TypeError, ValueError):
-        raise TypeError(f"SparseGrid.{where}: `start` and `stop` must be 3 ints each") from None
+        raise TypeError(f"voxax.SparseGrid.{where}: `start` and `stop` must be 3 ints each") from None
     if len(start) != 3 or len(stop) != 3:
-        raise ValueError(f"SparseGrid.{where}: `start` and `stop` must be 3 ints each, got {start}, {stop}")
+        raise ValueError(f"voxax.SparseGrid.{where}: `start` and `stop` must be 3 ints each, got {start}, {stop}")
     for a in range(3):
         if not 0 <= start[a] < stop[a] <= grid.shape[a]:
             raise ValueError(
-                f"SparseGrid.{where}: the window [{start}, {stop}) must lie in the grid {grid.shape} "
+                f"voxax.SparseGrid.{where}: the window [{start}, {stop}) must lie in the grid {grid.shape} "
                 "with start < stop on every axis"
             )
     return start, stop
@@ -380,7 +380,7 @@ def voxelize_sparse(vertices, faces=None, grid: Grid | None = None, *, capacity=
     True
     ```
     """
-    where = "voxelize_sparse"
+    where = "voxax.voxelize_sparse"
     vertices, faces, (grid,) = _validate.unpack_mesh(where, vertices, faces, grid)
     vertices, faces = _check(where, vertices, faces, grid)
     v, f, batch = _lead(vertices, faces)
@@ -417,8 +417,8 @@ def sparse_capacity(vertices=None, faces=None, grid: Grid | None = None) -> tupl
     `4 (nx ny + ny nz + nz nx)` cells and `2 nx ny` runs. Both at most `grid.size`.
     """
     if grid is None:
-        raise TypeError("sparse_capacity: missing `grid`")
-    grid = _validate.grid("sparse_capacity", grid, dim=3)
+        raise TypeError("voxax.sparse_capacity: missing `grid`")
+    grid = _validate.grid("voxax.sparse_capacity", grid, dim=3)
     nx, ny, nz = grid.shape
     size = grid.size
     if vertices is None:

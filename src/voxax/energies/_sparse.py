@@ -37,7 +37,7 @@ def sparse_self_intersection(sg: SparseGrid, eps: float = 1e-3):
 
     A scalar; its gradient flows through the boundary values.
     """
-    _check(sg, "sparse_self_intersection")
+    _check(sg, "voxax.energies.sparse_self_intersection")
     b = sg.values
     r = sg.run_values
     e = jnp.sum(jnp.where(b > 1.0 + eps, b * b, 0.0)) + jnp.sum(jnp.where(r > 1.0 + eps, r * r * _lengths(sg), 0.0))
@@ -47,7 +47,7 @@ def sparse_self_intersection(sg: SparseGrid, eps: float = 1e-3):
 def sparse_volume(sg: SparseGrid):
     """The enclosed volume, `sg.volume()` (`voxax.energies.volume` of the dense grid)."""
     if not isinstance(sg, SparseGrid):
-        raise TypeError(f"sparse_volume: expected a voxax.SparseGrid, got {type(sg).__name__}")
+        raise TypeError(f"voxax.energies.sparse_volume: expected a voxax.SparseGrid, got {type(sg).__name__}")
     return sg.volume()
 
 
@@ -62,9 +62,9 @@ def sparse_column_sums(sg: SparseGrid, axis: int = 2):
 
     `(ny, nz)`, `(nx, nz)` or `(nx, ny)` float (the axis removed).
     """
-    _check(sg, "sparse_column_sums")
+    _check(sg, "voxax.energies.sparse_column_sums")
     if axis not in (0, 1, 2, -1, -2, -3):
-        raise ValueError(f"sparse_column_sums: `axis` must be 0, 1 or 2, got {axis!r}")
+        raise ValueError(f"voxax.energies.sparse_column_sums: `axis` must be 0, 1 or 2, got {axis!r}")
     axis %= 3
     nx, ny, nz = sg.grid.shape
     dt = sg.values.dtype
@@ -91,7 +91,7 @@ def sparse_silhouette_z(sg: SparseGrid, w: float = 1000.0):
 
     `(nx, ny)` float, the mellowmax of every column.
     """
-    _check(sg, "sparse_silhouette_z")
+    _check(sg, "voxax.energies.sparse_silhouette_z")
     nx, ny, nz = sg.grid.shape
     dt = sg.values.dtype
     c, r = sg.cells, sg.runs
