@@ -139,6 +139,7 @@ RAYS = (np.array([[0.0, 0.0, -2.0], [0.1, 0.2, 2.0]]), np.array([[0.0, 0.0, 1.0]
 # (name, positional arguments after the surface): one call per surface form.
 SURFACE_CALLS = [
     ("voxax.voxelize", (GRID,)),
+    ("voxax.voxelize_sparse", (GRID,)),
     ("voxax.winding_number", (POINTS,)),
     ("voxax.intersections", ()),
     ("voxax.closest_points", (POINTS,)),

@@ -23,11 +23,12 @@ namespace voxax {
 // For a piece P, area(P) * beta_m(centroid of P) is the integral of beta_m
 // over P; beta is affine, so it is evaluated at the piece's area centroid
 // through the triangle's barycentric map beta_m(p) = r_m . (p - a).
-template <typename T>
-void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G, int64_t t0,
-                           int64_t t1, T* out) {
+// The cotangent is read through cotangent_of(i, j), which gives column (i, j)'s
+// accessor: called with k, it returns the cotangent of cell (i, j, k) as a double.
+template <typename T, typename CotangentOf>
+void backward_triangles_3d_by(const GridSpec& g, const T* V, const int32_t* F,
+                              CotangentOf&& cotangent_of, int64_t t0, int64_t t1, T* out) {
   const double inv_vol = 1.0 / g.cell_volume();
-  const int64_t ny = g.n[1], nz = g.n[2];
   Poly<3> P;
   TriangleFrame frame;
   for (int64_t t = t0; t < t1; ++t) {
@@ -49,9 +50,9 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
         sweep<3>(g, Px, 1, ja, jb, [&](int64_t j, const Poly<3>& Pxy) {
           int64_t ka, kb;
           if (!g.span(2, Pxy.min(2), Pxy.max(2), &ka, &kb)) return;
-          const T* Gcol = G + (i * ny + j) * nz;
+          const auto Gcol = cotangent_of(i, j);
           sweep<3>(g, Pxy, 2, ka, kb, [&](int64_t k, const Poly<3>& Q) {
-            const double gv = static_cast<double>(Gcol[k]);
+            const double gv = Gcol(k);
             if (gv == 0.0) return;
             double beta[3];
             frame.piece_integrals(Q, beta);
@@ -64,6 +65,20 @@ void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, cons
     for (int c = 0; c < 3; ++c)
       for (int a = 0; a < 3; ++a) o[c * 3 + a] = static_cast<T>(acc[c] * frame.nh[a]);
   }
+}
+
+// The dense cotangent G (*grid) of one batch item.
+template <typename T>
+void backward_triangles_3d(const GridSpec& g, const T* V, const int32_t* F, const T* G, int64_t t0,
+                           int64_t t1, T* out) {
+  const int64_t ny = g.n[1], nz = g.n[2];
+  backward_triangles_3d_by(
+      g, V, F,
+      [&](int64_t i, int64_t j) {
+        const T* col = G + (i * ny + j) * nz;
+        return [col](int64_t k) { return static_cast<double>(col[k]); };
+      },
+      t0, t1, out);
 }
 
 // Corner gradients of segments [s0, s1) of one batch item into out (F, 2, 2).

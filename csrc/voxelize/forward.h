@@ -95,12 +95,18 @@ struct Column {
     if (k < *lo) *lo = k;
     if (k > *hi) *hi = k;
   }
+  // A value for a cell no piece lies in (the part of a pass-through value below a
+  // piece's own cell, or a piece above the grid's top): the same sum.
+  void add_below(int64_t k, double v) const { add(k, v); }
 };
 
 // Adds the pieces of polygon P (inside the column cell with corner (xc, yc))
-// to the difference buffer `col` of that column.
+// to the difference buffer `col` of that column: `add` for the own share of the
+// cell a piece lies in, `add_below` for the cells below it (and the column's top
+// for the parts above the grid), in the order the pieces come.
+template <typename Col>
 inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double yc,
-                          const Column& col) {
+                          const Col& col) {
   const int64_t nz = g.n[2];
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
@@ -110,7 +116,7 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
   if (zmax <= zbot) return;  // entirely below the grid
   if (zmin >= ztop) {        // entirely above: the whole column is in its shadow
     integrate_3d(P, xc, yc, 0.0, &A, &I);
-    col.add(nz - 1, A * inv_area);
+    col.add_below(nz - 1, A * inv_area);
     return;
   }
   int64_t k0 = 0, k1 = -1;
@@ -133,7 +139,7 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
       integrate_3d(*Q, xc, yc, zl, &A, &I);
       const double b = I * inv_vol, tau = A * inv_area;
       col.add(k, b);
-      if (k > 0) col.add(k - 1, tau - b);
+      if (k > 0) col.add_below(k - 1, tau - b);
     }
     if (last) return;
     rest = upper;
@@ -142,7 +148,7 @@ inline void add_column_3d(const GridSpec& g, const Poly<3>& P, double xc, double
   }
   // What is left lies above the grid's top.
   integrate_3d(*cur, xc, yc, 0.0, &A, &I);
-  col.add(nz - 1, A * inv_area);
+  col.add_below(nz - 1, A * inv_area);
 }
 
 // Loads triangle t of a batch item as a polygon; returns false when it has no
@@ -293,15 +299,17 @@ void sweep_tile_columns(const GridSpec& g, const Poly<3>& P, int64_t i0, int64_t
   });
 }
 
-template <typename T>
-void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
-                     const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
+// Adds the pieces of the triangles binned to one tile to the columns of the tile:
+// column_of(c) is the column sink (with `add` and `add_below`) of the tile's column
+// c = (i - ia) * wy + (j - ja). Triangles come in bin order and each one's pieces in
+// sweep order, the same for every tiling of the same grid's x axis and thread count.
+template <typename T, typename ColumnOf>
+void tile_pieces_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V, const int32_t* F,
+                    const Bins& bins, ColumnOf&& column_of) {
   const int64_t ti = tile / tl.nty, tj = tile % tl.nty;
   const int64_t ia = ti * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
   const int64_t ja = tj * tl.ty, jb = std::min(g.n[1], ja + tl.ty);
-  const int64_t nz = g.n[2], wy = jb - ja;
-  scratch.prepare((ib - ia) * wy, nz);
-
+  const int64_t wy = jb - ja;
   const double inv_area = 1.0 / (g.h[0] * g.h[1]);
   const double inv_vol = inv_area / g.h[2];
   Poly<3> P;
@@ -318,7 +326,7 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
       if (g.span(1, y0, y1, &j0, &j1) && j0 == j1 && j0 >= ja && j0 < jb && y0 >= g.plane(1, j0) &&
           y1 <= g.plane(1, j0 + 1)) {
         const double z0 = P.min(2), z1 = P.max(2);
-        const Column col = scratch.column((i0 - ia) * wy + (j0 - ja), nz);
+        const auto col = column_of((i0 - ia) * wy + (j0 - ja));
         if (g.span(2, z0, z1, &k0, &k1) && k0 == k1 && z0 >= g.plane(2, k0) &&
             z1 <= g.plane(2, k0 + 1)) {
           const double (*q)[3] = P.v;
@@ -328,7 +336,7 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
           const double b =
               A * ((q[0][2] - zl) + (q[1][2] - zl) + (q[2][2] - zl)) * (1.0 / 3.0) * inv_vol;
           col.add(k0, b);
-          if (k0 > 0) col.add(k0 - 1, A * inv_area - b);
+          if (k0 > 0) col.add_below(k0 - 1, A * inv_area - b);
         } else {
           add_column_3d(g, P, g.plane(0, i0), g.plane(1, j0), col);
         }
@@ -337,10 +345,20 @@ void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
     }
     // Sweep the slabs of this tile in x, then in y, splitting off one cell at a time.
     sweep_tile_columns(g, P, i0, i1, ia, ib, ja, jb, [&](int64_t i, int64_t j, const Poly<3>& Q) {
-      add_column_3d(g, Q, g.plane(0, i), g.plane(1, j),
-                    scratch.column((i - ia) * wy + (j - ja), nz));
+      add_column_3d(g, Q, g.plane(0, i), g.plane(1, j), column_of((i - ia) * wy + (j - ja)));
     });
   }
+}
+
+template <typename T>
+void forward_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T* V,
+                     const int32_t* F, const Bins& bins, TileScratch& scratch, T* out) {
+  const int64_t ti = tile / tl.nty, tj = tile % tl.nty;
+  const int64_t ia = ti * tl.tx, ib = std::min(g.n[0], ia + tl.tx);
+  const int64_t ja = tj * tl.ty, jb = std::min(g.n[1], ja + tl.ty);
+  const int64_t nz = g.n[2], wy = jb - ja;
+  scratch.prepare((ib - ia) * wy, nz);
+  tile_pieces_3d(g, tl, tile, V, F, bins, [&](int64_t c) { return scratch.column(c, nz); });
   for (int64_t i = ia; i < ib; ++i) {
     for (int64_t j = ja; j < jb; ++j) {
       const int64_t c = (i - ia) * wy + (j - ja);

@@ -53,6 +53,7 @@ from ._spatial import (
 )
 from ._kernels.export import export_safety_checks, ffi_targets
 from ._voxelize import slab_grids, voxelize_sharded, voxelize_slab
+from ._voxelize import SparseGrid, sparse_capacity, voxelize_sparse
 from ._spatial import Intersections, intersections
 
 from ._config import show_config
@@ -132,6 +133,9 @@ __all__ = [
     "least_squares",
     "voxelize_sharded",
     "voxelize_slab",
+    "voxelize_sparse",
+    "SparseGrid",
+    "sparse_capacity",
     "slab_grids",
     "LeastSquaresResult",
     "ffi_targets",

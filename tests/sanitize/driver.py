@@ -1788,6 +1788,101 @@ def pool_threads():
     return names.count("tf_XLAEigen")
 
 
+def run_sparse(rng, count):
+    """The sparse voxelization kernels (csrc/voxelize/sparse_ffi.cc): random and hostile
+    meshes of every family on the 3D grids, eagerly and under jit; to_dense() equal to
+    voxelize bit for bit, finite gradients and tangents; then hostile direct calls of the
+    three kernels (corrupt boundary cells and counts, wrong shapes and dtypes, overflowing
+    capacities), each rejected with a message."""
+    from voxax._voxelize import sparse as _sparse
+
+    families = list(FAMILIES)
+    grids = list(GRIDS_3D.items())
+    for n in range(count):
+        family = families[n % len(families)]
+        gname, grid = grids[(n // len(families)) % len(grids)]
+        dtype = (np.float64, np.float32)[n % 2]
+        v, f, _ = make_input(rng, family, 3, grid, dtype)
+        label = f"sparse/{family}/{gname}/{np.dtype(dtype).name}"
+        try:
+            sg = voxax.voxelize_sparse(v, f, grid)
+            W = np.asarray(voxax.voxelize(v, f, grid))
+            if not np.array_equal(np.asarray(sg.to_dense()), W, equal_nan=False):
+                fail(f"{label}: to_dense() differs from voxelize")
+                save_failure(label, v, f, grid)
+            cap = sg.capacity
+            u = rng.normal(size=cap[0]).astype(dtype)
+            t = rng.normal(size=v.shape).astype(dtype)
+            fn = lambda x, f=f, grid=grid, cap=cap: voxax.voxelize_sparse(x, f, grid, capacity=cap).values  # noqa: E731
+            mode = "jit" if n % 3 == 0 else "eager"
+
+            def both(x, tt, uu, fn=fn):
+                _, Jt = jax.jvp(fn, (x,), (tt,))
+                return Jt, jax.vjp(fn, x)[1](uu)[0]
+
+            Jt, JTu = (jax.jit(both) if mode == "jit" else both)(jnp.asarray(v), jnp.asarray(t), jnp.asarray(u))
+            CALLS[f"{mode}_sparse"] += 3
+            if not (np.all(np.isfinite(np.asarray(Jt))) and np.all(np.isfinite(np.asarray(JTu)))):
+                fail(f"{label}: non-finite sparse tangent or gradient")
+                save_failure(label, v, f, grid)
+        except Exception as err:  # noqa: BLE001
+            fail(f"{label}: raised {type(err).__name__}: {err}")
+        COUNTS["sparse"] += 1
+
+    grid = GRIDS_3D["odd"]
+    v, f, _ = make_input(rng, "closed", 3, grid, np.float64)
+    sg = voxax.voxelize_sparse(v, f, grid)
+    vb, fb = jnp.asarray(v)[None], jnp.asarray(f)[None]
+    cells, counts = sg.cells[None], sg.counts[None]
+    C, R = sg.capacity
+    ct = jnp.ones((1, C))
+    tc = jnp.zeros((1, f.shape[0], 3, 3))
+    attrs = _kernels.grid_attributes(grid)
+
+    def raw_forward(shapes, **over):
+        a = dict(attrs, strict=np.int64(1))
+        a.update(over)
+        out = tuple(jax.ShapeDtypeStruct(s, d) for s, d in shapes)
+        return jax.ffi.ffi_call(_kernels.SPARSE_FORWARD, out)(vb, fb, **a)
+
+    good = [((1, C, 3), jnp.int32), ((1, C), jnp.float64), ((1, R, 4), jnp.int32), ((1, R), jnp.float64),
+            ((1, 2), jnp.int32)]
+    bad = {}
+    hostile_cells = {
+        "unsorted cells": (cells.at[0, 0].set(cells[0, 1]).at[0, 1].set(cells[0, 0]), counts, "ascending"),
+        "cell outside the grid": (cells.at[0, 0, 0].set(grid.shape[0]), counts, "outside the grid"),
+        "negative cell": (cells.at[0, 0, 1].set(-1), counts, "outside the grid"),
+        "count above capacity": (cells, counts.at[0, 0].set(C + 1), "outside \\[0"),
+        "negative count": (cells, counts.at[0, 0].set(-5), "outside \\[0"),
+    }
+    for name, (c, k, match) in hostile_cells.items():
+        bad[f"backward, {name}"] = (lambda c=c, k=k: _sparse.backward(vb, fb, c, ct, k, grid), match)
+        bad[f"tangent, {name}"] = (lambda c=c, k=k: _sparse.tangent(vb, fb, tc, c, k, grid), match)
+    bad["backward, cotangent of another capacity"] = (
+        lambda: _sparse.backward(vb, fb, cells, jnp.ones((1, C + 1)), counts, grid), "cotangent must have shape")
+    bad["backward, float32 cotangent"] = (
+        lambda: _sparse.backward(vb, fb, cells, ct.astype(jnp.float32), counts, grid), "dtype must match")
+    bad["tangent, NaN tangents"] = (lambda: _sparse.tangent(vb, fb, tc.at[0, 0, 0, 0].set(jnp.nan), cells, counts,
+                                                            grid), "NaN or Inf")
+    bad["forward, capacity overflow (jit)"] = (
+        lambda: jax.jit(lambda x: voxax.voxelize_sparse(x, f, grid, capacity=(max(C - 1, 1), R)).values)(
+            jnp.asarray(v)), "more than the capacity")
+    bad["forward, NaN vertex (jit)"] = (
+        lambda: jax.jit(lambda x: voxax.voxelize_sparse(x, f, grid, capacity=(C, R)).values)(
+            jnp.asarray(v).at[0, 0].set(jnp.nan)), "NaN|finite")
+    bad["forward, face index out of range (jit)"] = (
+        lambda: jax.jit(lambda ff: voxax.voxelize_sparse(v, ff, grid, capacity=(C, R)).values)(
+            jnp.asarray(f).at[0, 0].set(len(v) + 7)), "out of range|index")
+    bad["forward, float32 run values"] = (
+        lambda: raw_forward(good[:3] + [((1, R), jnp.float32)] + good[4:]), "dtype must match")
+    bad["forward, cells of rank 2"] = (lambda: raw_forward([((C, 3), jnp.int32)] + good[1:]), "cells must have")
+    bad["forward, counts of 3"] = (lambda: raw_forward(good[:4] + [((1, 3), jnp.int32)]), "counts must have")
+    bad["forward, 2D grid"] = (lambda: raw_forward(good, nz=np.int64(0)), "grid shape")
+    bad["eager, 2D mesh"] = (lambda: voxax.voxelize_sparse(np.zeros((3, 2)), np.array([[0, 1], [1, 2], [2, 0]]),
+                                                           Grid.cube(4, dim=2)), "3D")
+    expect_rejected("sparse", bad, (ValueError, TypeError, jax.errors.JaxRuntimeError))
+
+
 REFERENCE_FRACTION = 0.1
 BATCH = 4  # one batch size, so that batched functions compile once per grid
 
@@ -1858,6 +1953,7 @@ def main(argv=None):
         run_intersections(rng)
         run_cpu_features()
         run_winding(rng, max(21, args.spatial_inputs // 5))
+        run_sparse(rng, max(14, args.inputs // 20))
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -1888,6 +1984,7 @@ def main(argv=None):
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
     print(f"line crossings inputs: {COUNTS['line_crossings']}, invalid: {COUNTS['line_crossings_invalid']}")
+    print(f"sparse voxelization inputs: {COUNTS['sparse']}, invalid: {COUNTS['sparse_invalid']}")
     print(f"selection bound sums: {COUNTS['bounds']} calls, invalid: {COUNTS['bounds_invalid']}")
     print("exact intersection test: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("intersections", "intersections_invalid", "intersections_raw")))
     print(f"reference comparisons: {COUNTS['reference_comparisons']}; volume-identity checks: {COUNTS['volume_checks']}")

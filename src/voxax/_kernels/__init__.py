@@ -16,6 +16,9 @@ from ._loader import (
     FORWARD,
     KNN,
     MARCHING_CUBES,
+    SPARSE_BACKWARD,
+    SPARSE_FORWARD,
+    SPARSE_TANGENT,
     TANGENT,
     TARGETS,
     grid_attributes,
@@ -25,7 +28,8 @@ from ._loader import (
 )
 
 __all__ = [
-    "BACKWARD", "CLOSEST_POINTS", "CVT_ASSIGN", "FIRST_HITS", "FORWARD", "KNN", "MARCHING_CUBES", "TANGENT",
+    "BACKWARD", "CLOSEST_POINTS", "CVT_ASSIGN", "FIRST_HITS", "FORWARD", "KNN", "MARCHING_CUBES", "SPARSE_BACKWARD",
+    "SPARSE_FORWARD", "SPARSE_TANGENT", "TANGENT",
     "TARGETS", "grid_attributes", "kernel_constants", "library", "library_path",
     "D", "ERRLEN", "I8", "I32", "I64", "VP", "check", "declare", "error_buffer", "pointer", "threads",
 ]

@@ -10,7 +10,8 @@ import jax
 import numpy as np
 
 __all__ = ["BACKWARD", "FORWARD", "TANGENT", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "TARGETS",
-           "CVT_ASSIGN", "WINDING_CHECK", "grid_attributes", "kernel_constants", "library", "library_path"]
+           "CVT_ASSIGN", "WINDING_CHECK", "SPARSE_FORWARD", "SPARSE_BACKWARD", "SPARSE_TANGENT", "grid_attributes",
+           "kernel_constants", "library", "library_path"]
 
 FORWARD = "voxax_forward"
 BACKWARD = "voxax_backward"
@@ -21,12 +22,14 @@ FIRST_HITS = "voxax_first_hits"
 KNN = "voxax_knn"
 CVT_ASSIGN = "voxax_cvt_assign"
 WINDING_CHECK = "voxax_winding_check"
+SPARSE_FORWARD = "voxax_sparse_forward"
+SPARSE_BACKWARD = "voxax_sparse_backward"
+SPARSE_TANGENT = "voxax_sparse_tangent"
 
 # Every FFI target the library exports, by name (each is also the exported symbol). The one
 # registry of voxax's custom calls: registration and the export safety checks read it.
-TARGETS: tuple[str, ...] = (
-    FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN, CVT_ASSIGN, WINDING_CHECK
-)
+TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN, CVT_ASSIGN,
+                            WINDING_CHECK, SPARSE_FORWARD, SPARSE_BACKWARD, SPARSE_TANGENT)
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 

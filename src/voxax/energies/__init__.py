@@ -8,6 +8,8 @@ Grid energies take the output `W` of `voxax.voxelize` (box-filtered winding numb
   cut energy (paper, Sec. 4.3).
 - `fold_periodic`, `tiling`: the space-filling energy (paper, Sec. 4.4).
 - `volume(W, grid)`, `interpenetration(W_a, W_b)`: enclosed volume; overlap of two shapes.
+- On a `voxax.SparseGrid` (from `voxax.voxelize_sparse`), without the dense grid:
+  `sparse_self_intersection`, `sparse_volume`, `sparse_column_sums`, `sparse_silhouette_z`.
 
 Mesh energies:
 
@@ -46,6 +48,7 @@ from ._grid import (
     volume,
 )
 from ._objective import objective
+from ._sparse import sparse_column_sums, sparse_self_intersection, sparse_silhouette_z, sparse_volume
 
 __all__ = [
     "mellowmax",
@@ -62,4 +65,8 @@ __all__ = [
     "arap_rotations",
     "arap",
     "objective",
+    "sparse_self_intersection",
+    "sparse_volume",
+    "sparse_column_sums",
+    "sparse_silhouette_z",
 ]
