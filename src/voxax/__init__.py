@@ -33,6 +33,8 @@ The public API:
   count this machine uses; `voxax.__version__`.
 """
 
+from typing import TYPE_CHECKING
+
 from . import _kernels  # noqa: F401  (registers the kernels with XLA)
 from ._grid import Grid
 from ._mesh import Mesh
@@ -72,6 +74,28 @@ _LAZY_NAMES = {
     "minimize": "_optimize", "MinimizeResult": "_optimize", "StopReason": "_optimize", "StopRules": "_optimize",
     "least_squares": "_optimize", "LeastSquaresResult": "_optimize",
 }
+
+
+if TYPE_CHECKING:  # the lazy names, for type checkers and the documentation's static analysis
+    from . import (
+        apps,
+        baselines,
+        curves,
+        cvt,
+        data,
+        energies,
+        esi,
+        fabricate,
+        fc,
+        fields,
+        io,
+        metrics,
+        nesi,
+        plot,
+        raster,
+        reference,
+    )
+    from ._optimize import LeastSquaresResult, MinimizeResult, StopReason, StopRules, least_squares, minimize
 
 
 def __getattr__(name: str):

@@ -126,7 +126,7 @@ def unpack_mesh(where: str, vertices, faces, *params):
     while n < len(slots) and slots[n] is not None:
         n += 1
     if n > len(params):
-        raise TypeError(f"{where}: got a mesh and `faces`; pass either a mesh or `vertices, faces`")
+        raise TypeError(f"{where}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
     shifted = tuple(slots[j] if j < n else params[j] for j in range(len(params)))
     return v, f, shifted
 
@@ -405,7 +405,7 @@ def surface_first(fn):
         first = args[0]
         if is_mesh_object(first) or is_mesh_pair(first):
             if faces is not None:
-                raise TypeError(f"{fn.__name__}: got a mesh and `faces`; pass either a mesh or `vertices, faces`")
+                raise TypeError(f"{fn.__name__}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
             return fn(*args, **kwargs)
         if faces is None and len(args) >= 2 and np.ndim(args[1]) == 2 and not is_mesh_object(args[1]):
             faces, args = args[1], args[:1] + args[2:]
