@@ -12,9 +12,9 @@
 
 #include "common/errors.h"
 #include "common/host_errors.h"
+#include "common/host_pool.h"
 #include "common/parallel.h"
 #include "cvt/assign.h"
-#include "common/host_pool.h"
 
 namespace voxax {
 namespace {

@@ -22,8 +22,8 @@
 
 #include "common/constants.h"
 #include "common/host_errors.h"
-#include "raster/line_crossings.h"
 #include "common/host_pool.h"
+#include "raster/line_crossings.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 

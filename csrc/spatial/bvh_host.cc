@@ -23,8 +23,8 @@
 #include <vector>
 
 #include "common/host_errors.h"
-#include "spatial/bvh.h"
 #include "common/host_pool.h"
+#include "spatial/bvh.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 

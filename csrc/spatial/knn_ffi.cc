@@ -14,9 +14,9 @@
 #include "common/errors.h"
 #include "common/grid.h"
 #include "common/host_errors.h"
+#include "common/host_pool.h"
 #include "common/parallel.h"
 #include "common/validate.h"
-#include "common/host_pool.h"
 #include "spatial/knn.h"
 
 namespace voxax {
