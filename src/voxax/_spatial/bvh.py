@@ -98,7 +98,6 @@ def signed_library():
         "voxax_hits_size": (i64, [_VP]),
         "voxax_hits_copy": (None, [_VP, _D, _I32, _D, _I8]),
         "voxax_hits_free": (None, [_VP]),
-        "voxax_knn_host": (ctypes.c_int, [_D, i64, _D, i64, i32, i32, _I32, _D, ctypes.c_char_p, i64]),
     }
     return _kernels.declare(sig)
 

@@ -2,19 +2,13 @@
 
 from __future__ import annotations
 
-import ctypes
-
 import jax
-import numpy as np
 
 from .. import _kernels
-from .bvh import any_traced, as_coords, as_rows, signed_library
+from .._kernels import knn as _knn
+from .bvh import any_traced, as_coords, as_rows
 
 __all__ = ["nearest_neighbors"]
-
-_ERRLEN = _kernels.ERRLEN
-_D, _I32 = _kernels.D, _kernels.I32
-_ptr, _check, _threads = _kernels.pointer, _kernels.check, _kernels.threads
 
 
 def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None):
@@ -53,9 +47,7 @@ def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None
         q = as_rows(queries, "queries")
         lead = q.shape[:-1]
         flat = q.reshape(-1, 3)
-        m = flat.shape[0]
-        out = (jax.ShapeDtypeStruct((m, k), np.int32), jax.ShapeDtypeStruct((m, k), np.float64))
-        idx, dist = jax.ffi.ffi_call(_kernels.KNN, out, vmap_method="sequential")(s, flat)
+        idx, dist = _knn.knn_call(s, flat, k)
         return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
     s = as_coords(points, "points")
     if s.ndim != 2:
@@ -63,12 +55,5 @@ def nearest_neighbors(points, queries, k: int = 1, *, threads: int | None = None
     q = as_coords(queries, "queries")
     lead = q.shape[:-1]
     q = q.reshape(-1, 3)
-    m = len(q)
-    idx = np.empty((m, k), np.int32)
-    dist = np.empty((m, k), np.float64)
-    err = ctypes.create_string_buffer(_ERRLEN)
-    status = signed_library().voxax_knn_host(
-        _ptr(s, _D), len(s), _ptr(q, _D), m, k, _threads(threads), _ptr(idx, _I32), _ptr(dist, _D), err, _ERRLEN
-    )
-    _check(status, err)
+    idx, dist = _knn.knn_host(s, q, k, _kernels.threads(threads))
     return dist.reshape(lead + (k,)), idx.reshape(lead + (k,))
