@@ -1,4 +1,5 @@
-// Exact k nearest neighbours in 3D with a uniform grid (counting-sorted cells).
+// Exact k nearest neighbours in 3D with a uniform grid (counting-sorted cells), and a
+// kd-tree for queries far from the data.
 //
 // The data points are binned into a grid sized for about two points per occupied
 // cell: first for points filling their bounding box, then refined while most cells
@@ -12,24 +13,41 @@
 // bound), so the result is the exact k smallest (distance, index) pairs,
 // deterministic and independent of threads. Missing neighbours (k > N) are index
 // -1 at distance +inf.
+//
+// Rings grow over empty cells one at a time, so a query far from the data (points on a
+// surface, queries in the volume around it or outside the box) would visit many cells.
+// With `far_index`, a query whose 3 x 3 x 3 block holds no point, that is not settled
+// after kGridRings rings, or that lies beyond the box by more than a cell, is answered by
+// a kd-tree instead (knn_tree.h, built on first need). Both searches return the same
+// exact k smallest pairs, with the squared distances computed alike, so which one answers
+// a query changes no bit of the result.
 #pragma once
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <mutex>
 #include <vector>
+
+#include "spatial/knn_tree.h"
 
 namespace voxax {
 namespace spatial {
 
-constexpr int kMaxNeighbours = 32;
-
 class PointGrid {
  public:
-  void build(const double* S, int64_t n) {
+  // With `far_index`, the rings searched on the grid before a query goes to the kd-tree.
+  static constexpr int64_t kGridRings = 3;
+
+  // Bins the n points S (n, 3) (not while queries run); with `far_index`, queries far
+  // from the data use a kd-tree (built by the first of them).
+  void build(const double* S, int64_t n, bool far_index = false) {
     pts_.assign(S, S + 3 * n);
     n_ = n;
+    far_index_ = far_index;
+    tree_built_.store(false);
     if (n == 0) return;
     for (int a = 0; a < 3; ++a) {
       lo_[a] = hi_[a] = S[a];
@@ -91,6 +109,10 @@ class PointGrid {
       h = hn;
       total = tn;
     }
+    {
+      const double side = static_cast<double>(kGridRings) * std::min(h_[0], std::min(h_[1], h_[2]));
+      far_d2_ = side * side;
+    }
     start_.assign(total + 1, 0);
     for (int64_t i = 0; i < n; ++i) {
       cell[i] = cell_of(S + 3 * i);
@@ -107,123 +129,14 @@ class PointGrid {
 
   // The k nearest data points to q (k <= kMaxNeighbours), by (distance, index).
   void query(const double* q, int k, int32_t* idx, double* dist) const {
-    double bd[kMaxNeighbours];
-    int32_t bi[kMaxNeighbours];
-    int have = 0;
-    for (int j = 0; j < k; ++j) {
-      bd[j] = std::numeric_limits<double>::infinity();
-      bi[j] = -1;
-    }
-    if (n_ > 0) {
-      int64_t c[3];
-      for (int a = 0; a < 3; ++a) c[a] = coord(q, a);
-      const int64_t rmax = std::max(dim_[0], std::max(dim_[1], dim_[2]));
-      // Rounding allowance of the cell boxes (binning rounds differently).
-      const double tol = 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) +
-                                 std::fabs(q[1]) + std::fabs(q[2]));
-      // Offers the points in cell-order positions [b, e) to the candidate list.
-      auto scan = [&](int64_t b, int64_t e) {
-        for (int64_t s = b; s < e; ++s) {
-          const double* x = &pts_[3 * static_cast<size_t>(s)];
-          const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
-          const double d2 = dx * dx + dy * dy + dz * dz;
-          if (have == k && d2 > bd[k - 1]) continue;
-          const int32_t p = order_[s];
-          if (have == k && !(d2 < bd[k - 1] || p < bi[k - 1])) continue;
-          int pos = have < k ? have++ : k - 1;
-          while (pos > 0 && (d2 < bd[pos - 1] || (d2 == bd[pos - 1] && p < bi[pos - 1]))) {
-            bd[pos] = bd[pos - 1];
-            bi[pos] = bi[pos - 1];
-            --pos;
-          }
-          bd[pos] = d2;
-          bi[pos] = p;
-        }
-      };
-      // Squared distance from q to the (slightly grown) box of cells [lo, hi] (inclusive).
-      auto box_d2 = [&](const int64_t* lo, const int64_t* hi) {
-        double d2 = 0.0;
-        for (int a = 0; a < 3; ++a) {
-          const double l = lo_[a] + static_cast<double>(lo[a]) * h_[a] - tol;
-          const double u = lo_[a] + static_cast<double>(hi[a] + 1) * h_[a] + tol;
-          const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
-          d2 += e * e;
-        }
-        return d2;
-      };
-      // Rings 0 and 1: nine runs of up to three cells along z, nearest rows first. A
-      // row's box distance is a sum of per-axis terms: along x and y to the (grown)
-      // cells c - 1, c, c + 1, along z to the run of cells k0..k1.
-      {
-        const int64_t k0 = std::max<int64_t>(0, c[2] - 1), k1 = std::min(dim_[2] - 1, c[2] + 1);
-        auto axis_d2 = [&](int a, int64_t from, int64_t to) {
-          const double l = lo_[a] + static_cast<double>(from) * h_[a] - tol;
-          const double u = lo_[a] + static_cast<double>(to + 1) * h_[a] + tol;
-          const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
-          return e * e;
-        };
-        double ax[2][3];
-        for (int a = 0; a < 2; ++a)
-          for (int o = 0; o < 3; ++o) ax[a][o] = axis_d2(a, c[a] + o - 1, c[a] + o - 1);
-        const double az = axis_d2(2, k0, k1);
-        static constexpr int kOrder[9][2] = {{0, 0},   {-1, 0}, {1, 0},  {0, -1}, {0, 1},
-                                             {-1, -1}, {-1, 1}, {1, -1}, {1, 1}};
-        for (const auto& o : kOrder) {
-          const int64_t i = c[0] + o[0], j = c[1] + o[1];
-          if (i < 0 || i >= dim_[0] || j < 0 || j >= dim_[1]) continue;
-          if (have == k && ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > bd[k - 1]) continue;
-          const int64_t row = (i * dim_[1] + j) * dim_[2];
-          scan(start_[row + k0], start_[row + k1 + 1]);
-        }
-      }
-      for (int64_t r = 1; r <= rmax; ++r) {
-        if (r >= 2) {
-          for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
-            if (i < 0 || i >= dim_[0]) continue;
-            const bool ei = i == c[0] - r || i == c[0] + r;
-            for (int64_t j = c[1] - r; j <= c[1] + r; ++j) {
-              if (j < 0 || j >= dim_[1]) continue;
-              const bool ej = ei || j == c[1] - r || j == c[1] + r;
-              // Only the ring's shell: the k range is all of it on the faces, else its two ends.
-              for (int64_t kk = c[2] - r; kk <= c[2] + r; kk += ej ? 1 : 2 * r) {
-                if (kk < 0 || kk >= dim_[2]) continue;
-                const int64_t cell = (i * dim_[1] + j) * dim_[2] + kk;
-                if (start_[cell] == start_[cell + 1]) continue;
-                if (have == k) {
-                  // Skip cells whose (slightly grown) box is beyond the k-th candidate.
-                  const int64_t cc[3] = {i, j, kk};
-                  if (box_d2(cc, cc) > bd[k - 1]) continue;
-                }
-                scan(start_[cell], start_[cell + 1]);
-              }
-            }
-          }
-        }
-        if (have == k) {
-          // Distance from q to the space outside the searched block of cells (sides
-          // at the grid's boundary have no points beyond them).
-          double gap = std::numeric_limits<double>::infinity();
-          bool covers = true;
-          for (int a = 0; a < 3; ++a) {
-            if (c[a] - r > 0) {
-              covers = false;
-              gap = std::min(gap, q[a] - (lo_[a] + static_cast<double>(c[a] - r) * h_[a]));
-            }
-            if (c[a] + r < dim_[a] - 1) {
-              covers = false;
-              gap = std::min(gap, (lo_[a] + static_cast<double>(c[a] + r + 1) * h_[a]) - q[a]);
-            }
-          }
-          if (covers) break;
-          // Conservative: binning and this bound round differently.
-          gap -= tol;
-          if (gap > 0.0 && bd[k - 1] < gap * gap) break;
-        }
-      }
+    Nearest best(k);
+    if (n_ > 0 && (beyond(q) || !grid_search(q, best))) {
+      best = Nearest(k);
+      tree().search(q, best);
     }
     for (int j = 0; j < k; ++j) {
-      idx[j] = bi[j];
-      dist[j] = std::sqrt(bd[j]);
+      idx[j] = best.idx[j];
+      dist[j] = std::sqrt(best.d2[j]);
     }
   }
 
@@ -247,22 +160,150 @@ class PointGrid {
       for (int64_t j = lo[1]; j <= hi[1]; ++j) {
         const int64_t row = (i * dim_[1] + j) * dim_[2];
         for (int64_t s = start_[row + lo[2]]; s < start_[row + hi[2] + 1]; ++s) {
-          const double* x = &pts_[3 * static_cast<size_t>(s)];
-          const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
-          const double d2 = dx * dx + dy * dy + dz * dz;
+          const double d2 = point_d2(&pts_[3 * static_cast<size_t>(s)], q);
           if (d2 <= r2 && !f(order_[s], d2)) return;
         }
       }
   }
 
  private:
+  // The grid search of `query` (n_ > 0): false (with `far_index`) when the query should go
+  // to the kd-tree instead.
+  bool grid_search(const double* q, Nearest& best) const {
+    const int k = best.k;
+    int64_t c[3];
+    for (int a = 0; a < 3; ++a) c[a] = coord(q, a);
+    const int64_t rmax = std::max(dim_[0], std::max(dim_[1], dim_[2]));
+    // Rounding allowance of the cell boxes (binning rounds differently).
+    const double tol = 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) +
+                               std::fabs(q[1]) + std::fabs(q[2]));
+    // Offers the points in cell-order positions [b, e) to the candidate list.
+    auto scan = [&](int64_t b, int64_t e) {
+      for (int64_t s = b; s < e; ++s) {
+        const double d2 = point_d2(&pts_[3 * static_cast<size_t>(s)], q);
+        if (best.full() && d2 > best.d2[k - 1]) continue;
+        best.offer(d2, order_[s]);
+      }
+    };
+    // Squared distance from q to the (slightly grown) box of cells [lo, hi] (inclusive).
+    auto box_d2 = [&](const int64_t* lo, const int64_t* hi) {
+      double d2 = 0.0;
+      for (int a = 0; a < 3; ++a) {
+        const double l = lo_[a] + static_cast<double>(lo[a]) * h_[a] - tol;
+        const double u = lo_[a] + static_cast<double>(hi[a] + 1) * h_[a] + tol;
+        const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
+        d2 += e * e;
+      }
+      return d2;
+    };
+    // Rings 0 and 1: nine runs of up to three cells along z, nearest rows first. A
+    // row's box distance is a sum of per-axis terms: along x and y to the (grown)
+    // cells c - 1, c, c + 1, along z to the run of cells k0..k1.
+    {
+      const int64_t k0 = std::max<int64_t>(0, c[2] - 1), k1 = std::min(dim_[2] - 1, c[2] + 1);
+      auto axis_d2 = [&](int a, int64_t from, int64_t to) {
+        const double l = lo_[a] + static_cast<double>(from) * h_[a] - tol;
+        const double u = lo_[a] + static_cast<double>(to + 1) * h_[a] + tol;
+        const double e = q[a] < l ? l - q[a] : (q[a] > u ? q[a] - u : 0.0);
+        return e * e;
+      };
+      double ax[2][3];
+      for (int a = 0; a < 2; ++a)
+        for (int o = 0; o < 3; ++o) ax[a][o] = axis_d2(a, c[a] + o - 1, c[a] + o - 1);
+      const double az = axis_d2(2, k0, k1);
+      static constexpr int kOrder[9][2] = {{0, 0},   {-1, 0}, {1, 0},  {0, -1}, {0, 1},
+                                           {-1, -1}, {-1, 1}, {1, -1}, {1, 1}};
+      for (const auto& o : kOrder) {
+        const int64_t i = c[0] + o[0], j = c[1] + o[1];
+        if (i < 0 || i >= dim_[0] || j < 0 || j >= dim_[1]) continue;
+        if (best.full() && ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > best.d2[k - 1]) continue;
+        const int64_t row = (i * dim_[1] + j) * dim_[2];
+        scan(start_[row + k0], start_[row + k1 + 1]);
+      }
+    }
+    // No point in the 3 x 3 x 3 block, or the k-th farther than kGridRings cells: a query
+    // far from the data, which rings would reach slowly.
+    if (far_index_ && (best.have == 0 || (best.full() && best.d2[k - 1] > far_d2_))) return false;
+    for (int64_t r = 1; r <= rmax; ++r) {
+      if (far_index_ && r > kGridRings) return false;
+      if (r >= 2) {
+        for (int64_t i = c[0] - r; i <= c[0] + r; ++i) {
+          if (i < 0 || i >= dim_[0]) continue;
+          const bool ei = i == c[0] - r || i == c[0] + r;
+          for (int64_t j = c[1] - r; j <= c[1] + r; ++j) {
+            if (j < 0 || j >= dim_[1]) continue;
+            const bool ej = ei || j == c[1] - r || j == c[1] + r;
+            // Only the ring's shell: the k range is all of it on the faces, else its two ends.
+            for (int64_t kk = c[2] - r; kk <= c[2] + r; kk += ej ? 1 : 2 * r) {
+              if (kk < 0 || kk >= dim_[2]) continue;
+              const int64_t cell = (i * dim_[1] + j) * dim_[2] + kk;
+              if (start_[cell] == start_[cell + 1]) continue;
+              if (best.full()) {
+                // Skip cells whose (slightly grown) box is beyond the k-th candidate.
+                const int64_t cc[3] = {i, j, kk};
+                if (box_d2(cc, cc) > best.d2[k - 1]) continue;
+              }
+              scan(start_[cell], start_[cell + 1]);
+            }
+          }
+        }
+      }
+      if (best.full()) {
+        // Distance from q to the space outside the searched block of cells (sides
+        // at the grid's boundary have no points beyond them).
+        double gap = std::numeric_limits<double>::infinity();
+        bool covers = true;
+        for (int a = 0; a < 3; ++a) {
+          if (c[a] - r > 0) {
+            covers = false;
+            gap = std::min(gap, q[a] - (lo_[a] + static_cast<double>(c[a] - r) * h_[a]));
+          }
+          if (c[a] + r < dim_[a] - 1) {
+            covers = false;
+            gap = std::min(gap, (lo_[a] + static_cast<double>(c[a] + r + 1) * h_[a]) - q[a]);
+          }
+        }
+        if (covers) break;
+        // Conservative: binning and this bound round differently.
+        gap -= tol;
+        if (gap > 0.0 && best.d2[k - 1] < gap * gap) break;
+      }
+    }
+    return true;
+  }
+
   std::vector<double> pts_;
   std::vector<int64_t> start_;
   std::vector<int32_t> order_;
   int64_t n_ = 0;
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0}, h_[3] = {1, 1, 1};
   int64_t dim_[3] = {1, 1, 1};
+  bool far_index_ = false;
+  double far_d2_ = 0.0;  // (kGridRings times the smallest cell side)^2
+  mutable std::mutex tree_mutex_;
+  mutable std::atomic<bool> tree_built_{false};
+  mutable PointTree tree_;
 
+  // The kd-tree of the points, built by its first caller (queries run on many threads).
+  const PointTree& tree() const {
+    if (!tree_built_.load(std::memory_order_acquire)) {
+      std::lock_guard<std::mutex> lock(tree_mutex_);
+      if (!tree_built_.load(std::memory_order_relaxed)) {
+        tree_.build(pts_.data(), order_.data(), n_);
+        tree_built_.store(true, std::memory_order_release);
+      }
+    }
+    return tree_;
+  }
+  // With `far_index`: a query beyond the box of cells by more than a cell along an axis.
+  bool beyond(const double* q) const {
+    if (!far_index_) return false;
+    for (int a = 0; a < 3; ++a) {
+      const double u = (q[a] - lo_[a]) / h_[a];
+      if (!(u >= -1.0) || !(u < static_cast<double>(dim_[a] + 1))) return true;
+    }
+    return false;
+  }
   // Cells of side about h over the extents (at most 1024 along an axis); returns their count.
   int64_t set_cells(const double* ext, double h) {
     int64_t total = 1;
