@@ -22,19 +22,22 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
   return guarded("the kNN kernel", [&]() -> ffi::Error {
     auto pd = points.dimensions(), qd = queries.dimensions(), od = idx->dimensions();
     if (pd.size() != 2 || pd[1] != 3)
-      return ffi::Error::InvalidArgument("voxax: points must have shape (N, 3)");
+      return ffi::Error::InvalidArgument(
+          "voxax.nearest_neighbors: `points` must have shape (N, 3)");
     if (qd.size() != 2 || qd[1] != 3)
-      return ffi::Error::InvalidArgument("voxax: queries must have shape (M, 3)");
+      return ffi::Error::InvalidArgument(
+          "voxax.nearest_neighbors: `queries` must have shape (M, 3)");
     if (od.size() != 2 || od[0] != qd[0] || dist->dimensions().size() != 2 ||
         dist->dimensions()[0] != qd[0] || dist->dimensions()[1] != od[1])
-      return ffi::Error::InvalidArgument("voxax: kNN outputs must have shape (M, k)");
+      return ffi::Error::InvalidArgument(
+          "voxax.nearest_neighbors: the outputs must have shape (M, k)");
     const int64_t k = od[1];
     std::string msg;
     if (!spatial::check_knn_inputs(points.typed_data(), pd[0], queries.typed_data(), qd[0], k,
                                    &msg))
       return ffi::Error::InvalidArgument(msg);
     spatial::PointGrid grid;
-    grid.build(points.typed_data(), pd[0]);
+    grid.build(points.typed_data(), pd[0], true);
     const double* Q = queries.typed_data();
     int32_t* I = idx->typed_data();
     double* D = dist->typed_data();
