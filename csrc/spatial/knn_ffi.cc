@@ -37,7 +37,7 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
                                    &msg))
       return ffi::Error::InvalidArgument(msg);
     spatial::PointGrid grid;
-    grid.build(points.typed_data(), pd[0], true);
+    grid.build(points.typed_data(), pd[0], true, spatial::knn_points_per_cell(k));
     const double* Q = queries.typed_data();
     int32_t* I = idx->typed_data();
     double* D = dist->typed_data();

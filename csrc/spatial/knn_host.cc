@@ -27,7 +27,7 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
   return voxax::host_guarded("the kNN kernel", err, errlen, [&](std::string* msg) {
     if (!voxax::spatial::check_knn_inputs(S, n, Q, m, k, msg)) return false;
     voxax::spatial::PointGrid grid;
-    grid.build(S, n, true);
+    grid.build(S, n, true, voxax::spatial::knn_points_per_cell(k));
     voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
       for (int64_t i = b; i < e; ++i)
         grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
