@@ -207,6 +207,7 @@ def table(res) -> str:
         "",
         f"**Agreement** on `bent_bar(n_along=40, n_around=8)` ({a['faces']} faces, self-intersecting): voxax "
         f"reports {a['voxax_pairs_all']} pairs.",
+        "",
     ]
     if "libigl_pairs" in a:
         lines.append(f"- libigl's exact pairs: {a['libigl_pairs']}, {a['pairs_in_both']} of them also voxax's "
