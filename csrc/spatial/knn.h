@@ -331,5 +331,41 @@ class PointGrid {
   }
 };
 
+// The order in which to answer m queries Q (m, 3) (finite): by buckets of a coarse grid
+// over their box (x-major, about two queries per bucket, at most 64 per axis), by index
+// within a bucket. Consecutive queries then touch the same cells and tree nodes; the
+// answers do not depend on the order.
+inline std::vector<int64_t> query_order(const double* Q, int64_t m) {
+  std::vector<int64_t> order(static_cast<size_t>(m));
+  if (m == 0) return order;
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = Q[a];
+  for (int64_t i = 1; i < m; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], Q[3 * i + a]);
+      hi[a] = std::max(hi[a], Q[3 * i + a]);
+    }
+  const int64_t b = std::max<int64_t>(
+      1, std::min<int64_t>(64, static_cast<int64_t>(std::cbrt(static_cast<double>(m) / 2.0))));
+  double scale[3];
+  for (int a = 0; a < 3; ++a) {
+    const double ext = hi[a] - lo[a];
+    scale[a] = ext > 0.0 && std::isfinite(ext) ? static_cast<double>(b) / ext : 0.0;
+  }
+  auto key = [&](int64_t i) {
+    int64_t c[3];
+    for (int a = 0; a < 3; ++a) {
+      const double u = (Q[3 * i + a] - lo[a]) * scale[a];
+      c[a] = u > 0.0 ? std::min<int64_t>(b - 1, static_cast<int64_t>(u)) : 0;
+    }
+    return (c[0] * b + c[1]) * b + c[2];
+  };
+  std::vector<int64_t> start(static_cast<size_t>(b * b * b + 1), 0);
+  for (int64_t i = 0; i < m; ++i) start[key(i) + 1]++;
+  for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+  for (int64_t i = 0; i < m; ++i) order[start[key(i)]++] = i;
+  return order;
+}
+
 }  // namespace spatial
 }  // namespace voxax

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "common/errors.h"
 #include "common/parallel.h"
@@ -43,9 +44,12 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
     double* D = dist->typed_data();
     const int64_t m = qd[0];
     const int64_t chunks = (m + kKnnChunk - 1) / kKnnChunk;
+    const std::vector<int64_t> order = spatial::query_order(Q, m);
     ParallelFor::run(&pool, chunks, [&](int64_t c) {
-      for (int64_t i = c * kKnnChunk; i < std::min(m, (c + 1) * kKnnChunk); ++i)
+      for (int64_t s = c * kKnnChunk; s < std::min(m, (c + 1) * kKnnChunk); ++s) {
+        const int64_t i = order[s];
         grid.query(Q + 3 * i, static_cast<int>(k), I + k * i, D + k * i);
+      }
     });
     return ffi::Error::Success();
   });

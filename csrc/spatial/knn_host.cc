@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "common/host_errors.h"
 #include "common/host_pool.h"
@@ -28,9 +29,12 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
     if (!voxax::spatial::check_knn_inputs(S, n, Q, m, k, msg)) return false;
     voxax::spatial::PointGrid grid;
     grid.build(S, n, true, voxax::spatial::knn_points_per_cell(k));
+    const std::vector<int64_t> order = voxax::spatial::query_order(Q, m);
     voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t i = b; i < e; ++i)
+      for (int64_t s = b; s < e; ++s) {
+        const int64_t i = order[s];
         grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
+      }
     });
     return true;
   });
