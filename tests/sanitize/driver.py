@@ -948,22 +948,12 @@ def run_spatial(rng, n_inputs):
         "tiny mesh": (lambda: voxax.BVH(v * 10.0 ** -int(rng.integers(76, 320)), f), "below 1e-75"),
         "jit tiny mesh": (lambda: jax.jit(lambda vv: voxax.closest_points((vv, f), jnp.zeros((1, 3))))(v * 1e-200),
                           "below 1e-75"),
-        "kNN tiny points": (lambda: voxax.nearest_neighbors(v * 1e-90, v, 2), "below 1e-75"),
-        "jit kNN tiny points": (lambda: jax.jit(lambda pp: voxax.nearest_neighbors(pp, jnp.zeros((2, 3)), 2))(
-            v * 1e-300), "below 1e-75"),
         "jit NaN point": (lambda: jax.jit(lambda pp: voxax.closest_points((v, f), pp))(jnp.full((3, 3), jnp.nan)),
                           "NaN"),
         "jit index": (lambda: jax.jit(lambda ff: voxax.closest_points((v, ff), jnp.zeros((1, 3))))(f + 100),
                       "out of range"),
         "jit zero direction": (lambda: jax.jit(lambda dd: voxax.first_hits((v, f), jnp.zeros((1, 3)), dd))(
             jnp.zeros((1, 3))), "zero"),
-        "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "k must"),
-        "raw FFI kNN k = 40": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
-            jax.ShapeDtypeStruct((3, 40), jnp.int32), jax.ShapeDtypeStruct((3, 40), jnp.float64)))(
-            jnp.asarray(v), jnp.zeros((3, 3))), "k must"),
-        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
-            jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
-            jnp.asarray(v), jnp.zeros((3, 3))), "shape"),
         "raw FFI wrong rank": (lambda: jax.ffi.ffi_call(_kernels.CLOSEST_POINTS, (
             jax.ShapeDtypeStruct((3,), jnp.float64), jax.ShapeDtypeStruct((3,), jnp.int32),
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
@@ -1035,6 +1025,99 @@ def run_spatial(rng, n_inputs):
             jnp.asarray(v), jnp.asarray(v), jnp.ones(30), jnp.zeros(30, jnp.int32)), "outputs"),
     }
     expect_rejected("spatial", bad, (ValueError, TypeError, jax.errors.JaxRuntimeError))
+
+
+def _knn_points(rng, kind):
+    """Data points for the kNN fuzzing: sets that leave most of a grid empty (surfaces,
+    curves, far clusters), duplicates and ties, extreme scales."""
+    n = int(rng.integers(0, 400))
+    if kind == "uniform":
+        s = rng.uniform(-1, 1, (n, 3))
+    elif kind == "surface":
+        u = rng.normal(size=(n, 3))
+        s = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    elif kind == "curve":
+        t = rng.uniform(0, 6.3, n)
+        s = np.stack([np.cos(t), np.sin(t), 0.2 * t], axis=1)
+    elif kind == "clusters":
+        s = rng.normal(size=(n, 3)) * 1e-3 + 10.0 ** rng.integers(0, 8) * rng.integers(0, 2, (n, 1))
+    elif kind == "duplicates":
+        s = np.repeat(rng.uniform(-1, 1, (int(rng.integers(1, 6)), 3)), 80, axis=0)[: max(n, 1)]
+    elif kind == "lattice":
+        s = np.round(rng.uniform(-2, 2, (n, 3)))
+    elif kind == "flat":
+        s = rng.uniform(-1, 1, (n, 3)) * [1, 1, 0]
+    else:  # scaled: huge or tiny (sets all below 1e-75 are refused, see the hostile inputs)
+        s = rng.uniform(-1, 1, (n, 3)) * 10.0 ** int(rng.integers(-70, 74))
+    return s
+
+
+def run_knn(rng, n_inputs):
+    """k nearest neighbours (`csrc/spatial/knn_host.cc`, `knn_ffi.cc`; the grid and the
+    kd-tree of far queries) against brute force in the kernel's arithmetic, bit for bit
+    (ties by index), host == FFI and across thread counts; then hostile inputs."""
+    kinds = ("uniform", "surface", "curve", "clusters", "duplicates", "lattice", "flat", "scaled")
+    for i in range(n_inputs):
+        kind = kinds[i % len(kinds)]
+        label = f"knn/{kind}/{i}"
+        s = _knn_points(rng, kind)
+        scale = float(np.abs(s).max()) if s.size else 1.0
+        lo = s.min(0) if len(s) else np.zeros(3)
+        hi = s.max(0) if len(s) else np.ones(3)
+        span = np.maximum(hi - lo, scale * 1e-3 + 1e-300)
+        m = int(rng.integers(0, 300))
+        q = rng.uniform(lo - span, hi + span, (m, 3))  # near, far and beyond the box
+        if len(s) and m:
+            q[: m // 3] = s[rng.integers(0, len(s), m // 3)]  # on data points
+        if m:  # far away, within the accepted 1e75
+            q[m // 3: m // 2] *= min(10.0 ** int(rng.integers(0, 6)), 1e74 / max(float(np.abs(q).max()), 1e-300))
+        k = int(rng.integers(1, 33))
+        dk, ik = voxax.nearest_neighbors(s, q, k, threads=1)
+        d2k, i2k = voxax.nearest_neighbors(s, q, k, threads=2)
+        jd, ji = jax.jit(lambda s_, q_, k=k: voxax.nearest_neighbors(s_, q_, k))(s, q)
+        CALLS["knn"] += 3
+        if not (np.array_equal(dk, d2k) and np.array_equal(ik, i2k)):
+            fail(f"{label}: kNN differs between 1 and 2 threads")
+        if not (np.array_equal(np.asarray(jd), dk) and np.array_equal(np.asarray(ji), ik)):
+            fail(f"{label}: kNN FFI differs from the host path")
+        ref_d = np.full((m, k), np.inf)
+        ref_i = np.full((m, k), -1, np.int32)
+        if len(s) and m:
+            dx, dy, dz = (s[None, :, a] - q[:, None, a] for a in range(3))
+            d2 = dx * dx + dy * dy + dz * dz
+            order = np.argsort(d2, axis=1, kind="stable")[:, :k]
+            ref_i[:, : order.shape[1]] = order
+            ref_d[:, : order.shape[1]] = np.sqrt(np.take_along_axis(d2, order, axis=1))
+        if not (np.array_equal(ik, ref_i) and np.array_equal(dk, ref_d)):
+            fail(f"{label}: kNN differs from brute force (k = {k}, {len(s)} points, {m} queries)")
+        COUNTS["knn"] += 1
+    v = rng.uniform(-1, 1, (30, 3))
+    bad = {
+        "kNN tiny points": (lambda: voxax.nearest_neighbors(v * 1e-90, v, 2), "below 1e-75"),
+        "jit kNN tiny points": (lambda: jax.jit(lambda pp: voxax.nearest_neighbors(pp, jnp.zeros((2, 3)), 2))(
+            v * 1e-300), "below 1e-75"),
+        "kNN k = 40": (lambda: voxax.nearest_neighbors(v, v, 40), "`k` must lie in"),
+        "kNN k = 2.7": (lambda: voxax.nearest_neighbors(v, v, 2.7), "`k` must be an int"),
+        "kNN k = '2'": (lambda: voxax.nearest_neighbors(v, v, "2"), "`k` must be an int"),
+        "kNN bool points": (lambda: voxax.nearest_neighbors(v > 0, v, 2), "`points` must be a real"),
+        "kNN complex queries": (lambda: voxax.nearest_neighbors(v, v * 1j, 2), "`queries` must be a real"),
+        "kNN NaN queries": (lambda: voxax.nearest_neighbors(v, np.full((2, 3), np.nan), 2), "must be finite"),
+        "kNN huge points": (lambda: voxax.nearest_neighbors(v * 1e80, v, 2), "at most 1e75"),
+        "jit kNN Inf points": (lambda: jax.jit(lambda pp: voxax.nearest_neighbors(pp, v, 3))(
+            jnp.full((4, 3), jnp.inf)), "`points` must be finite"),
+        "jit kNN NaN queries": (lambda: jax.jit(lambda qq: voxax.nearest_neighbors(v, qq, 3))(
+            jnp.full((4, 3), jnp.nan)), "`queries` must be finite"),
+        "raw FFI kNN k = 40": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
+            jax.ShapeDtypeStruct((3, 40), jnp.int32), jax.ShapeDtypeStruct((3, 40), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "`k` must lie in"),
+        "raw FFI kNN mismatched outputs": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
+            jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((4, 2), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 3))), "shape"),
+        "raw FFI kNN queries (3, 2)": (lambda: jax.ffi.ffi_call(_kernels.KNN, (
+            jax.ShapeDtypeStruct((3, 2), jnp.int32), jax.ShapeDtypeStruct((3, 2), jnp.float64)))(
+            jnp.asarray(v), jnp.zeros((3, 2))), "shape"),
+    }
+    expect_rejected("knn", bad, (ValueError, TypeError, jax.errors.JaxRuntimeError))
 
 
 def run_bounds(rng, n_inputs):
@@ -1944,6 +2027,7 @@ def main(argv=None):
                 run_zero_size(dim, dtype)
         run_raw_ffi(rng)
         run_spatial(rng, args.spatial_inputs)
+        run_knn(rng, max(40, args.spatial_inputs // 2))
         run_line_crossings(rng, max(40, args.spatial_inputs // 2))
         run_fc(rng, max(28, args.spatial_inputs // 4))
         run_rdt(rng, max(20, args.spatial_inputs // 4))
@@ -1983,6 +2067,7 @@ def main(argv=None):
     print("\ninputs per family: " + ", ".join(f"{k} {COUNTS[k]}" for k in list(FAMILIES) + ["invalid", "raw_ffi", "zero_size", "marching_cubes", "marching_cubes_invalid"]))
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
+    print(f"kNN inputs: {COUNTS['knn']}, invalid: {COUNTS['knn_invalid']}")
     print(f"line crossings inputs: {COUNTS['line_crossings']}, invalid: {COUNTS['line_crossings_invalid']}")
     print(f"sparse voxelization inputs: {COUNTS['sparse']}, invalid: {COUNTS['sparse_invalid']}")
     print(f"selection bound sums: {COUNTS['bounds']} calls, invalid: {COUNTS['bounds_invalid']}")

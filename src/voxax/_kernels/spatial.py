@@ -45,7 +45,6 @@ _SIGNATURES = {
     "voxax_hits_size": (_i64, [VP]),
     "voxax_hits_copy": (None, [VP, D, I32, D, I8]),
     "voxax_hits_free": (None, [VP]),
-    "voxax_knn_host": (ctypes.c_int, [D, _i64, D, _i64, _i32, _i32, I32, D, _err, _i64]),
     "voxax_winding_number": (ctypes.c_int, [D, _i64, I32, _i64, D, _i64, _i32, _i32, D, I64, _err, _i64]),
 }  # fmt: skip
 

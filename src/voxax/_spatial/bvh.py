@@ -45,9 +45,6 @@ __all__ = [
 
 _threads = _kernels.threads
 
-# The kernel library with the BVH's and the kNN host call's signatures (used by `knn`).
-signed_library = kernels.library
-
 
 def real_vertices(where: str, x):
     """`x` unchanged, refused unless its dtype is a float or an integer (not bool or complex)."""
