@@ -389,6 +389,17 @@ def jax_key(where: str, value):
     return key(where, value)
 
 
+def _looks_like_faces(first, second) -> bool:
+    """Whether `f(first, second, ...)` is `f(vertices, faces, ...)`: an array of rank 2 or
+    more and an integer array of rank 2 or more (points, rays and counts are not)."""
+    if not (hasattr(first, "shape") or isinstance(first, (list, tuple))) or np.ndim(first) < 2:
+        return False
+    if is_mesh_object(second) or np.ndim(second) < 2:
+        return False
+    kind = second.dtype.kind if hasattr(second, "dtype") else np.asarray(second).dtype.kind
+    return kind in "iu"
+
+
 def surface_first(fn):
     """Lets a function whose first parameter is one surface (`f(mesh, p1, ...)`) take the
     other surface forms too: `f(vertices, faces, p1, ...)` and `f(vertices, faces=faces,
@@ -407,7 +418,7 @@ def surface_first(fn):
             if faces is not None:
                 raise TypeError(f"{fn.__name__}: got a mesh object and `faces`; pass either a mesh or `vertices, faces`")
             return fn(*args, **kwargs)
-        if faces is None and len(args) >= 2 and np.ndim(args[1]) == 2 and not is_mesh_object(args[1]):
+        if faces is None and len(args) >= 2 and _looks_like_faces(first, args[1]):
             faces, args = args[1], args[:1] + args[2:]
         if faces is None:
             return fn(*args, **kwargs)  # `fn` says what is wrong with its first argument

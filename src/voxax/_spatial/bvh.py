@@ -147,20 +147,14 @@ class BVH:
     [4.0]
     """
 
-    def __init__(self, vertices, faces=None):
-        if faces is None:
-            if isinstance(vertices, Mesh):
-                mesh = vertices
-            elif isinstance(vertices, tuple) and len(vertices) == 2:
-                mesh = Mesh(real_vertices("voxax.BVH", vertices[0]), vertices[1])
-            else:
-                raise TypeError(
-                    "BVH needs a Mesh, a (vertices, faces) pair, or vertices and faces"
-                )
+    def __init__(self, vertices, faces=None, *, where: str = "voxax.BVH"):
+        if isinstance(vertices, Mesh) and faces is None:
+            mesh = vertices
         else:
-            mesh = Mesh(real_vertices("voxax.BVH", vertices), faces)
+            v, f, _ = _validate.unpack_mesh(where, vertices, faces)
+            mesh = Mesh(*_validate.mesh_like(where, (real_vertices(where, v), f)))
         if mesh.dim != 3:
-            raise ValueError("BVH needs a 3D triangle mesh, got a 2D polyline")
+            raise ValueError(f"{where}: needs a 3D triangle mesh, got a 2D polyline")
         v = as_coords(mesh.vertices, "vertices")
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
         handle = kernels.bvh_build(v, f)
@@ -305,10 +299,10 @@ class BVH:
         return AllHits(offsets, ray, t, face, bary, sign)
 
 
-def _as_bvh(mesh) -> BVH:
+def _as_bvh(mesh, where: str) -> BVH:
     if isinstance(mesh, BVH):
         return mesh
-    return BVH(mesh)
+    return BVH(mesh, where=where)
 
 
 def any_traced(*xs) -> bool:
@@ -321,12 +315,13 @@ def _mesh_arrays(mesh):
 
     if isinstance(mesh, BVH):
         mesh = mesh.mesh
-    if isinstance(mesh, Mesh):
-        v, f = mesh.vertices, mesh.faces
-    elif isinstance(mesh, tuple) and len(mesh) == 2:
+    if _validate.is_mesh_object(mesh):
+        v, f = _validate.mesh_object_arrays("voxax.closest_points / first_hits", mesh)
+    elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v, f = mesh
     else:
-        raise TypeError("mesh must be a Mesh, a (vertices, faces) pair or a BVH")
+        raise TypeError("voxax.closest_points / first_hits: `mesh` must be a Mesh, a trimesh.Trimesh, a "
+                        "(vertices, faces) pair or a BVH")
     if not jax.config.jax_enable_x64:
         raise ValueError(
             "the jit path of the BVH queries computes in float64: enable jax_enable_x64"
@@ -477,6 +472,7 @@ def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
     )
 
 
+@_validate.surface_first
 def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints:
     """The closest point on a triangle mesh to every query point (exact distances).
 
@@ -498,9 +494,10 @@ def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints
     """
     if any_traced(mesh if isinstance(mesh, tuple) else (), points):
         return _closest_points_ffi(mesh, points)
-    return _as_bvh(mesh).closest_points(points, threads=threads)
+    return _as_bvh(mesh, "voxax.closest_points").closest_points(points, threads=threads)
 
 
+@_validate.surface_first
 def first_hits(
     mesh,
     origins,
@@ -521,11 +518,12 @@ def first_hits(
     """
     if any_traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
         return _first_hits_ffi(mesh, origins, directions, t_min, t_max)
-    return _as_bvh(mesh).first_hits(
+    return _as_bvh(mesh, "voxax.first_hits").first_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
     )
 
 
+@_validate.surface_first
 def any_hits(
     mesh,
     origins,
@@ -536,11 +534,12 @@ def any_hits(
     threads: int | None = None,
 ) -> np.ndarray:
     """Whether each ray hits a triangle mesh; see [`BVH.any_hits`][voxax.BVH.any_hits]."""
-    return _as_bvh(mesh).any_hits(
+    return _as_bvh(mesh, "voxax.any_hits").any_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
     )
 
 
+@_validate.surface_first
 def all_hits(
     mesh,
     origins,
@@ -556,6 +555,6 @@ def all_hits(
     >>> all_hits(data.cube(2.0), [[0.0, 0.0, -5.0]], [[0.0, 0.0, 1.0]]).t.tolist()
     [4.0, 6.0]
     """
-    return _as_bvh(mesh).all_hits(
+    return _as_bvh(mesh, "voxax.all_hits").all_hits(
         origins, directions, t_min=t_min, t_max=t_max, threads=threads
     )
