@@ -37,6 +37,7 @@ import numpy as np
 from . import esi as _esi
 from ._mesh import Mesh, face_normals
 from ._spatial import BVH
+from .esi._frames import bounding_sphere, unit_direction
 from .fields import Siren
 
 __all__ = [
@@ -202,7 +203,7 @@ def training_data(
     where = "nesi.training_data"
     mesh = _esi.closed_mesh(where, vertices, faces)
     d0, hfa = _axes(where, esi)
-    c, R = _esi.bounding_sphere(mesh)
+    c, R = bounding_sphere(mesh)
     s = (1.0 / 1.1) / R
     bvh = BVH(mesh)
     normals = face_normals(mesh.vertices, mesh.faces)
@@ -292,9 +293,9 @@ def _axes(where, esi):
         d0, hfa = esi
     else:
         raise TypeError(f"{where}: esi must be an ESI or a (dhf_axis, hf_axes) pair")
-    d0 = _esi.unit_direction(where, d0)
+    d0 = unit_direction(where, d0)
     hfa = np.asarray(hfa, dtype=np.float64).reshape(-1, 3)
-    hfa = [_esi.unit_direction(where, d) for d in hfa]
+    hfa = [unit_direction(where, d) for d in hfa]
     return d0, hfa
 
 

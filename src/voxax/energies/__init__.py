@@ -8,6 +8,8 @@ Grid energies take the output `W` of `voxax.voxelize` (box-filtered winding numb
   cut energy (paper, Sec. 4.3).
 - `fold_periodic`, `tiling`: the space-filling energy (paper, Sec. 4.4).
 - `volume(W, grid)`, `interpenetration(W_a, W_b)`: enclosed volume; overlap of two shapes.
+- `height_field_hull(W, axis, w)`, `esi_gap(W, axes, w)`: soft double-height-field hulls
+  and the gap of a shape to their intersection (explicit surface intersections on grids).
 
 Mesh energies:
 
@@ -45,9 +47,12 @@ from ._grid import (
     tiling,
     volume,
 )
+from ._height_fields import esi_gap, height_field_hull
 from ._objective import objective
 
 __all__ = [
+    "height_field_hull",
+    "esi_gap",
     "mellowmax",
     "silhouettes",
     "cut_shape",
