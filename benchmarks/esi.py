@@ -292,7 +292,7 @@ def bench_nesi(steps, lods, shapes=("torus", "mug"), siren=False, resolution=256
             t, c0, load = time.perf_counter(), time.process_time(), _load()
             net = nesi.fit(ax, m, lod=lod, steps=steps, n_samples=20_000, learning_rate=1e-3)
             t_fit, c_fit = time.perf_counter() - t, time.process_time() - c0
-            nm = nesi.to_mesh(net, resolution)
+            nm = nesi.to_mesh(net, resolution=resolution)
             cd = _cd(nm, m)
             print(
                 f"[{name}] NESI lod {lod}: {nesi.param_count(net)} parameters, fit {t_fit:.0f} s wall / {c_fit:.0f} s CPU "

@@ -21,6 +21,21 @@ well-chosen axes it is close to S.
 
 All geometry is float64 and computed eagerly on NumPy arrays through `voxax.BVH`.
 
+**Arguments, in one order.** A surface is any of a `voxax.Mesh`, a `trimesh.Trimesh`, a
+`(vertices, faces)` pair or the two arrays (`vertices, faces=None`), closed and
+consistently oriented, with finite coordinates of magnitude at most `1e75` (the
+selection, depth maps, occupancy and meshing scale the mesh by an exact power of two to
+about unit size, so they work alike at every scale). Functions of a surface take it first
+(`depth_map(vertices, faces, direction)`, `select(vertices, faces, ...)`); functions of an
+ESI take the ESI first and then the mesh it was selected for, since an ESI holds only its
+axes: `occupancy(esi, vertices, faces, points)`, `to_mesh(esi, vertices, faces, *,
+resolution)`, `energy(esi, vertices, faces, ...)`, like `voxax.nesi.fit(esi, vertices,
+faces, ...)`. A NESI holds its networks, so `voxax.nesi.occupancy(net, points)` and
+`voxax.nesi.to_mesh(net, *, resolution)` take no mesh. Randomness is `key` (an int or a
+JAX PRNG key; `seed` is its deprecated name), `threads` is `None` (`VOXAX_NUM_THREADS` or
+every core) or an int >= 1 with the same bits for every count, and `select` shows a
+progress bar unless `progress=False`. Errors read ``"voxax.esi.<fn>: `arg` must ..."``.
+
 The package follows the pipeline: `_frames` (inputs, pixel frames, candidate axes),
 `_depth` (depth maps, height-field solids), `_problem` (the selection's precomputed
 energy terms), `_search` (branch and bound), `_select` (`select`, `ESI`) and `_mesh`
@@ -32,19 +47,23 @@ energy terms), `_search` (branch and bound), `_select` (`select`, `ESI`) and `_m
 from __future__ import annotations
 
 from ..energies import esi_gap, height_field_hull
-from ._depth import DepthMap, depth_map, height_field_solid
-from ._frames import Frame, candidates, closed_mesh, fibonacci_sphere, frame_for
-from ._mesh import energy, intersect_solids, occupancy, to_mesh
+from ._depth import DepthMap, HeightFieldSolid, depth_map, height_field_solid
+from ._frames import Candidates, Frame, candidates, closed_mesh, fibonacci_sphere, frame_for
+from ._mesh import EnergyTerms, energy, energy_terms, intersect_solids, occupancy, to_mesh
 from ._select import ESI, select
 
 __all__ = [
+    "Candidates",
     "DepthMap",
     "ESI",
+    "EnergyTerms",
     "Frame",
+    "HeightFieldSolid",
     "candidates",
     "closed_mesh",
     "depth_map",
     "energy",
+    "energy_terms",
     "esi_gap",
     "height_field_hull",
     "fibonacci_sphere",

@@ -11,9 +11,18 @@ import numpy as np
 from .. import _validate
 from .._mesh import Mesh, face_normals
 from .._spatial import BVH
-from ._frames import Frame, bounding_sphere, closed_mesh, frame_for, unit_direction
+from ._frames import (
+    Frame,
+    bounding_sphere,
+    check_threads,
+    closed_mesh,
+    exact_scale,
+    frame_for,
+    tuple_values_equal,
+    unit_direction,
+)
 
-__all__ = ["DepthMap", "depth_map", "height_field_solid"]
+__all__ = ["DepthMap", "HeightFieldSolid", "depth_map", "height_field_solid"]
 
 
 class DepthMap(NamedTuple):
@@ -41,22 +50,44 @@ class DepthMap(NamedTuple):
     face_last: np.ndarray
     frame: Frame
 
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
 
-def _depth_map(bvh: BVH, frame: Frame, normals: np.ndarray, threads=None) -> DepthMap:
+
+class HeightFieldSolid(NamedTuple):
+    """A closed outward mesh of a height field (`mesh`) whose first `n_top_wall_faces`
+    faces are its top and walls (the rest, its bottom, lie outside the bounding sphere)."""
+
+    mesh: Mesh
+    n_top_wall_faces: int
+
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _depth_map(bvh: BVH, frame: Frame, normals: np.ndarray, threads=None, scale: float = 1.0) -> DepthMap:
+    """The depth map of `frame` by casts against `bvh`, a tree of the mesh scaled by the
+    power of two `scale` (see `exact_scale`; the depths come back in the frame's units)."""
     r = frame.resolution
     x = frame.coords()
     base = (frame.center + x[:, None, None] * frame.u + x[None, :, None] * frame.v).reshape(-1, 3)
     reach = 2.0 * frame.radius
-    lo = bvh.first_hits(base - reach * frame.d, frame.d, threads=threads)
-    hi = bvh.first_hits(base + reach * frame.d, -frame.d, threads=threads)
+    lo = bvh.first_hits((base - reach * frame.d) * scale, frame.d, threads=threads)
+    hi = bvh.first_hits((base + reach * frame.d) * scale, -frame.d, threads=threads)
     mask = lo.hit & hi.hit
-    first = np.where(mask, lo.t - reach, np.nan).reshape(r, r)
-    last = np.where(mask, reach - hi.t, np.nan).reshape(r, r)
+    first = np.where(mask, lo.t / scale - reach, np.nan).reshape(r, r)
+    last = np.where(mask, reach - hi.t / scale, np.nan).reshape(r, r)
     ff = np.where(mask, lo.face, -1).astype(np.int32)
     fl = np.where(mask, hi.face, -1).astype(np.int32)
     nf = np.where(mask[:, None], normals[np.maximum(ff, 0)], 0.0).reshape(r, r, 3)
     nl = np.where(mask[:, None], normals[np.maximum(fl, 0)], 0.0).reshape(r, r, 3)
     return DepthMap(first, last, mask.reshape(r, r), nf, nl, ff.reshape(r, r), fl.reshape(r, r), frame)
+
+
+def scaled_tree(mesh: Mesh) -> tuple[BVH, float]:
+    """A BVH of `mesh` scaled by `exact_scale` of its bounding radius, and that scale."""
+    scale = exact_scale(bounding_sphere(mesh)[1])
+    return (BVH(mesh) if scale == 1.0 else BVH(Mesh(mesh.vertices * scale, mesh.faces))), scale
 
 
 def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, threads=None) -> DepthMap:
@@ -76,7 +107,7 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
     - `faces`: `(F, 3)` int; the mesh must be closed and consistently oriented.
     - `direction`: `(3,)` float, non-zero (normalised here).
     - `resolution`: pixels per side (>= 1).
-    - `threads`: threads for the ray casts (default: all cores).
+    - `threads`: threads for the ray casts (`None`: `VOXAX_NUM_THREADS` or every core).
 
     **Returns:** a [`DepthMap`][voxax.esi.DepthMap].
 
@@ -85,29 +116,30 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
     >>> float(dm.first[1, 1]), float(dm.last[1, 1])
     (-1.0, 1.0)
     """
-    where = "esi.depth_map"
+    where = "voxax.esi.depth_map"
     if isinstance(vertices, BVH):
         bvh = vertices
         if direction is None:
             faces, direction = None, faces
         elif faces is not None:
-            raise TypeError(f"{where}: given a BVH, pass only the direction after it")
-        mesh, normals = _checked_tree(where, bvh)
+            raise TypeError(f"{where}: given a BVH, pass only `direction` after it")
+        mesh, normals, bvh, scale = _checked_tree(where, bvh)
     else:
         vertices, faces, (direction,) = _validate.unpack_mesh(where, vertices, faces, direction)
         mesh = closed_mesh(where, vertices, faces)
-        bvh, normals = BVH(mesh), face_normals(mesh.vertices, mesh.faces)
+        (bvh, scale), normals = scaled_tree(mesh), face_normals(mesh.vertices, mesh.faces)
     if direction is None:
-        raise TypeError(f"{where}: missing `direction`")
+        raise TypeError(f"{where}: `direction` must be given (a (3,) vector)")
     d = unit_direction(where, direction)
     res = _validate.positive_int(where, "resolution", resolution)
     c, rad = bounding_sphere(mesh)
     frame = frame_for(d, c, rad, res)
-    dm = _depth_map(bvh, frame, normals, threads)
+    check_threads(where, threads)
+    dm = _depth_map(bvh, frame, normals, threads, scale)
     if not dm.mask.any():
         raise ValueError(
-            f"{where}: the depth map is empty (no pixel centre of the {res}x{res} frame "
-            "meets the mesh); raise the resolution"
+            f"{where}: `resolution` must be higher: the depth map is empty (no pixel centre of "
+            f"the {res}x{res} frame meets the mesh)"
         )
     return dm
 
@@ -115,13 +147,15 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
 _CHECKED_TREES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _checked_tree(where: str, bvh: BVH) -> tuple[Mesh, np.ndarray]:
-    """The mesh of `bvh`, checked by `closed_mesh` on first use, and its face normals; both
-    kept on the tree so that later depth maps skip the check."""
+def _checked_tree(where: str, bvh: BVH) -> tuple[Mesh, np.ndarray, BVH, float]:
+    """The mesh of `bvh`, checked by `closed_mesh` on first use, its face normals and the
+    tree to cast against with its scale (`bvh` itself unless the mesh is far from unit
+    size, see `scaled_tree`); kept on the tree so that later depth maps skip the check."""
     cached = _CHECKED_TREES.get(bvh)
     if cached is None:
         mesh = closed_mesh(where, bvh.mesh)
-        cached = _CHECKED_TREES[bvh] = (mesh, face_normals(mesh.vertices, mesh.faces))
+        tree, scale = (bvh, 1.0) if exact_scale(bounding_sphere(mesh)[1]) == 1.0 else scaled_tree(mesh)
+        cached = _CHECKED_TREES[bvh] = (mesh, face_normals(mesh.vertices, mesh.faces), tree, scale)
     return cached
 
 
@@ -146,18 +180,23 @@ def _border(r: int) -> np.ndarray:
     return np.concatenate([i * r, (r - 1) * r + i, (r - 1 - i) * r + r - 1, (r - 1 - i) + 0 * r])
 
 
-def height_field_solid(dm: DepthMap, sign: int) -> tuple[Mesh, int]:
+def height_field_solid(dm: DepthMap, sign: int) -> HeightFieldSolid:
     """A closed outward mesh of `HF(sign * d)` from a depth map, clipped far below.
 
     The top is the pixel-centre grid at the height function (`last` for `sign = +1`,
     `first` for `-1`); pixels off the mask drop to `1.02 radius` below the centre, and
-    the solid ends `1.05 radius` below it. Returns `(mesh, n_top_wall_faces)`: the faces
+    the solid ends `1.05 radius` below it. Returns a
+    [`HeightFieldSolid`][voxax.esi.HeightFieldSolid] `(mesh, n_top_wall_faces)`: the faces
     of the top and walls come first (the bottom is outside the bounding sphere).
     """
+    if not isinstance(dm, DepthMap):
+        raise TypeError(f"voxax.esi.height_field_solid: `dm` must be a DepthMap, got {type(dm).__name__}")
+    if sign not in (1, -1) or isinstance(sign, bool):
+        raise ValueError(f"voxax.esi.height_field_solid: `sign` must be 1 or -1, got {sign!r}")
     fr = dm.frame
     r = fr.resolution
     if r < 2:
-        raise ValueError("height-field solids need a depth map with resolution >= 2")
+        raise ValueError("voxax.esi.height_field_solid: `dm` must have resolution >= 2")
     R = fr.radius
     h = (dm.last if sign > 0 else -dm.first).copy()
     h[~dm.mask] = -_OFF_TOP * R
@@ -189,4 +228,4 @@ def height_field_solid(dm: DepthMap, sign: int) -> tuple[Mesh, int]:
     world = fr.center + local[:, :1] * fr.u + local[:, 1:2] * fr.v + (sign * local[:, 2:]) * fr.d
     if sign < 0:
         faces = faces[:, ::-1]
-    return Mesh(world, faces.astype(np.int32)), len(g) + len(walls)
+    return HeightFieldSolid(Mesh(world, faces.astype(np.int32)), len(g) + len(walls))

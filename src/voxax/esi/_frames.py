@@ -8,10 +8,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import _validate
+from .. import _kernels, _validate
 from .._mesh import Mesh
+from .._values import values_equal
 
 __all__ = [
+    "Candidates",
     "Frame",
     "bounding_sphere",
     "candidates",
@@ -22,38 +24,39 @@ __all__ = [
 ]
 
 
+#: The largest coordinate magnitude accepted (the BVH's bound; every computation is
+#: scale-invariant below it).
+MAX_COORDINATE = 1e75
+#: The least extent accepted: below it coordinates are subnormal floats.
+MIN_EXTENT = 2.0**-960
+
+
 def closed_mesh(where: str, vertices, faces=None) -> Mesh:
-    """A `Mesh` from a mesh object or `(vertices, faces)`, checked to be a closed,
-    consistently oriented, non-empty 3D triangle mesh (every directed edge has exactly one
-    reverse). Raises `ValueError` otherwise."""
-    if faces is None:
-        if _validate.is_mesh_object(vertices):
-            v, f = _validate.mesh_object_arrays(where, vertices)
-        elif isinstance(vertices, tuple) and len(vertices) == 2:
-            v, f = vertices
-        else:
-            raise TypeError(
-                f"{where}: expected a voxax.Mesh, a trimesh.Trimesh or vertices and faces, got {type(vertices).__name__}"
-            )
-    else:
-        v, f = vertices, faces
+    """A `Mesh` from any surface form (a `voxax.Mesh`, a `trimesh.Trimesh`, a `(vertices,
+    faces)` pair or `vertices, faces`, through `voxax._validate.unpack_mesh`), checked to be
+    a closed, consistently oriented, non-empty 3D triangle mesh (every directed edge has
+    exactly one reverse) with finite coordinates of magnitude at most `1e75`. Raises
+    `TypeError` or `ValueError` naming `where` and the argument otherwise."""
+    v, f, _ = _validate.unpack_mesh(where, vertices, faces)
     v = np.asarray(v)
     f = np.asarray(f)
     if v.dtype.kind not in "fiu":
-        raise TypeError(f"{where}: vertices must be a real array, got dtype {v.dtype}")
+        raise TypeError(f"{where}: `vertices` must be a real array, got dtype {v.dtype}")
     if f.dtype.kind not in "iu":
-        raise TypeError(f"{where}: faces must be an integer array, got dtype {f.dtype}")
+        raise TypeError(f"{where}: `faces` must be an integer array, got dtype {f.dtype}")
     if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"{where}: vertices must have shape (V, 3), got {v.shape}")
+        raise ValueError(f"{where}: `vertices` must have shape (V, 3), got {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"{where}: faces must have shape (F, 3), got {f.shape}")
+        raise ValueError(f"{where}: `faces` must have shape (F, 3), got {f.shape}")
     if len(f) == 0:
-        raise ValueError(f"{where}: the mesh has no faces")
+        raise ValueError(f"{where}: `faces` must not be empty (the mesh has no faces)")
     if f.min() < 0 or f.max() >= len(v):
-        raise ValueError(f"{where}: face indices out of range [0, {len(v)})")
+        raise ValueError(f"{where}: `faces` must index the vertices, in [0, {len(v)}); got [{f.min()}, {f.max()}]")
     v = v.astype(np.float64)
     if not np.all(np.isfinite(v)):
-        raise ValueError(f"{where}: vertices contain NaN or Inf")
+        raise ValueError(f"{where}: `vertices` must be finite (they contain NaN or Inf)")
+    if np.abs(v).max() > MAX_COORDINATE:
+        raise ValueError(f"{where}: `vertices` must have coordinates of magnitude at most 1e75, got {np.abs(v).max():.3g}")
     f = f.astype(np.int64)
     a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)
     keep = a != b
@@ -65,15 +68,45 @@ def closed_mesh(where: str, vertices, faces=None) -> Mesh:
     unmatched = int(np.count_nonzero(fwd != rev))
     if dup or unmatched:
         raise ValueError(
-            f"{where}: needs a closed, consistently oriented triangle mesh "
+            f"{where}: the mesh must be closed and consistently oriented "
             f"({unmatched} edges without a matching reverse edge, {dup} repeated directed edges); "
             "open meshes have no inside"
         )
     mesh = Mesh(v, f.astype(np.int32))
     used = v[_used(len(v), f)]
-    if not np.ptp(used, axis=0).max() > 0:
-        raise ValueError(f"{where}: the mesh is a single point")
+    extent = float(np.ptp(used, axis=0).max())
+    if not extent > 0:
+        raise ValueError(f"{where}: the mesh must have extent (it is a single point)")
+    if extent < MIN_EXTENT:
+        raise ValueError(f"{where}: the mesh must have an extent of at least 1e-289, got {extent:.3g} (subnormal floats)")
     return mesh
+
+
+def tuple_values_equal(self, other) -> bool:
+    """`==` of the named tuples of results: the same type and every field equal by value
+    (arrays element by element, see `voxax._values.values_equal`)."""
+    if type(other) is not type(self):
+        return NotImplemented
+    return all(values_equal(a, b) for a, b in zip(self, other))
+
+
+def exact_scale(radius: float) -> float:
+    """A power of two `s` (exact to multiply by) that brings a shape of bounding radius
+    `radius` to about unit size, or 1 when it is already within `2^-20 .. 2^20`: the ray
+    casts then run on `s * vertices`, the same bits as at unit size (a watertight ray test
+    is exact under scaling by powers of two) and far from the BVH's coordinate bound."""
+    if 2.0**-20 <= radius <= 2.0**20:
+        return 1.0
+    return math.ldexp(1.0, -math.frexp(radius)[1])
+
+
+def check_threads(where: str, threads) -> None:
+    """Checks `threads` (`None` or an int >= 1, resolved by `voxax._kernels.threads`) with
+    a message naming `where`."""
+    try:
+        _kernels.threads(threads)
+    except (TypeError, ValueError) as e:
+        raise type(e)(f"{where}: {e}") from None
 
 
 def _used(n: int, faces) -> np.ndarray:
@@ -82,20 +115,26 @@ def _used(n: int, faces) -> np.ndarray:
     return used
 
 
-def unit_direction(where: str, direction) -> np.ndarray:
-    """`direction` as a unit `(3,)` float64 vector; `ValueError` if it is not a finite,
-    non-zero 3-vector."""
+def unit_direction(where: str, direction, name: str = "direction") -> np.ndarray:
+    """`direction` as a unit `(3,)` float64 vector; `TypeError`/`ValueError` naming `name`
+    if it is not a finite, non-zero real 3-vector."""
+    if isinstance(direction, (str, bytes)):
+        raise TypeError(f"{where}: `{name}` must be a real 3-vector, got {type(direction).__name__}")
     d = np.asarray(direction)
     if d.dtype.kind not in "fiu":
-        raise TypeError(f"{where}: direction must be a real 3-vector, got dtype {d.dtype}")
+        raise TypeError(f"{where}: `{name}` must be a real 3-vector, got dtype {d.dtype}")
     d = d.astype(np.float64)
     if d.shape != (3,):
-        raise ValueError(f"{where}: direction must have shape (3,), got {d.shape}")
+        raise ValueError(f"{where}: `{name}` must have shape (3,), got {d.shape}")
     if not np.all(np.isfinite(d)):
-        raise ValueError(f"{where}: direction contains NaN or Inf")
+        raise ValueError(f"{where}: `{name}` must be finite (it contains NaN or Inf)")
     n = float(np.linalg.norm(d))
-    if not n > 1e-150:
-        raise ValueError(f"{where}: direction is zero (a degenerate direction)")
+    if not (1e-150 < n < math.inf):  # tiny or huge: the same direction, rescaled first
+        big = float(np.abs(d).max())
+        if big == 0.0:
+            raise ValueError(f"{where}: `{name}` must be non-zero (a degenerate direction)")
+        d = d / big
+        n = float(np.linalg.norm(d))
     return d / n
 
 
@@ -133,6 +172,9 @@ class Frame(NamedTuple):
         z = np.asarray(depth, dtype=np.float64)
         return self.center + x[:, None, None] * self.u + x[None, :, None] * self.v + z[..., None] * self.d
 
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
+
     def to_local(self, points) -> np.ndarray:
         """Frame coordinates `(..., 3)` = `(x, y, z)` of world points `(..., 3)`."""
         p = np.asarray(points, dtype=np.float64) - self.center
@@ -164,9 +206,7 @@ def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
 def fibonacci_sphere(n: int, *, hemisphere: bool = False) -> np.ndarray:
     """`n` spherical Fibonacci points `(n, 3)` float64 on the unit sphere (or the upper
     half sphere `z > 0` with `hemisphere=True`), evenly spread by the golden angle."""
-    n = int(n)
-    if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
+    n = _validate.positive_int("voxax.esi.fibonacci_sphere", "n", n, minimum=0)
     i = np.arange(n, dtype=np.float64)
     z = 1.0 - (i + 0.5) / n if hemisphere else 1.0 - 2.0 * (i + 0.5) / max(n, 1)
     phi = i * math.pi * (3.0 - math.sqrt(5.0))
@@ -174,7 +214,18 @@ def fibonacci_sphere(n: int, *, hemisphere: bool = False) -> np.ndarray:
     return np.stack([s * np.cos(phi), s * np.sin(phi), z], 1)
 
 
-def candidates(n_dhf: int = 50, n_hf: int = 80) -> tuple[np.ndarray, np.ndarray]:
+class Candidates(NamedTuple):
+    """Candidate axes: `dhf` `(n, 3)` for the DHF, `hf` `(n', 3)` for the HFs (float64
+    unit vectors; a named tuple, so `dhf, hf = candidates(...)`)."""
+
+    dhf: np.ndarray
+    hf: np.ndarray
+
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
+
+
+def candidates(n_dhf: int = 50, n_hf: int = 80) -> Candidates:
     """Candidate axes for the DHF and the HFs.
 
     **Arguments:**
@@ -184,16 +235,19 @@ def candidates(n_dhf: int = 50, n_hf: int = 80) -> tuple[np.ndarray, np.ndarray]
     - `n_hf`: Fibonacci directions on the whole sphere for the HFs, after the six signed
       coordinate axes.
 
-    **Returns:** `(dhf (3 + n_dhf, 3), hf (6 + n_hf, 3))` float64 unit vectors.
+    **Returns:** [`Candidates`][voxax.esi.Candidates] `(dhf (3 + n_dhf, 3), hf (6 + n_hf, 3))`.
 
     >>> dhf, hf = candidates(10, 12)
     >>> dhf.shape, hf.shape
     ((13, 3), (18, 3))
     """
+    where = "voxax.esi.candidates"
+    n_dhf = _validate.positive_int(where, "n_dhf", n_dhf, minimum=0)
+    n_hf = _validate.positive_int(where, "n_hf", n_hf, minimum=0)
     eye = np.eye(3)
     dhf = np.concatenate([eye, fibonacci_sphere(n_dhf, hemisphere=True)])
     hf = np.concatenate([np.stack([eye[0], -eye[0], eye[1], -eye[1], eye[2], -eye[2]]), fibonacci_sphere(n_hf)])
-    return dhf, hf
+    return Candidates(dhf, hf)
 
 
 def _canonical(d: np.ndarray) -> tuple[tuple, int]:

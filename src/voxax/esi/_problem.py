@@ -14,7 +14,7 @@ from .._kernels import esi as _kesi
 from .._mesh import Mesh, face_normals
 from .._spatial import BVH
 from ._depth import _BOTTOM, ON_SURFACE_PIXELS, _depth_map, height_field_solid
-from ._frames import _canonical, _used, bounding_sphere, frame_for
+from ._frames import _canonical, _used, bounding_sphere, exact_scale, frame_for
 
 
 class _Problem:
@@ -24,14 +24,18 @@ class _Problem:
     its two signed directions. The mesh is scaled into `[-1/1.1, 1/1.1]^3` first.
     """
 
-    def __init__(self, mesh: Mesh, dirs: np.ndarray, *, resolution, n_samples, seed, threads):
+    def __init__(self, mesh: Mesh, dirs: np.ndarray, *, resolution, n_samples, seed, threads, progress=None):
         from ..metrics import sample_surface
 
-        used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
+        # first an exact power of two for meshes far from unit size (the same bits as at
+        # unit size), then the centre and scale
+        pre = exact_scale(bounding_sphere(mesh)[1])
+        V = mesh.vertices if pre == 1.0 else mesh.vertices * pre
+        used = V[_used(mesh.n_vertices, mesh.faces)]
         lo, hi = used.min(0), used.max(0)
         self.center = 0.5 * (lo + hi)
         self.scale = (1.0 / 1.1) / float(0.5 * (hi - lo).max())
-        self.mesh = Mesh((mesh.vertices - self.center) * self.scale, mesh.faces)
+        self.mesh = Mesh((V - self.center) * self.scale, mesh.faces)
         self.threads = threads
         self.bvh = BVH(self.mesh)
         c, rad = bounding_sphere(self.mesh)
@@ -122,7 +126,10 @@ class _Problem:
         with concurrent.futures.ThreadPoolExecutor(workers) as pool, _blas.single_threaded():
             self.maps = dict(enumerate(pool.map(lambda fr: _depth_map(self.bvh, fr, normals, inner), frames)))
             self._casts = self._column_casts()
+            step = progress(K) if progress is not None else None
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
+                if step is not None:
+                    step()
                 self.D[:, k] = dist
                 self.visP[:, k] = ~hit
                 self.B.append(b)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
+import os
 from typing import NamedTuple
 
 import numpy as np
 
 from .. import _validate
-from ._frames import _canonical, candidates, closed_mesh, unit_direction
+from ._frames import _canonical, candidates, check_threads, closed_mesh, tuple_values_equal, unit_direction
 from ._problem import _Problem
 from ._search import _search
 
@@ -24,15 +25,19 @@ class ESI(NamedTuple):
       points whose ray along `+d` meets the surface).
     - `energy`: E of the selection (Eq. 1, in the units of the mesh scaled into
       `[-1/1.1, 1/1.1]^3`).
-    - `by_m`: `(M,)` float64, the least E found with exactly `m = 0, 1, ...` HFs (the
+    - `by_m`: `(M,)` float64, the least E with exactly `m = 0, 1, ..., M - 1` HFs. The
       search stops at the first `m` that does not lower E by more than `tol`, unless
-      `stop_early=False`; that last level only looks for a choice below the previous best
-      minus `tol`, and its entry is `nan` when there is none).
+      `stop_early=False`; that level only looks for a choice below the best E so far
+      minus `tol`, so it has no entry here when there is none (`leaves` and
+      `evaluations` count it).
     - `dhf_index`, `hf_indices`: indices into the candidate arrays.
     - `chamfer`: the selection's Chamfer `Dist = CD(S, S~) + CD(S~, S)` (same units).
     - `mu`: its uncovered fraction (Eq. 4).
-    - `leaves`, `evaluations`: `(M,)` int64, the combinations with `m` HFs and how many of
-      them were evaluated in full (the rest were pruned by the lower bound).
+    - `leaves`, `evaluations`: int64, per level searched (`M` or `M + 1` of them), the
+      combinations with `m` HFs and how many of them were evaluated in full (the rest
+      were pruned by the lower bound).
+
+    Equality compares every field by value.
     """
 
     dhf_axis: np.ndarray
@@ -57,33 +62,88 @@ class ESI(NamedTuple):
         """The signed ray directions that define the ESI: `+dhf`, `-dhf`, then the HFs."""
         return [self.dhf_axis, -self.dhf_axis] + list(self.hf_axes)
 
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
 
-def _prepare(where, vertices, faces, dhf, hf, resolution, n_samples, seed, threads):
+
+def _directions(where: str, name: str, value, allow_empty: bool) -> np.ndarray:
+    """`(n, 3)` unit float64 directions from a real array (a single `(3,)` row too)."""
+    d = np.asarray(value)
+    if d.dtype.kind not in "fiu" and not (d.size == 0 and d.dtype.kind in "fiuO"):
+        raise TypeError(f"{where}: `{name}` must be a real (n, 3) array, got dtype {d.dtype}")
+    if d.size == 0:
+        if not allow_empty:
+            raise ValueError(f"{where}: `{name}` must hold at least one direction")
+        return np.zeros((0, 3))
+    if d.ndim not in (1, 2) or d.shape[-1] != 3:
+        raise ValueError(f"{where}: `{name}` must have shape (n, 3), got {d.shape}")
+    return np.stack([unit_direction(where, row, name) for row in np.atleast_2d(d.astype(np.float64))])
+
+
+def _seed(where: str, key) -> int:
+    """The int seed of the sampling from `key`: an int is its own seed, a JAX PRNG key
+    seeds one drawn from its key data."""
+    if isinstance(key, (int, np.integer)) and not isinstance(key, (bool, np.bool_)):
+        return _validate.positive_int(where, "key", key, minimum=0)
+    return int(_validate.numpy_rng(where, key).integers(2**31 - 8))
+
+
+def _check_pixels(where: str, resolution: int, n_maps: int) -> None:
+    """`MemoryError` before allocating depth maps that cannot fit (about 200 bytes per
+    pixel with their solids and samples) in the machine's memory."""
+    need = 200.0 * n_maps * resolution * resolution
+    try:
+        have = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        have = math.inf
+    if need > have:
+        raise MemoryError(
+            f"{where}: `resolution` = {resolution} needs about {need / 2**30:.0f} GiB for {n_maps} depth maps, "
+            f"more than this machine's {have / 2**30:.0f} GiB"
+        )
+
+
+def _prepare(where, vertices, faces, dhf, hf, resolution, n_samples, key, threads, progress=None):
     mesh = closed_mesh(where, vertices, faces)
-    dhf = np.atleast_2d(np.asarray(dhf, dtype=np.float64))
-    hf = np.asarray(hf, dtype=np.float64).reshape(-1, 3)
-    dhf = np.stack([unit_direction(where, d) for d in dhf]) if len(dhf) else dhf
-    if len(dhf) == 0:
-        raise ValueError(f"{where}: needs at least one DHF candidate")
-    hf = np.stack([unit_direction(where, d) for d in hf]) if len(hf) else hf.reshape(0, 3)
+    dhf = _directions(where, "candidates_dhf", dhf, allow_empty=False)
+    hf = _directions(where, "candidates_hf", hf, allow_empty=True)
     seen: dict = {}
     for j, d in enumerate(hf):  # the search counts each HF's floaters once
         i = seen.setdefault(_canonical(d), j)
         if i != j:
-            raise ValueError(f"{where}: candidates_hf repeats a direction (rows {i} and {j})")
+            raise ValueError(f"{where}: `candidates_hf` must not repeat a direction (rows {i} and {j} are one)")
     res = _validate.positive_int(where, "resolution", resolution, minimum=2)
     ns = _validate.positive_int(where, "n_samples", n_samples)
+    seed = _seed(where, key)
+    check_threads(where, threads)
+    _check_pixels(where, res, len(dhf) + len(hf))
     prob = _Problem(
         mesh,
         np.concatenate([dhf, -dhf, hf]),
         resolution=res,
         n_samples=ns,
-        seed=int(seed),
+        seed=seed,
         threads=threads,
+        progress=progress,
     )
+    prob.candidates = (dhf, hf)
     dk = [(prob.index(d), prob.index(-d)) for d in dhf]
     hk = [prob.index(d) for d in hf]
     return prob, dk, hk
+
+
+def _number(where: str, name: str, value, lo: float = 0.0, hi: float = math.inf) -> float:
+    """A finite real number in `[lo, hi]`."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: `{name}` must be a real number, got {type(value).__name__}")
+    x = float(value)
+    if not (math.isfinite(x) and lo <= x <= hi):
+        raise ValueError(f"{where}: `{name}` must be finite and in [{lo:g}, {hi:g}], got {value}")
+    return x
+
+
+def _check_energy_settings(where: str, eps1, eps2, angle) -> tuple[float, float, float]:
+    return _number(where, "eps1", eps1), _number(where, "eps2", eps2), _number(where, "angle", angle, 0.0, 180.0)
 
 
 def select(
@@ -103,8 +163,10 @@ def select(
     tol: float | None = None,
     stop_early: bool = True,
     exhaustive: bool = False,
-    seed: int = 0,
-    threads=None,
+    key=None,
+    seed=None,
+    threads: int | None = None,
+    progress: bool = True,
 ) -> ESI:
     """Select the DHF axis and up to `max_hf` HF axes of an ESI by branch and bound.
 
@@ -145,61 +207,127 @@ def select(
 
     **Arguments:**
 
-    - `vertices`, `faces`: a closed, consistently oriented mesh (or a `Mesh` alone).
+    - `vertices`, `faces`: a closed, consistently oriented mesh: a `voxax.Mesh`, a
+      `trimesh.Trimesh`, a `(vertices, faces)` pair or the two arrays; coordinates finite
+      and of magnitude at most `1e75` (the selection is scale-invariant).
     - `candidates_dhf`, `candidates_hf`: `(n, 3)` candidate axes (default
       [`candidates(n_dhf, n_hf)`][voxax.esi.candidates]).
-    - `max_hf`: the most HFs (0-3 in the paper).
-    - `n_samples`, `resolution`, `eps1`, `eps2`, `angle`, `tol`: as above.
+    - `n_dhf`, `n_hf`: the default candidates' Fibonacci counts (>= 0).
+    - `max_hf`: the most HFs (0-8; 0-3 in the paper). With `max_hf > 0`,
+      `candidates_hf` must hold at least one direction.
+    - `n_samples`, `resolution`: >= 1 and >= 2.
+    - `eps1`, `eps2`, `tol`: finite and >= 0; `angle`: degrees in `[0, 180]`.
     - `stop_early`: `False` computes `by_m` for every `m <= max_hf`.
     - `exhaustive`: evaluate every leaf (for checking the search).
-    - `seed`: the sampling seed (the energy is a sampled estimate; fix it).
-    - `threads`: threads for the ray casts.
+    - `key`: the sampling key, an int (default 0) or a JAX PRNG key (the energy is a
+      sampled estimate: the same key gives the same bits). `seed` is its deprecated name.
+    - `threads`: threads for the ray casts (`None`: `VOXAX_NUM_THREADS` or every core);
+      the result is the same for every count.
+    - `progress`: a bar on standard error (the height fields prepared, then the levels).
 
     **Returns:** an [`ESI`][voxax.esi.ESI].
     """
-    where = "esi.select"
-    if faces is not None and not hasattr(faces, "shape") and not isinstance(faces, (list, tuple)):
-        raise TypeError(f"{where}: faces must be an array")
+    where = "voxax.esi.select"
+    vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
+    if isinstance(max_hf, (bool, np.bool_)):
+        raise TypeError(f"{where}: `max_hf` must be an int, got bool")
+    max_hf = _validate.positive_int(where, "max_hf", max_hf, minimum=0)
+    if max_hf > 8:
+        raise ValueError(f"{where}: `max_hf` must be in [0, 8], got {max_hf}")
     if candidates_dhf is None or candidates_hf is None:
-        cd, ch = candidates(n_dhf, n_hf)
+        cd, ch = candidates(
+            _validate.positive_int(where, "n_dhf", n_dhf, minimum=0), _validate.positive_int(where, "n_hf", n_hf, minimum=0)
+        )
         candidates_dhf = cd if candidates_dhf is None else candidates_dhf
         candidates_hf = ch if candidates_hf is None else candidates_hf
-    max_hf = int(max_hf)
-    if not 0 <= max_hf <= 8:
-        raise ValueError(f"{where}: max_hf must be in [0, 8], got {max_hf}")
-    tol = float(eps1 if tol is None else tol)
-    prob, dk, hk = _prepare(where, vertices, faces, candidates_dhf, candidates_hf, resolution, n_samples, seed, threads)
-    return _select(prob, dk, hk, candidates_dhf, candidates_hf, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive)
+    if max_hf > 0 and np.size(candidates_hf) == 0:
+        raise ValueError(f"{where}: `candidates_hf` must hold at least one direction when `max_hf` > 0 "
+                         "(pass max_hf=0 for a DHF alone)")  # fmt: skip
+    eps1, eps2, angle = _check_energy_settings(where, eps1, eps2, angle)
+    tol = eps1 if tol is None else _number(where, "tol", tol)
+    key = _validate.key_or_seed(where, key, seed)
+    for name, flag in (("stop_early", stop_early), ("exhaustive", exhaustive), ("progress", progress)):
+        if not isinstance(flag, (bool, np.bool_)):
+            raise TypeError(f"{where}: `{name}` must be a bool, got {type(flag).__name__}")
+    with _Bar(where, bool(progress)) as bar:
+        prob, dk, hk = _prepare(
+            where, vertices, faces, candidates_dhf, candidates_hf, resolution, n_samples, key, threads, bar.start
+        )
+        return _select(prob, dk, hk, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive, bar)
 
 
-def _select(prob, dk, hk, cdhf, chf, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive):
-    cdhf = np.asarray(cdhf, np.float64).reshape(-1, 3)
-    chf = np.asarray(chf, np.float64).reshape(-1, 3)
+class _Bar:
+    """The progress of `select`: one step per height field prepared, then one per level
+    `m` of the search (the levels after an early stop are left out at the end)."""
+
+    def __init__(self, where: str, enabled: bool):
+        self.where, self.enabled, self.bar = where, enabled, None
+
+    def __enter__(self) -> _Bar:
+        return self
+
+    def start(self, total: int):
+        """Called with the number of height fields; returns the per-step callback."""
+        if self.enabled:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, desc=f"{self.where}: height fields", unit="step", dynamic_ncols=True)
+        return self.step
+
+    def step(self, postfix: dict | None = None) -> None:
+        if self.bar is not None:
+            if postfix:
+                self.bar.set_postfix(postfix, refresh=False)
+            self.bar.update(1)
+
+    def levels(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.total = self.bar.n + n
+            self.bar.set_description(f"{self.where}: levels", refresh=False)
+            self.bar.refresh()
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            if exc[0] is None:
+                self.bar.total = self.bar.n
+                self.bar.refresh()
+            self.bar.close()
+
+
+def _select(prob, dk, hk, max_hf, eps1, eps2, angle, tol, stop_early, exhaustive, bar=None):
     results, leaves, evals = [], [], []
     chosen = None
-    for m in range(max_hf + 1):
-        if m > len(hk):
-            break
+    levels = min(max_hf, len(hk)) + 1
+    if bar is not None:
+        bar.levels(levels)
+    for m in range(levels):
         # with the early stop, level m only matters if it beats the chosen level by more
         # than tol: what is not below that is pruned from the start
         cap = results[chosen][0] - tol if stop_early and chosen is not None and not exhaustive else math.inf
         # the DHF of the best choice with one HF less first: a good incumbent early
         first = results[-1][1] if results and results[-1][1] != math.inf else None
         best, n_leaves, n_eval = _search(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap, first=first)
-        if best[1] == math.inf:  # nothing below the cap
-            best = [math.nan, math.inf, ()]
-        results.append(best)
         leaves.append(n_leaves)
         evals.append(n_eval)
+        if best[1] == math.inf:  # nothing below the cap: with the early stop, the search ends here
+            if cap != math.inf:
+                break
+            best = [math.inf, math.inf, ()]  # every choice of this level has E = inf
+        results.append(best)
+        if bar is not None:
+            bar.step({"m": m, "E": f"{best[0]:.4g}"})
         if chosen is None or (best[1] != math.inf and best[0] < results[chosen][0] - tol):
             chosen = m
         elif stop_early:
             break
     E, i, hs = results[chosen]
+    if i == math.inf:
+        raise ValueError("voxax.esi.select: `n_samples` must be larger: no choice of axes has a finite energy")
     ks = [dk[i][0], dk[i][1]] + [hk[j] for j in hs]
     info = prob.energy(ks, eps1, eps2, angle)
-    d0 = cdhf[i] / np.linalg.norm(cdhf[i])
-    hfa = np.array([chf[j] / np.linalg.norm(chf[j]) for j in hs]).reshape(-1, 3)
+    cdhf, chf = prob.candidates
+    d0 = cdhf[i].copy()
+    hfa = np.array([chf[j] for j in hs]).reshape(-1, 3)
     return ESI(
         d0,
         hfa,
