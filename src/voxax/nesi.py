@@ -38,7 +38,8 @@ from . import _validate
 from . import esi as _esi
 from ._mesh import Mesh, face_normals
 from ._spatial import BVH
-from .esi._frames import bounding_sphere, check_threads, exact_scale, tuple_values_equal, unit_direction
+from .esi._frames import bounding_sphere, check_threads, exact_scale, tuple_values_equal
+from .esi._mesh import _esi_axes
 from .esi._select import _seed
 from .fields import Siren
 
@@ -97,6 +98,8 @@ def param_count(net: NESI) -> int:
 
     Works on a network or on its shape (`equinox.filter_eval_shape`).
     """
+    if not isinstance(net, NESI):
+        raise TypeError(f"voxax.nesi.param_count: `net` must be a voxax.nesi.NESI, got {type(net).__name__}")
     n = 0
     for x in jax.tree_util.tree_leaves(net):
         dt = getattr(x, "dtype", None)
@@ -254,9 +257,9 @@ def training_data(
 def _training_data(where, esi, vertices, faces, n_samples, grazing, ray_points, restrict, key, threads) -> Training:
     from .metrics import sample_surface
 
+    d0, hfa = _axes(where, esi)
     vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     mesh = _esi.closed_mesh(where, vertices, faces)
-    d0, hfa = _axes(where, esi)
     n_samples = _validate.positive_int(where, "n_samples", n_samples)
     ray_points = _validate.positive_int(where, "ray_points", ray_points)
     grazing = _real(where, "grazing", grazing)
@@ -354,20 +357,8 @@ def _training_data(where, esi, vertices, faces, n_samples, grazing, ray_points, 
 
 
 def _axes(where, esi):
-    if isinstance(esi, _esi.ESI):
-        d0, hfa = esi.dhf_axis, esi.hf_axes
-    elif isinstance(esi, tuple) and len(esi) == 2:
-        d0, hfa = esi
-    else:
-        raise TypeError(f"{where}: `esi` must be an ESI or a (dhf_axis, hf_axes) pair, got {type(esi).__name__}")
-    d0 = unit_direction(where, d0, "esi")
-    hfa = np.asarray(hfa)
-    if hfa.size and hfa.dtype.kind not in "fiu":
-        raise TypeError(f"{where}: `esi` must hold real HF axes, got dtype {hfa.dtype}")
-    if hfa.size % 3:
-        raise ValueError(f"{where}: `esi` must hold HF axes of shape (m, 3), got {hfa.shape}")
-    hfa = [unit_direction(where, d, "esi") for d in hfa.astype(np.float64).reshape(-1, 3)]
-    return d0, hfa
+    d0, hfa = _esi_axes(where, esi)
+    return d0, list(hfa)
 
 
 # ----------------------------------------------------------------------------- losses
@@ -490,6 +481,7 @@ def fit(
         normal_start = _validate.positive_int(where, "normal_start", normal_start, minimum=0)
     progress = _flag(where, "progress", progress)
     key = _validate.key_or_seed(where, key, seed)
+    _seed(where, key)  # an int or a JAX key
     init_key = _validate.jax_key(where, key)
     data, frames, c, s = _training_data(where, esi, vertices, faces, n_samples, 70.0, 12, restrict, key, threads)
     if len(data.p0) == 0:
@@ -833,7 +825,12 @@ def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int 
         o, d = _traced_points(where, "origins", origins), _traced_points(where, "directions", directions)
         d = eqx.error_if(d, ~jnp.all(jnp.max(jnp.abs(d), -1) > 0), f"{where}: `directions` must be non-zero")
     dt = jnp.result_type(float)
-    o, d = jnp.broadcast_arrays(jnp.asarray(o, dt), jnp.asarray(d, dt))
+    try:
+        o, d = jnp.broadcast_arrays(jnp.asarray(o, dt), jnp.asarray(d, dt))
+    except ValueError:
+        raise ValueError(
+            f"{where}: `origins` and `directions` must broadcast together, got {o.shape} and {d.shape}"
+        ) from None
     lead = o.shape[:-1]
     t, hit = _raytrace(net, o.reshape(-1, 3), d.reshape(-1, 3), n_steps, refine)
     return t.reshape(lead), hit.reshape(lead)
@@ -880,7 +877,7 @@ def to_mesh(net: NESI, *, resolution: int = 128) -> Mesh:
     _check_net(where, net)
     r = _validate.positive_int(where, "resolution", resolution, minimum=2)
     if r > 8192:
-        raise MemoryError(f"{where}: `resolution` = {r} needs {r}^2 pixels per explicit; at most 8192 are accepted")
+        raise MemoryError(f"{where}: `resolution` must be at most 8192 (the pixels of every explicit), got {r}")
     c = np.asarray(net.center)
     R = 1.0 / net.scale
     solids = []

@@ -23,7 +23,10 @@ def height_field_hull(W, axis: int = 2, w: float = 1000.0):
 
     - `W`: `(..., nx, ny, nz)` float grid (leading axes are batch axes).
     - `axis`: 0, 1 or 2 (x, y, z).
-    - `w`: the mellowmax sharpness.
+    - `w`: the mellowmax sharpness (finite, > 0).
+
+    Concrete grids must be finite (NaN or Inf raise `ValueError`); under a trace a NaN
+    propagates as in any JAX function.
 
     **Returns:** `(..., nx, ny, nz)`, the soft hull.
 
@@ -35,17 +38,20 @@ def height_field_hull(W, axis: int = 2, w: float = 1000.0):
     import jax
     import jax.numpy as jnp
 
-    axis = int(axis)
-    if axis not in (0, 1, 2):
-        raise ValueError(f"height_field_hull: axis must be 0, 1 or 2, got {axis}")
+    where = "voxax.energies.height_field_hull"
+    axis = _axis(where, axis)
+    if not hasattr(W, "dtype"):
+        W = np.asarray(W)
+    if not jnp.issubdtype(W.dtype, jnp.floating):
+        raise TypeError(f"{where}: `W` must be a float array, got dtype {W.dtype}")
     W = jnp.asarray(W)
     if W.ndim < 3:
-        raise ValueError(f"height_field_hull: W must have shape (..., nx, ny, nz), got {W.shape}")
-    if not jnp.issubdtype(W.dtype, jnp.floating):
-        raise TypeError(f"height_field_hull: W must be a float array, got dtype {W.dtype}")
-    w = float(w)
-    if not w > 0:
-        raise ValueError(f"height_field_hull: w must be > 0, got {w}")
+        raise ValueError(f"{where}: `W` must have shape (..., nx, ny, nz), got {W.shape}")
+    if not isinstance(W, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(W))):
+        raise ValueError(f"{where}: `W` must be finite (it contains NaN or Inf)")
+    w = _sharpness(where, w)
+    if W.size == 0:
+        return jnp.zeros_like(W)
     ax = W.ndim - 3 + axis
     n = W.shape[ax]
     shape = [1] * W.ndim
@@ -58,6 +64,23 @@ def height_field_hull(W, axis: int = 2, w: float = 1000.0):
     return jnp.clip(jnp.minimum(pre, suf), 0.0, None)
 
 
+def _axis(where: str, axis) -> int:
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
+        raise TypeError(f"{where}: `axis` must be an int (0, 1 or 2), got {type(axis).__name__}")
+    if axis not in (0, 1, 2):
+        raise ValueError(f"{where}: `axis` must be 0, 1 or 2, got {axis}")
+    return int(axis)
+
+
+def _sharpness(where: str, w) -> float:
+    if isinstance(w, (bool, np.bool_)) or not isinstance(w, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: `w` must be a real number, got {type(w).__name__}")
+    w = float(w)
+    if not (w > 0 and np.isfinite(w)):
+        raise ValueError(f"{where}: `w` must be finite and > 0, got {w}")
+    return w
+
+
 def esi_gap(W, axes=(2,), w: float = 1000.0):
     """`mean((H - W)^2)` with `H` the minimum of the soft double-height-field hulls of `W`
     along the given grid axes ([`height_field_hull`][voxax.energies.height_field_hull]): zero
@@ -65,9 +88,14 @@ def esi_gap(W, axes=(2,), w: float = 1000.0):
     can be cast in a two-piece mould parting perpendicular to the axis)."""
     import jax.numpy as jnp
 
-    axes = tuple(int(a) for a in np.atleast_1d(axes))
+    where = "voxax.energies.esi_gap"
+    if isinstance(axes, (int, np.integer)) and not isinstance(axes, (bool, np.bool_)):
+        axes = (axes,)
+    if not isinstance(axes, (tuple, list)):
+        raise TypeError(f"{where}: `axes` must be a tuple of grid axes (0, 1, 2), got {type(axes).__name__}")
+    axes = tuple(_axis(where, a) for a in axes)
     if not axes:
-        raise ValueError("esi_gap: needs at least one axis")
+        raise ValueError(f"{where}: `axes` must hold at least one axis")
     H = height_field_hull(W, axes[0], w)
     for a in axes[1:]:
         H = jnp.minimum(H, height_field_hull(W, a, w))

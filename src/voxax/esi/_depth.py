@@ -132,6 +132,9 @@ def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, th
         raise TypeError(f"{where}: `direction` must be given (a (3,) vector)")
     d = unit_direction(where, direction)
     res = _validate.positive_int(where, "resolution", resolution)
+    from ._select import _check_pixels
+
+    _check_pixels(where, res, 1)
     c, rad = bounding_sphere(mesh)
     frame = frame_for(d, c, rad, res)
     check_threads(where, threads)

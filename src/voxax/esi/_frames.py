@@ -184,8 +184,20 @@ class Frame(NamedTuple):
 def frame_for(direction, center, radius, resolution) -> Frame:
     """The [`Frame`][voxax.esi.Frame] of a unit direction: `u` is the unit vector of the
     coordinate axis least aligned with `d` (lowest index on ties) made orthogonal to `d`,
-    and `v = d x u`."""
+    and `v = d x u`.
+
+    **Arguments:** `direction`: a unit `(3,)` vector; `center`: `(3,)` finite; `radius`:
+    finite, `> 0`; `resolution`: pixels per side (>= 1)."""
+    where = "voxax.esi.frame_for"
+    d = np.asarray(unit_direction(where, direction), dtype=np.float64)
+    if abs(float(np.linalg.norm(np.asarray(direction, np.float64))) - 1.0) > 1e-9:
+        raise ValueError(f"{where}: `direction` must be a unit vector (normalise it first)")
     d = np.asarray(direction, dtype=np.float64)
+    center = np.asarray(center)
+    if center.dtype.kind not in "fiu" or center.shape != (3,) or not np.all(np.isfinite(center)):
+        raise ValueError(f"{where}: `center` must be a finite real (3,) vector, got {center!r}")
+    radius = _validate.positive_float(where, "radius", radius)
+    resolution = _validate.positive_int(where, "resolution", resolution)
     e = np.zeros(3)
     e[int(np.argmin(np.abs(d)))] = 1.0
     u = e - (e @ d) * d
@@ -199,7 +211,14 @@ def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
     """`(center (3,), radius)`: the bounding box centre and the largest vertex distance."""
     used = mesh.vertices[_used(mesh.n_vertices, mesh.faces)]
     c = 0.5 * (used.min(0) + used.max(0))
-    r = float(np.sqrt(((used - c) ** 2).sum(1).max()))
+    big = float(np.abs(used - c).max())
+    if 1e-100 <= big <= 1e100:
+        r = float(np.sqrt(((used - c) ** 2).sum(1).max()))
+    elif big > 0:  # squares would underflow or overflow: first scaled by a power of two (exact)
+        p2 = math.ldexp(1.0, -math.frexp(big)[1])
+        r = float(np.sqrt((((used - c) * p2) ** 2).sum(1).max())) / p2
+    else:
+        r = 0.0
     return c, r
 
 

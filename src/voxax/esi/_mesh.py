@@ -12,15 +12,17 @@ mesh.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from .. import _validate
 from .._mesh import Mesh, face_normals
+from .._spatial import BVH
 from .._values import ValueEquality
 from ._depth import _depth_map, height_field_solid, scaled_tree
 from ._frames import _canonical, bounding_sphere, check_threads, closed_mesh, frame_for, unit_direction
-from ._select import ESI, _check_energy_settings, _prepare
+from ._select import ESI, _check_energy_settings, _check_pixels, _prepare
 
 __all__ = ["EnergyTerms", "energy", "energy_terms", "intersect_solids", "occupancy", "to_mesh"]
 
@@ -71,11 +73,11 @@ def occupancy(esi, vertices, faces=None, points=None, *, threads=None) -> np.nda
     [True, False]
     """
     where = "voxax.esi.occupancy"
+    d0, hfa = _esi_axes(where, esi)
     vertices, faces, (points,) = _validate.unpack_mesh(where, vertices, faces, points)
     if points is None:
         raise TypeError(f"{where}: `points` must be given (an (..., 3) array)")
     mesh = closed_mesh(where, vertices, faces)
-    d0, hfa = _esi_axes(where, esi)
     check_threads(where, threads)
     p = np.asarray(points)
     if p.dtype.kind not in "fiu":
@@ -101,7 +103,7 @@ def occupancy(esi, vertices, faces=None, points=None, *, threads=None) -> np.nda
     return inside.reshape(lead)
 
 
-def _to_manifold(mesh: Mesh):
+def _to_manifold(where: str, mesh: Mesh):
     from manifold3d import Manifold, Mesh64
 
     m = Manifold(
@@ -111,7 +113,7 @@ def _to_manifold(mesh: Mesh):
         )
     )
     if m.status().name != "NoError":
-        raise ValueError(f"voxax.esi.to_mesh: manifold3d rejected a height-field solid ({m.status().name})")
+        raise ValueError(f"{where}: `solids` must be closed manifold meshes: manifold3d rejected one ({m.status().name})")
     return m
 
 
@@ -132,13 +134,16 @@ def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -
     **Returns:** a `Mesh` (float64, outward).
     """
     where = "voxax.esi.to_mesh"
-    mesh = closed_mesh(where, vertices, faces)
     d0, hfa = _esi_axes(where, esi)
+    mesh = closed_mesh(where, vertices, faces)
     res = _validate.positive_int(where, "resolution", resolution, minimum=2)
+    _check_pixels(where, res, 2 + len(hfa))
     check_threads(where, threads)
-    # in the units of the tree scaled to about unit size (an exact power of two), back at the end
-    bvh, scale = scaled_tree(mesh)
+    # in units where the bounding radius lies in [1/2, 1) (an exact power of two, back at
+    # the end): the same solids, hence the same manifold3d intersection, at every scale
     c, rad = bounding_sphere(mesh)
+    scale = math.ldexp(1.0, -math.frexp(rad)[1])
+    bvh = BVH(Mesh(mesh.vertices * scale, mesh.faces))
     c, rad = c * scale, rad * scale
     normals = face_normals(mesh.vertices, mesh.faces)
     maps = {}
@@ -151,19 +156,30 @@ def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -
         if not dm.mask.any():
             raise ValueError(f"{where}: `resolution` must be higher: the depth map along {d.tolist()} is empty")
         solids.append(height_field_solid(dm, sg).mesh)
-    out = intersect_solids(solids)
+    out = _intersect(where, solids)
     return out if scale == 1.0 else Mesh(out.vertices / scale, out.faces)
 
 
 def intersect_solids(solids) -> Mesh:
     """The manifold3d intersection of closed, outward meshes (e.g. height-field solids
     from [`height_field_solid`][voxax.esi.height_field_solid]), as a float64 `Mesh`."""
+    where = "voxax.esi.intersect_solids"
+    if isinstance(solids, (str, bytes)) or not hasattr(solids, "__iter__"):
+        raise TypeError(f"{where}: `solids` must be a sequence of closed meshes, got {type(solids).__name__}")
+    solids = list(solids)
+    for m in solids:
+        if not isinstance(m, Mesh):
+            raise TypeError(f"{where}: `solids` must hold voxax.Mesh objects, got {type(m).__name__}")
+    return _intersect(where, solids)
+
+
+def _intersect(where: str, solids) -> Mesh:
     out = None
     for m in solids:
-        solid = _to_manifold(m)
+        solid = _to_manifold(where, m)
         out = solid if out is None else out ^ solid
     if out is None:
-        raise ValueError("voxax.esi.intersect_solids: `solids` must hold at least one solid")
+        raise ValueError(f"{where}: `solids` must hold at least one solid")
     mg = out.to_mesh64()
     v = np.asarray(mg.vert_properties, dtype=np.float64)[:, :3]
     f = np.asarray(mg.tri_verts, dtype=np.int64)
@@ -239,8 +255,8 @@ def energy(
 
 
 def _energy_terms(where, esi, vertices, faces, n_samples, resolution, eps1, eps2, angle, key, seed, threads):
-    vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     d0, hfa = _esi_axes(where, esi)
+    vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     eps1, eps2, angle = _check_energy_settings(where, eps1, eps2, angle)
     key = _validate.key_or_seed(where, key, seed)
     prob, dk, hk = _prepare(where, vertices, faces, [d0], hfa, resolution, n_samples, key, threads)

@@ -68,7 +68,12 @@ class ESI(NamedTuple):
 
 def _directions(where: str, name: str, value, allow_empty: bool) -> np.ndarray:
     """`(n, 3)` unit float64 directions from a real array (a single `(3,)` row too)."""
-    d = np.asarray(value)
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{where}: `{name}` must be a real (n, 3) array, got {type(value).__name__}")
+    try:
+        d = np.asarray(value)
+    except ValueError:
+        raise ValueError(f"{where}: `{name}` must be an (n, 3) array (its rows differ in length)") from None
     if d.dtype.kind not in "fiu" and not (d.size == 0 and d.dtype.kind in "fiuO"):
         raise TypeError(f"{where}: `{name}` must be a real (n, 3) array, got dtype {d.dtype}")
     if d.size == 0:
@@ -85,6 +90,8 @@ def _seed(where: str, key) -> int:
     seeds one drawn from its key data."""
     if isinstance(key, (int, np.integer)) and not isinstance(key, (bool, np.bool_)):
         return _validate.positive_int(where, "key", key, minimum=0)
+    if not hasattr(key, "dtype"):
+        raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(key).__name__}")
     return int(_validate.numpy_rng(where, key).integers(2**31 - 8))
 
 
