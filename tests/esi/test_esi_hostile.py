@@ -241,3 +241,15 @@ def test_random_hostile_surfaces_are_refused_or_exact():
             assert np.all(np.isfinite(out)), (name, kind)
         seen["result"] += 1
     assert seen["error"] > 10 and seen["result"] > 5
+
+
+def test_select_is_the_same_for_every_thread_count_and_in_concurrent_threads():
+    import concurrent.futures
+
+    m = data.torus(n_major=16, n_minor=8)
+    kw = dict(n_dhf=3, n_hf=4, max_hf=2, n_samples=300, resolution=16, progress=False, stop_early=False)
+    one = esi.select(m, threads=1, **kw)
+    assert esi.select(m, threads=2, **kw) == one and esi.select(m, **kw) == one
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        runs = list(pool.map(lambda t: esi.select(m, threads=t, **kw), [1, 2]))
+    assert all(r == one for r in runs)
