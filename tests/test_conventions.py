@@ -33,8 +33,6 @@ NOT_SURFACE_ARGUMENTS = {
 # Rules not yet met, by test and callable: each is an expected failure (strict: once met,
 # the entry must go).
 PENDING = {
-    ("key", "voxax.esi.energy"), ("key", "voxax.esi.select"), ("key", "voxax.nesi.fit"),
-    ("key", "voxax.nesi.training_data"), ("progress", "voxax.nesi.fit"),
     ("surface", "voxax.closest_points"), ("surface", "voxax.first_hits"), ("surface", "voxax.any_hits"),
     ("surface", "voxax.all_hits"), ("surface", "voxax.fc.roundtrip"),
     ("same", "voxax.closest_points"), ("same", "voxax.first_hits"),
@@ -54,7 +52,7 @@ def _params(rule: str, entries, name_of=lambda e: e[0]):
 # The drivers that run longer than a second: each takes `progress`.
 LONG_DRIVERS = (
     "voxax.minimize", "voxax.apps.resolve_self_intersections", "voxax.apps.optimize_for_bandsaw",
-    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding",
+    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding", "voxax.esi.select", "voxax.nesi.fit",
 )
 
 
@@ -154,6 +152,7 @@ SURFACE_CALLS = [
     ("voxax.metrics.manifold_report", ()),
     ("voxax.raster.line_crossings", (GRID, 2)),
     ("voxax.fc.encode", (voxax.Grid.around(BALL, 6),)),
+    ("voxax.esi.depth_map", ((0.0, 0.0, 1.0),)),
 ]
 
 

@@ -892,12 +892,12 @@ def to_mesh(net: NESI, *, resolution: int = 128) -> Mesh:
             dm = _depth_dummy(fr, np.where(mask, fb, np.nan), np.where(mask, fa, np.nan), mask)
             if not mask.any():
                 raise ValueError(f"{where}: `resolution` must be higher: the DHF network is empty at this resolution")
-            solids += [_esi.height_field_solid(dm, 1).mesh, _esi.height_field_solid(dm, -1).mesh]
+            solids += [_esi.height_field_solid(dm, 1).boundary, _esi.height_field_solid(dm, -1).boundary]
         else:
             h = np.asarray(net.heights[e - 1](jnp.asarray(xy)), np.float64).reshape(r, r) / net.scale
             mask = np.asarray(net.masks[e - 1](jnp.asarray(xy)) > 0).reshape(r, r)
             dm = _depth_dummy(fr, np.where(mask, h, np.nan), np.where(mask, h, np.nan), mask)
-            solids.append(_esi.height_field_solid(dm, 1).mesh)
+            solids.append(_esi.height_field_solid(dm, 1).boundary)
     return _esi.intersect_solids(solids)
 
 

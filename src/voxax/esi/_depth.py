@@ -55,10 +55,11 @@ class DepthMap(NamedTuple):
 
 
 class HeightFieldSolid(NamedTuple):
-    """A closed outward mesh of a height field (`mesh`) whose first `n_top_wall_faces`
-    faces are its top and walls (the rest, its bottom, lie outside the bounding sphere)."""
+    """The closed outward mesh bounding a height field (`boundary`), whose first
+    `n_top_wall_faces` faces are its top and walls (the rest, its bottom, lie outside the
+    bounding sphere)."""
 
-    mesh: Mesh
+    boundary: Mesh
     n_top_wall_faces: int
 
     __eq__ = tuple_values_equal
@@ -189,7 +190,7 @@ def height_field_solid(dm: DepthMap, sign: int) -> HeightFieldSolid:
     The top is the pixel-centre grid at the height function (`last` for `sign = +1`,
     `first` for `-1`); pixels off the mask drop to `1.02 radius` below the centre, and
     the solid ends `1.05 radius` below it. Returns a
-    [`HeightFieldSolid`][voxax.esi.HeightFieldSolid] `(mesh, n_top_wall_faces)`: the faces
+    [`HeightFieldSolid`][voxax.esi.HeightFieldSolid] `(boundary, n_top_wall_faces)`: the faces
     of the top and walls come first (the bottom is outside the bounding sphere).
     """
     if not isinstance(dm, DepthMap):

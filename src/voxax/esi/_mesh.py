@@ -155,7 +155,7 @@ def to_mesh(esi, vertices, faces=None, *, resolution: int = 256, threads=None) -
         dm = maps[lk]
         if not dm.mask.any():
             raise ValueError(f"{where}: `resolution` must be higher: the depth map along {d.tolist()} is empty")
-        solids.append(height_field_solid(dm, sg).mesh)
+        solids.append(height_field_solid(dm, sg).boundary)
     out = _intersect(where, solids)
     return out if scale == 1.0 else Mesh(out.vertices / scale, out.faces)
 
