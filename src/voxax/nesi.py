@@ -692,6 +692,10 @@ def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int 
     directions non-zero: NaN, Inf or zero directions raise `ValueError`, under `jax.jit`
     too; `n_steps` >= 1, `refine` >= 0.
 
+    Called on concrete rays, they are moved into the normalised frame in float64 first, so
+    rays and networks of any finite scale work (in float32, a `t` beyond its range reads
+    `inf`).
+
     **Returns:** `(t (...), hit (...) bool)`; `t` is `inf` where the ray misses.
     """
     where = "voxax.nesi.raytrace"
@@ -708,12 +712,25 @@ def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int 
         d = eqx.error_if(d, ~jnp.all(jnp.max(jnp.abs(d), -1) > 0), f"{where}: `directions` must be non-zero")
     dt = jnp.result_type(float)
     try:
-        o, d = jnp.broadcast_arrays(jnp.asarray(o, dt), jnp.asarray(d, dt))
+        o, d = (np if concrete else jnp).broadcast_arrays(o, d)
     except ValueError:
         raise ValueError(
             f"{where}: `origins` and `directions` must broadcast together, got {o.shape} and {d.shape}"
         ) from None
     lead = o.shape[:-1]
+    if concrete:
+        # in the normalised frame, in float64 (world rays of any finite size), directions
+        # scaled to a largest component `k` of 1: `t = t' / (scale k)`
+        o64, d64 = np.asarray(o, np.float64).reshape(-1, 3), np.asarray(d, np.float64).reshape(-1, 3)
+        k = np.abs(d64).max(-1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            q = (o64 - np.asarray(net.center)) * net.scale
+        unit = NESI(net.dhf, net.heights, net.masks, net.frames, (0.0, 0.0, 0.0), 1.0)
+        t, hit = _raytrace(unit, jnp.asarray(q, dt), jnp.asarray(d64 / k[:, None], dt), n_steps, refine)
+        with np.errstate(over="ignore"):
+            t = np.asarray(t, np.float64) / net.scale / k
+        return jnp.asarray(t.reshape(lead), dt), hit.reshape(lead)
+    o, d = jnp.asarray(o, dt), jnp.asarray(d, dt)
     t, hit = _raytrace(net, o.reshape(-1, 3), d.reshape(-1, 3), n_steps, refine)
     return t.reshape(lead), hit.reshape(lead)
 

@@ -235,3 +235,18 @@ def test_a_second_fit_of_the_same_sizes_reuses_the_compiled_steps(tiny_fit, monk
     assert traces["n"] == 1
     for a, b in zip(jax.tree_util.tree_leaves(net), jax.tree_util.tree_leaves(again), strict=True):
         assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_raytrace_is_the_same_at_every_scale_of_the_directions(tiny_fit):
+    """Concrete rays are cast in the normalised frame in float64: directions of any length
+    give the same entry points (`t` scaled by the inverse length), never a NaN."""
+    m, ax, net = tiny_fit
+    o = np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
+    o[:, 2] = 3.0
+    down = np.array([0.0, 0.0, -1.0])
+    t, hit = (np.asarray(a) for a in nesi.raytrace(net, o, down, n_steps=50))
+    assert hit.mean() > 0.9
+    for f in (1e-200, 2.0**-600, 1e200):
+        ts, hs = (np.asarray(a) for a in nesi.raytrace(net, o, down * f, n_steps=50))
+        assert np.array_equal(hs, hit) and not np.isnan(ts).any()
+        np.testing.assert_allclose(ts[hit] * f, t[hit], rtol=1e-12, atol=0)
