@@ -253,3 +253,29 @@ def test_select_is_the_same_for_every_thread_count_and_in_concurrent_threads():
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
         runs = list(pool.map(lambda t: esi.select(m, threads=t, **kw), [1, 2]))
     assert all(r == one for r in runs)
+
+
+def test_every_threaded_entry_point_is_the_same_for_every_thread_count():
+    """depth_map, occupancy, to_mesh, energy_terms, nesi.training_data and nesi.fit: the
+    same bits with 1 and 2 threads (and with the default)."""
+    m = data.torus(n_major=16, n_minor=8)
+    p = np.random.default_rng(4).uniform(-1.2, 1.2, (400, 3))
+    calls = {
+        "depth_map": lambda t: esi.depth_map(m, (0.3, 0.2, 1.0), resolution=12, threads=t),
+        "occupancy": lambda t: esi.occupancy(AX, m, p, threads=t),
+        "to_mesh": lambda t: esi.to_mesh(AX, m, resolution=12, threads=t),
+        "energy_terms": lambda t: esi.energy_terms(AX, m, n_samples=200, resolution=12, threads=t),
+        "training_data": lambda t: nesi.training_data(AX, m, n_samples=300, threads=t),
+        "fit": lambda t: nesi.fit(AX, m, steps=0, n_samples=300, threads=t, progress=False),
+    }
+    for name, call in calls.items():
+        one, two, default = call(1), call(2), call(None)
+        if name == "fit":
+            one, two, default = (jax.tree_util.tree_leaves(x) for x in (one, two, default))
+            assert all(np.array_equal(a, b) and np.array_equal(a, c) for a, b, c in zip(one, two, default)), name
+        elif name == "to_mesh":
+            assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, default.faces), name
+        else:
+            assert one == two == default if not isinstance(one, np.ndarray) else (
+                np.array_equal(one, two) and np.array_equal(one, default)
+            ), name
