@@ -37,6 +37,8 @@ import numpy as np
 
 import voxax
 from voxax import data, esi, fabricate, metrics, nesi
+from voxax.esi import _search as esi_search
+from voxax.esi import _select as esi_select
 
 print = functools.partial(print, flush=True)  # noqa: A001
 
@@ -129,7 +131,7 @@ def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
         m = cases[name]()
         cdhf, chf = esi.candidates(n_dhf, n_hf)
         t0, c0 = time.perf_counter(), time.process_time()
-        prob, dk, hk = esi._prepare("levels", m, None, cdhf, chf, 128, 10_000, 0, None)
+        prob, dk, hk = esi_select._prepare("levels", m, None, cdhf, chf, 128, 10_000, 0, None)
         print(
             f"levels {name}: preparation {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU "
             f"({len(prob.vec)} signed directions)"
@@ -140,7 +142,7 @@ def bench_levels(shapes, max_hf, n_dhf=50, n_hf=80):
             rays = prob.n_rays
             # as `select` does: a level only looks for a choice better than the last by tol
             cap = np.inf if chosen is None else chosen - tol
-            best, leaves, evals = esi._search(prob, dk, hk, level, eps1, eps2, angle, False, cap=cap, first=first)
+            best, leaves, evals = esi_search._search(prob, dk, hk, level, eps1, eps2, angle, False, cap=cap, first=first)
             found = best[1] != np.inf
             first = best[1] if found else first
             print(
@@ -290,7 +292,7 @@ def bench_nesi(steps, lods, shapes=("torus", "mug"), siren=False, resolution=256
             t, c0, load = time.perf_counter(), time.process_time(), _load()
             net = nesi.fit(ax, m, lod=lod, steps=steps, n_samples=20_000, learning_rate=1e-3)
             t_fit, c_fit = time.perf_counter() - t, time.process_time() - c0
-            nm = nesi.to_mesh(net, resolution)
+            nm = nesi.to_mesh(net, resolution=resolution)
             cd = _cd(nm, m)
             print(
                 f"[{name}] NESI lod {lod}: {nesi.param_count(net)} parameters, fit {t_fit:.0f} s wall / {c_fit:.0f} s CPU "

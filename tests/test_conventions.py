@@ -33,8 +33,6 @@ NOT_SURFACE_ARGUMENTS = {
 # Rules not yet met, by test and callable: each is an expected failure (strict: once met,
 # the entry must go).
 PENDING = {
-    ("key", "voxax.esi.energy"), ("key", "voxax.esi.select"), ("key", "voxax.nesi.fit"),
-    ("key", "voxax.nesi.training_data"), ("progress", "voxax.nesi.fit"),
     ("surface", "voxax.closest_points"), ("surface", "voxax.first_hits"), ("surface", "voxax.any_hits"),
     ("surface", "voxax.all_hits"),
     ("same", "voxax.closest_points"), ("same", "voxax.first_hits"),
@@ -54,7 +52,8 @@ def _params(rule: str, entries, name_of=lambda e: e[0]):
 # The drivers that run longer than a second: each takes `progress`.
 LONG_DRIVERS = (
     "voxax.minimize", "voxax.apps.resolve_self_intersections", "voxax.apps.optimize_for_bandsaw",
-    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding", "voxax.cvt.remesh",
+    "voxax.apps.optimize_tiling", "voxax.apps.optimize_for_molding", "voxax.cvt.remesh", "voxax.esi.select",
+    "voxax.nesi.fit",
 )
 
 
@@ -157,6 +156,7 @@ SURFACE_CALLS = [
     ("voxax.fc.encode", (voxax.Grid.around(BALL, 6),)),
     ("voxax.fc.pieces", (voxax.Grid.around(BALL, 6),)),
     ("voxax.fc.edge_topology", ()),
+    ("voxax.esi.depth_map", ((0.0, 0.0, 1.0),)),
 ]
 
 

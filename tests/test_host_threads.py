@@ -54,7 +54,8 @@ def _public_threads_callables():
 # Entry points with `threads` whose determinism is checked in their own system's tests
 # (they need inputs too large or slow for this table).
 CHECKED_ELSEWHERE = {
-    "esi.depth_map", "esi.energy", "esi.select", "esi.occupancy", "esi.to_mesh",  # tests/esi
+    "esi.depth_map", "esi.energy", "esi.energy_terms", "esi.select", "esi.occupancy", "esi.to_mesh",  # tests/esi
+    "nesi.fit", "nesi.training_data",  # tests/esi
     "cvt.fragments", "cvt.rdt", "cvt.remesh",  # tests/cvt
     "fc.pieces", "fc.decode", "fc.roundtrip",  # tests/fc
     "all_hits", "any_hits", "first_hits", "winding_number",  # tests/spatial

@@ -34,9 +34,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _validate
 from . import esi as _esi
 from ._mesh import Mesh, face_normals
 from ._spatial import BVH
+from .esi._frames import bounding_sphere, check_threads, exact_scale, tuple_values_equal
+from .esi._mesh import _esi_axes
+from .esi._select import _seed
+from .esi._siren import _apply, _apply_with_gradient, _cos32, _sin32  # noqa: F401  (also nesi's names)
 from .fields import Siren
 
 __all__ = [
@@ -44,6 +49,7 @@ __all__ = [
     "HF_WIDTHS",
     "MASK_WIDTH",
     "NESI",
+    "Training",
     "TrainingData",
     "fit",
     "occupancy",
@@ -93,6 +99,8 @@ def param_count(net: NESI) -> int:
 
     Works on a network or on its shape (`equinox.filter_eval_shape`).
     """
+    if not isinstance(net, NESI):
+        raise TypeError(f"voxax.nesi.param_count: `net` must be a voxax.nesi.NESI, got {type(net).__name__}")
     n = 0
     for x in jax.tree_util.tree_leaves(net):
         dt = getattr(x, "dtype", None)
@@ -101,11 +109,27 @@ def param_count(net: NESI) -> int:
     return n
 
 
-def _check_lod(lod) -> int:
-    lod = int(lod)
+def _check_lod(lod, where: str = "voxax.nesi.fit") -> int:
+    lod = _validate.positive_int(where, "lod", lod)
     if lod not in (1, 2, 3, 4):
-        raise ValueError(f"nesi: lod must be 1, 2, 3 or 4, got {lod}")
+        raise ValueError(f"{where}: `lod` must be 1, 2, 3 or 4, got {lod}")
     return lod
+
+
+def _real(where: str, name: str, value, lo: float = 0.0, strict: bool = False) -> float:
+    """A finite real number `>= lo` (`> lo` with `strict`)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: `{name}` must be a real number, got {type(value).__name__}")
+    x = float(value)
+    if not (np.isfinite(x) and (x > lo if strict else x >= lo)):
+        raise ValueError(f"{where}: `{name}` must be finite and {'>' if strict else '>='} {lo:g}, got {value}")
+    return x
+
+
+def _flag(where: str, name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{where}: `{name}` must be a bool, got {type(value).__name__}")
+    return bool(value)
 
 
 def _siren(in_size, out_size, width, depth, rng, dtype) -> Siren:
@@ -160,18 +184,35 @@ class TrainingData(NamedTuple):
     restricted: list
     pbark: list
 
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
+
+
+class Training(NamedTuple):
+    """What [`training_data`][voxax.nesi.training_data] returns: the `data`, the
+    explicits' `frames` `((u, v, d), ...)` (DHF first), and the normalisation (`center`,
+    `scale`: world point `p` is `scale * (p - center)`)."""
+
+    data: TrainingData
+    frames: list
+    center: np.ndarray
+    scale: float
+
+    __eq__ = tuple_values_equal
+    __hash__ = None  # type: ignore[assignment]
+
 
 def _local_frame(d) -> tuple:
     fr = _esi.frame_for(np.asarray(d, np.float64), np.zeros(3), 1.0, 1)
     return fr.u, fr.v, fr.d
 
 
-def _lines(bvh, c, R, s, frame, xy):
+def _lines(bvh, c, R, s, frame, xy, threads=None):
     """Exact top and bottom hits (normalised depths and local normals) of lines at `xy`."""
     u, v, d = frame
     base = c + (xy[:, :1] / s) * u + (xy[:, 1:2] / s) * v
-    lo = bvh.first_hits(base - 2 * R * d, d)
-    hi = bvh.first_hits(base + 2 * R * d, -d)
+    lo = bvh.first_hits(base - 2 * R * d, d, threads=threads)
+    hi = bvh.first_hits(base + 2 * R * d, -d, threads=threads)
     return lo, hi
 
 
@@ -184,8 +225,10 @@ def training_data(
     grazing: float = 70.0,
     ray_points: int = 12,
     restrict: bool = True,
-    seed: int = 0,
-) -> tuple:
+    key=None,
+    seed=None,
+    threads: int | None = None,
+) -> Training:
     """Training points for [`fit`][voxax.nesi.fit] (Sec. 5.1-5.2), from exact ray casts.
 
     Surface samples visible along `+d_0` or `-d_0` give the DHF's points; those visible
@@ -195,19 +238,48 @@ def training_data(
     earlier direction (`ray_points` points tried along it). Uniform points of `[-1, 1]^2`
     whose lines miss the shape give the outside of each domain.
 
-    **Returns:** `(data: TrainingData, frames, center, scale)`.
+    **Arguments:**
+
+    - `esi`: an [`ESI`][voxax.esi.ESI] or `(dhf_axis, hf_axes)`.
+    - `vertices`, `faces`: the closed mesh (any surface form; coordinates finite, of
+      magnitude at most `1e75`).
+    - `n_samples` (>= 1), `grazing` (degrees in `[0, 180]`), `ray_points` (>= 1),
+      `restrict`: as above.
+    - `key`: an int (default 0) or a JAX PRNG key; `seed` is its deprecated name.
+    - `threads`: threads for the ray casts (`None`: `VOXAX_NUM_THREADS` or every core).
+
+    **Returns:** a [`Training`][voxax.nesi.Training] `(data, frames, center, scale)`.
     """
+    where = "voxax.nesi.training_data"
+    key = _validate.key_or_seed(where, key, seed)
+    return _training_data(where, esi, vertices, faces, n_samples, grazing, ray_points, restrict, key, threads)
+
+
+def _training_data(where, esi, vertices, faces, n_samples, grazing, ray_points, restrict, key, threads) -> Training:
     from .metrics import sample_surface
 
-    where = "nesi.training_data"
-    mesh = _esi.closed_mesh(where, vertices, faces)
     d0, hfa = _axes(where, esi)
-    c, R = _esi.bounding_sphere(mesh)
+    vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
+    mesh = _esi.closed_mesh(where, vertices, faces)
+    n_samples = _validate.positive_int(where, "n_samples", n_samples)
+    ray_points = _validate.positive_int(where, "ray_points", ray_points)
+    grazing = _real(where, "grazing", grazing)
+    if grazing > 180:
+        raise ValueError(f"{where}: `grazing` must be in [0, 180] degrees, got {grazing}")
+    restrict = _flag(where, "restrict", restrict)
+    seed = _seed(where, key)
+    check_threads(where, threads)
+    # the ray casts run on the mesh scaled by an exact power of two to about unit size
+    # (the same bits); the normalisation comes back in world units at the end
+    pre = exact_scale(bounding_sphere(mesh)[1])
+    if pre != 1.0:
+        mesh = Mesh(mesh.vertices * pre, mesh.faces)
+    c, R = bounding_sphere(mesh)
     s = (1.0 / 1.1) / R
     bvh = BVH(mesh)
     normals = face_normals(mesh.vertices, mesh.faces)
     rng = np.random.default_rng(seed)
-    S = sample_surface(mesh, int(n_samples), seed)
+    S = sample_surface(mesh, n_samples, seed)
     Q, Qn = S.points, S.normals
     eps = 1e-9 * R
     frames = [_local_frame(d0)] + [_local_frame(d) for d in hfa]
@@ -223,7 +295,7 @@ def training_data(
 
     def outside(frame, n):
         xy = rng.uniform(-1, 1, (n, 2))
-        lo, hi = _lines(bvh, c, R, s, frame, xy)
+        lo, hi = _lines(bvh, c, R, s, frame, xy, threads)
         return xy[~lo.hit & ~hi.hit]
 
     vis = {}
@@ -232,14 +304,14 @@ def training_data(
         key = tuple(np.round(d, 14))
         if pts is None:
             if key not in vis:
-                vis[key] = ~bvh.any_hits(Q, d, t_min=eps)
+                vis[key] = ~bvh.any_hits(Q, d, t_min=eps, threads=threads)
             return vis[key]
-        return ~bvh.any_hits(pts, d, t_min=eps)
+        return ~bvh.any_hits(pts, d, t_min=eps, threads=threads)
 
     f0 = frames[0]
     sel = visible(d0) | visible(-d0)
     xy0 = loc(f0, Q[sel])[:, :2]
-    lo, hi = _lines(bvh, c, R, s, f0, xy0)
+    lo, hi = _lines(bvh, c, R, s, f0, xy0, threads)
     ok = lo.hit & hi.hit
     xy0 = xy0[ok]
     fb = (lo.t[ok] - 2 * R) * s
@@ -255,7 +327,7 @@ def training_data(
         vk = visible(d)
         q, qn = Q[vk], Qn[vk]
         xy = loc(fr, q)[:, :2]
-        lo, hi = _lines(bvh, c, R, s, fr, xy)
+        lo, hi = _lines(bvh, c, R, s, fr, xy, threads)
         ok = hi.hit
         xy, q, qn = xy[ok], q[ok], qn[ok]
         f = (2 * R - hi.t[ok]) * s
@@ -270,7 +342,7 @@ def training_data(
                 a = q + t * d
                 hidden = np.ones(len(q), bool)
                 for e in earlier:
-                    hidden &= bvh.any_hits(a, e, t_min=eps)
+                    hidden &= bvh.any_hits(a, e, t_min=eps, threads=threads)
                 crit3 |= hidden
             r = ~covered | crit3
         else:
@@ -282,20 +354,12 @@ def training_data(
         pbark.append(outside(fr, max(len(xy) // 2, 256)))
         earlier.append(d)
     data = TrainingData(xy0, fa, fb, na, nb, pbar0, pk, fk, nk, restr, pbark)
-    return data, frames, c, s
+    return Training(data, frames, c / pre, s * pre)
 
 
 def _axes(where, esi):
-    if isinstance(esi, _esi.ESI):
-        d0, hfa = esi.dhf_axis, esi.hf_axes
-    elif isinstance(esi, tuple) and len(esi) == 2:
-        d0, hfa = esi
-    else:
-        raise TypeError(f"{where}: esi must be an ESI or a (dhf_axis, hf_axes) pair")
-    d0 = _esi.unit_direction(where, d0)
-    hfa = np.asarray(hfa, dtype=np.float64).reshape(-1, 3)
-    hfa = [_esi.unit_direction(where, d) for d in hfa]
-    return d0, hfa
+    d0, hfa = _esi_axes(where, esi)
+    return d0, list(hfa)
 
 
 # ----------------------------------------------------------------------------- losses
@@ -372,8 +436,9 @@ def fit(
     eps: float = 0.01,
     restrict: bool = True,
     key=None,
-    seed: int = 0,
-    progress: bool = False,
+    seed=None,
+    threads: int | None = None,
+    progress: bool = True,
 ) -> NESI:
     """Train a [`NESI`][voxax.nesi.NESI] for an ESI of a closed mesh.
 
@@ -392,26 +457,38 @@ def fit(
     **Arguments:**
 
     - `esi`: an [`ESI`][voxax.esi.ESI] or `(dhf_axis, hf_axes)`.
-    - `vertices`, `faces`: the closed mesh (or a `Mesh`).
+    - `vertices`, `faces`: the closed mesh (any surface form: a `voxax.Mesh`, a
+      `trimesh.Trimesh`, a `(vertices, faces)` pair or the two arrays).
     - `lod`: level of detail 1-4 (network widths).
-    - `steps`, `learning_rate`, `n_samples`, `eps`, `restrict`: training settings.
-    - `key`: a `jax.random` key for the initialisation (default `key(seed)`).
+    - `steps` (>= 0), `learning_rate` (finite, > 0), `n_samples` (>= 1), `eps` (the
+      domain hinges' margin, finite, >= 0), `normal_start` (None or >= 0), `restrict`:
+      training settings.
+    - `key`: an int (default 0) or a JAX PRNG key, for the training points and the
+      initialisation (the same key gives the same network); `seed` is its deprecated name.
+    - `threads`: threads for the training points' ray casts (`None`: `VOXAX_NUM_THREADS`
+      or every core).
+    - `progress`: a bar on standard error per training phase.
 
     **Returns:** the trained [`NESI`][voxax.nesi.NESI].
     """
     from ._optimize import StopRules, minimize
 
-    where = "nesi.fit"
-    lod = _check_lod(lod)
-    steps = int(steps)
-    if steps < 0:
-        raise ValueError(f"{where}: steps must be >= 0, got {steps}")
-    data, frames, c, s = training_data(esi, vertices, faces, n_samples=n_samples, restrict=restrict, seed=seed)
+    where = "voxax.nesi.fit"
+    lod = _check_lod(lod, where)
+    steps = _validate.positive_int(where, "steps", steps, minimum=0)
+    learning_rate = _real(where, "learning_rate", learning_rate, strict=True)
+    eps = _real(where, "eps", eps)
+    if normal_start is not None:
+        normal_start = _validate.positive_int(where, "normal_start", normal_start, minimum=0)
+    progress = _flag(where, "progress", progress)
+    key = _validate.key_or_seed(where, key, seed)
+    _seed(where, key)  # an int or a JAX key
+    init_key = _validate.jax_key(where, key)
+    data, frames, c, s = _training_data(where, esi, vertices, faces, n_samples, 70.0, 12, restrict, key, threads)
     if len(data.p0) == 0:
-        raise ValueError(f"{where}: no training points for the DHF (is the mesh empty?)")
+        raise ValueError(f"{where}: `n_samples` must be larger: no training points for the DHF")
     d0, hfa = _axes(where, esi)
-    key = jax.random.key(seed) if key is None else key
-    net = _init(lod, hfa, key=key, frames=frames, center=c, scale=s, dtype=jnp.float32)
+    net = _init(lod, hfa, key=init_key, frames=frames, center=c, scale=s, dtype=jnp.float32)
     if steps == 0:
         return net
     arrays = {
@@ -429,14 +506,14 @@ def fit(
     }
     arrays = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=None if a.dtype == bool else jnp.float32), arrays)
     params, static = eqx.partition(net, eqx.is_inexact_array)
-    i0 = steps // 5 if normal_start is None else max(0, min(int(normal_start), steps))
+    i0 = steps // 5 if normal_start is None else min(normal_start, steps)
     for lo_i, hi_i, alpha in ((0, i0, 0.0), (i0, steps, 0.1)):
         if hi_i <= lo_i:
             continue
         # equal settings give the same energy module and optimizer, so that a later fit of
         # the same sizes reuses the compiled step
-        opt = _phase_adam(float(learning_rate), steps, lo_i)
-        energy = _PhaseEnergy(static, alpha, float(eps))
+        opt = _phase_adam(learning_rate, steps, lo_i)
+        energy = _PhaseEnergy(static, alpha, eps)
         res = minimize(
             energy,
             params,
@@ -483,125 +560,6 @@ def _phase_adam(learning_rate: float, steps: int, offset: int):
 # ----------------------------------------------------------------------------- queries
 
 
-def _reduce32(x):
-    """`x = k pi + r` with `|r| <= pi/2` (float32; the product `k pi` in three exact parts for
-    `|x| < 2^15`), and whether `k` is odd."""
-    k = jnp.round(x * np.float32(1.0 / np.pi))
-    r = x - k * np.float32(3.140625)
-    r = r - k * np.float32(0.0009670257568359375)
-    r = r - k * np.float32(6.277114152908325e-07)
-    return r, (k.astype(jnp.int32) & 1) == 1
-
-
-def _sin32_poly(x):
-    r, odd = _reduce32(x)
-    r2 = r * r
-    poly = np.float32(1.0 / 362880) + r2 * np.float32(-1.0 / 39916800)
-    poly = np.float32(-1.0 / 5040) + r2 * poly
-    poly = np.float32(1.0 / 120) + r2 * poly
-    poly = np.float32(-1.0 / 6) + r2 * poly
-    y = r + r * r2 * poly
-    return jnp.where(odd, -y, y)
-
-
-def _cos32_poly(x):
-    r, odd = _reduce32(x)
-    r2 = r * r
-    poly = np.float32(-1.0 / 3628800) + r2 * np.float32(1.0 / 479001600)
-    poly = np.float32(1.0 / 40320) + r2 * poly
-    poly = np.float32(-1.0 / 720) + r2 * poly
-    poly = np.float32(1.0 / 24) + r2 * poly
-    poly = np.float32(-0.5) + r2 * poly
-    y = np.float32(1.0) + r2 * poly
-    return jnp.where(odd, -y, y)
-
-
-@jax.custom_jvp
-def _sin32(x):
-    """`sin` for float32 in one fused pass: reduction by pi in three parts (exact products
-    for |x| < 2^15), a degree-11 odd polynomial on [-pi/2, pi/2] and the sign of the
-    half-turn; absolute error below 2e-7 for |x| <= 100 (the sine layers' range), about
-    4x cheaper on CPU than XLA's `sin`. Its derivative is `_cos32` (so training
-    differentiates the sine, not the polynomial)."""
-    return _sin32_poly(x)
-
-
-@jax.custom_jvp
-def _cos32(x):
-    """`cos` for float32 like `_sin32` (a degree-12 even polynomial after the same
-    reduction); its derivative is `-_sin32`."""
-    return _cos32_poly(x)
-
-
-@_sin32.defjvp
-def _sin32_jvp(primals, tangents):
-    (x,), (t,) = primals, tangents
-    return _sin32(x), _cos32(x) * t
-
-
-@_cos32.defjvp
-def _cos32_jvp(primals, tangents):
-    (x,), (t,) = primals, tangents
-    return _cos32(x), -_sin32(x) * t
-
-
-def _sincos(dtype):
-    if dtype == jnp.float32:
-        return _sin32, _cos32
-    return jnp.sin, jnp.cos
-
-
-def _apply(net: Siren, x):
-    """A SIREN on a batch `x (n, in)` as batched matrix products; float32 networks use
-    `_sin32`. Returns `(n,)` or `(n, out)` like calling the network."""
-    x = x.astype(net.weights[0].dtype)
-    h = x
-    last = len(net.weights) - 1
-    sin = _sincos(x.dtype)[0]
-    for i, (w, b) in enumerate(zip(net.weights, net.biases)):
-        z = h @ w.T.astype(x.dtype) + b.astype(x.dtype)
-        if i == last:
-            h = z
-        else:
-            omega = net.first_omega_0 if i == 0 else net.omega_0
-            h = sin(np.asarray(omega, x.dtype) * z)
-    return h[:, 0] if net.out_size == 1 else h
-
-
-def _apply_with_gradient(net: Siren, x):
-    """A SIREN and its input gradient on a batch `x (n, 2)`, in one forward-mode pass.
-
-    Every layer carries the activations `h (n, w)` and their derivatives along the two
-    input axes `dh (n, 2, w)`: `dz = dh W^T`, `d sin(omega z) = omega cos(omega z) dz`,
-    all as batched matrix products sharing one sine and cosine per unit (the first
-    layer's `dz` is `W^T` itself). Differentiating the result by the parameters (the
-    normal loss) is then one reverse pass over these products.
-
-    **Returns:** `(value, gradient)`: `(n,)` and `(n, 2)` for one output, `(n, out)` and
-    `(n, out, 2)` otherwise.
-    """
-    x = x.astype(net.weights[0].dtype)
-    dt = x.dtype
-    sin, cos = _sincos(dt)
-    last = len(net.weights) - 1
-    h, dh = x, None
-    for i, (w, b) in enumerate(zip(net.weights, net.biases)):
-        w = w.astype(dt)
-        z = h @ w.T + b.astype(dt)
-        dz = w.T[None] if dh is None else jnp.einsum("njk,ok->njo", dh, w)  # (n or 1, 2, out)
-        if i == last:
-            h, dh = z, dz
-            break
-        omega = np.asarray(net.first_omega_0 if i == 0 else net.omega_0, dt)
-        a = omega * z
-        h = sin(a)
-        dh = (omega * cos(a))[:, None, :] * dz
-    grad = jnp.swapaxes(dh, 1, 2)  # (n, out, 2)
-    if net.out_size == 1:
-        return h[:, 0], grad[:, 0]
-    return h, grad
-
-
 def _local(net: NESI, p):
     q = (p - jnp.asarray(net.center, p.dtype)) * net.scale
     fr = jnp.asarray(net.frames, p.dtype)  # (m+1, 3, 3)
@@ -626,30 +584,56 @@ def occupancy(net: NESI, points) -> jax.Array:
 
     Called on concrete points, it evaluates each network only where the answer is still
     open (points outside the DHF's box or volume skip the HFs), in fixed chunks of
-    `2^16` points (one compilation per network); under a trace every network sees every
+    `2^16` points (one compilation per network), with the points' normalised coordinates
+    computed in float64 (any finite point); under a trace every network sees every
     point. Float32 networks use a polynomial sine (absolute error < 2e-7).
 
-    **Arguments:** `net`; `points`: `(..., 3)` float. **Returns:** `(...)` bool.
+    **Arguments:** `net`; `points`: `(..., 3)` real, finite (NaN or Inf raise
+    `ValueError`, under `jax.jit` too). **Returns:** `(...)` bool.
     """
+    where = "voxax.nesi.occupancy"
+    _check_net(where, net)
     if not isinstance(points, jax.core.Tracer):
-        p = np.asarray(points)
-        if p.ndim < 1 or p.shape[-1] != 3:
-            raise ValueError(f"nesi.occupancy: points must have shape (..., 3), got {p.shape}")
+        p = _real_points(where, "points", points)
         lead = p.shape[:-1]
         return jnp.asarray(_occupancy_eager(net, p.reshape(-1, 3))).reshape(lead)
-    p = jnp.asarray(points)
-    if p.ndim < 1 or p.shape[-1] != 3:
-        raise ValueError(f"nesi.occupancy: points must have shape (..., 3), got {p.shape}")
+    p = _traced_points(where, "points", points)
     lead = p.shape[:-1]
     return _occupancy_flat(net, p.reshape(-1, 3)).reshape(lead)
 
 
+def _check_net(where: str, net) -> None:
+    if not isinstance(net, NESI):
+        raise TypeError(f"{where}: `net` must be a voxax.nesi.NESI, got {type(net).__name__}")
+
+
+def _real_points(where: str, name: str, value) -> np.ndarray:
+    """Concrete `(..., 3)` real, finite points as a NumPy array (integers as float64)."""
+    p = np.asarray(value)
+    if p.dtype.kind not in "fiu":
+        raise TypeError(f"{where}: `{name}` must be a real array, got dtype {p.dtype}")
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise ValueError(f"{where}: `{name}` must have shape (..., 3), got {p.shape}")
+    if p.dtype.kind != "f":
+        p = p.astype(np.float64)
+    if not np.all(np.isfinite(p)):
+        raise ValueError(f"{where}: `{name}` must be finite (they contain NaN or Inf)")
+    return p
+
+
+def _traced_points(where: str, name: str, value):
+    """Traced `(..., 3)` real points, checked to be finite when the computation runs."""
+    p = jnp.asarray(value)
+    if not (jnp.issubdtype(p.dtype, jnp.floating) or jnp.issubdtype(p.dtype, jnp.integer)):
+        raise TypeError(f"{where}: `{name}` must be a real array, got dtype {p.dtype}")
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise ValueError(f"{where}: `{name}` must have shape (..., 3), got {p.shape}")
+    if not jnp.issubdtype(p.dtype, jnp.floating):
+        p = p.astype(jnp.result_type(float))
+    return eqx.error_if(p, ~jnp.all(jnp.isfinite(p)), f"{where}: `{name}` must be finite (they contain NaN or Inf)")
+
+
 _CHUNK = 1 << 16
-
-
-@eqx.filter_jit
-def _local_chunk(net: NESI, p):
-    return _local(net, p).astype(net.dhf.weights[0].dtype)
 
 
 @eqx.filter_jit
@@ -677,7 +661,11 @@ def _occupancy_eager(net: NESI, p):
     if n == 0:
         return result
     dt = np.dtype(jnp.result_type(float))
-    loc = _chunked(_local_chunk, net, np.asarray(p, dt), axis=1)  # (m+1, n, 3)
+    # normalised frame coordinates in float64 (world points of any finite size), then in
+    # the networks' precision: points far outside land outside the DHF's box
+    q = (np.asarray(p, np.float64) - np.asarray(net.center)) * net.scale
+    with np.errstate(over="ignore", invalid="ignore"):
+        loc = np.einsum("nk,ejk->enj", q, np.asarray(net.frames, np.float64)).astype(dt)  # (m+1, n, 3)
     idx = np.flatnonzero(np.all(np.abs(loc[0]) <= 1.0, -1))
     if len(idx):
         out = _chunked(_apply_chunk, net.dhf, loc[0, idx, :2])
@@ -700,17 +688,50 @@ def raytrace(net: NESI, origins, directions, *, n_steps: int = 200, refine: int 
     """First entry of rays into a NESI: `n_steps` uniform steps over the ray's part inside
     the normalised unit sphere, then `refine` bisections of the first step that enters.
 
-    **Arguments:** `origins`, `directions`: `(..., 3)` float (directions non-zero).
+    **Arguments:** `origins`, `directions`: `(..., 3)` real, finite (broadcast together),
+    directions non-zero: NaN, Inf or zero directions raise `ValueError`, under `jax.jit`
+    too; `n_steps` >= 1, `refine` >= 0.
+
+    Called on concrete rays, they are moved into the normalised frame in float64 first, so
+    rays and networks of any finite scale work (in float32, a `t` beyond its range reads
+    `inf`).
 
     **Returns:** `(t (...), hit (...) bool)`; `t` is `inf` where the ray misses.
     """
-    o = jnp.asarray(origins, jnp.result_type(float))
-    d = jnp.asarray(directions, jnp.result_type(float))
-    o, d = jnp.broadcast_arrays(o, d)
-    if o.shape[-1] != 3:
-        raise ValueError(f"nesi.raytrace: rays must have shape (..., 3), got {o.shape}")
+    where = "voxax.nesi.raytrace"
+    _check_net(where, net)
+    n_steps = _validate.positive_int(where, "n_steps", n_steps)
+    refine = _validate.positive_int(where, "refine", refine, minimum=0)
+    concrete = not isinstance(origins, jax.core.Tracer) and not isinstance(directions, jax.core.Tracer)
+    if concrete:
+        o, d = _real_points(where, "origins", origins), _real_points(where, "directions", directions)
+        if not np.all(np.abs(d).max(-1) > 0):
+            raise ValueError(f"{where}: `directions` must be non-zero")
+    else:
+        o, d = _traced_points(where, "origins", origins), _traced_points(where, "directions", directions)
+        d = eqx.error_if(d, ~jnp.all(jnp.max(jnp.abs(d), -1) > 0), f"{where}: `directions` must be non-zero")
+    dt = jnp.result_type(float)
+    try:
+        o, d = (np if concrete else jnp).broadcast_arrays(o, d)
+    except ValueError:
+        raise ValueError(
+            f"{where}: `origins` and `directions` must broadcast together, got {o.shape} and {d.shape}"
+        ) from None
     lead = o.shape[:-1]
-    t, hit = _raytrace(net, o.reshape(-1, 3), d.reshape(-1, 3), int(n_steps), int(refine))
+    if concrete:
+        # in the normalised frame, in float64 (world rays of any finite size), directions
+        # scaled to a largest component `k` of 1: `t = t' / (scale k)`
+        o64, d64 = np.asarray(o, np.float64).reshape(-1, 3), np.asarray(d, np.float64).reshape(-1, 3)
+        k = np.abs(d64).max(-1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            q = (o64 - np.asarray(net.center)) * net.scale
+        unit = NESI(net.dhf, net.heights, net.masks, net.frames, (0.0, 0.0, 0.0), 1.0)
+        t, hit = _raytrace(unit, jnp.asarray(q, dt), jnp.asarray(d64 / k[:, None], dt), n_steps, refine)
+        with np.errstate(over="ignore"):
+            t = np.asarray(t, np.float64) / net.scale / k
+        return jnp.asarray(t.reshape(lead), dt), hit.reshape(lead)
+    o, d = jnp.asarray(o, dt), jnp.asarray(d, dt)
+    t, hit = _raytrace(net, o.reshape(-1, 3), d.reshape(-1, 3), n_steps, refine)
     return t.reshape(lead), hit.reshape(lead)
 
 
@@ -740,15 +761,22 @@ def _raytrace(net, o, d, n_steps, refine):
     return jnp.where(hit, hi_t, jnp.inf), hit
 
 
-def to_mesh(net: NESI, resolution: int = 128) -> Mesh:
+def to_mesh(net: NESI, *, resolution: int = 128) -> Mesh:
     """A watertight mesh of a NESI: each explicit's heights on a `resolution^2` pixel grid
     become a height-field solid, and manifold3d intersects them (the paper's App. B).
 
+    Like [`voxax.esi.to_mesh`][voxax.esi.to_mesh]`(esi, vertices, faces, *, resolution)`,
+    the representation comes first; a NESI holds its networks, so no mesh follows.
+
+    **Arguments:** `net`; `resolution`: pixels per side (>= 2).
+
     **Returns:** a `Mesh` in world coordinates.
     """
-    r = int(resolution)
-    if r < 2:
-        raise ValueError(f"nesi.to_mesh: resolution must be >= 2, got {r}")
+    where = "voxax.nesi.to_mesh"
+    _check_net(where, net)
+    r = _validate.positive_int(where, "resolution", resolution, minimum=2)
+    if r > 8192:
+        raise MemoryError(f"{where}: `resolution` must be at most 8192 (the pixels of every explicit), got {r}")
     c = np.asarray(net.center)
     R = 1.0 / net.scale
     solids = []
@@ -762,13 +790,13 @@ def to_mesh(net: NESI, resolution: int = 128) -> Mesh:
             mask = (fa > fb) & np.all(np.abs(xy) <= 1, -1).reshape(r, r)
             dm = _depth_dummy(fr, np.where(mask, fb, np.nan), np.where(mask, fa, np.nan), mask)
             if not mask.any():
-                raise ValueError("nesi.to_mesh: the DHF network is empty at this resolution")
-            solids += [_esi.height_field_solid(dm, 1)[0], _esi.height_field_solid(dm, -1)[0]]
+                raise ValueError(f"{where}: `resolution` must be higher: the DHF network is empty at this resolution")
+            solids += [_esi.height_field_solid(dm, 1).boundary, _esi.height_field_solid(dm, -1).boundary]
         else:
             h = np.asarray(net.heights[e - 1](jnp.asarray(xy)), np.float64).reshape(r, r) / net.scale
             mask = np.asarray(net.masks[e - 1](jnp.asarray(xy)) > 0).reshape(r, r)
             dm = _depth_dummy(fr, np.where(mask, h, np.nan), np.where(mask, h, np.nan), mask)
-            solids.append(_esi.height_field_solid(dm, 1)[0])
+            solids.append(_esi.height_field_solid(dm, 1).boundary)
     return _esi.intersect_solids(solids)
 
 

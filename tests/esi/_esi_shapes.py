@@ -46,7 +46,7 @@ def brute_force_depths(mesh: Mesh, origins: np.ndarray, d: np.ndarray, margin: f
 
 def bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf):
     """The sample sums of the selection's bounds, straight from their definition
-    (`voxax.esi._bound_samples`)."""
+    (`voxax._kernels.esi.bound_samples`)."""
     j = np.arange(c0, c0 + nc)
     C = np.minimum(cur[:, None], Dr[np.ix_(rr, j)])
     cd = (np.minimum(C, suf[np.ix_(rr, j + 1)]) if with_suf else C).sum(0)
@@ -56,7 +56,7 @@ def bound_samples_reference(rr, cur, Dr, suf, Vr, sufv, c0, nc, with_suf):
 
 def bound_removals_reference(IN, rows, cols, col_of, s3, wd, wt):
     """The floater sums of the selection's bounds, one entry at a time
-    (`voxax.esi._bound_removals`)."""
+    (`voxax._kernels.esi.bound_removals`)."""
     nh = IN.shape[0]
     nc = len(cols)
     member = np.zeros((len(rows), nc), bool)
@@ -78,7 +78,7 @@ def bound_removals_reference(IN, rows, cols, col_of, s3, wd, wt):
 
 
 def bound_blocks_reference(alive, off, wd, wt):
-    """The block sums of the selection's bounds (`voxax.esi._bound_blocks`)."""
+    """The block sums of the selection's bounds (`voxax._kernels.esi.bound_blocks`)."""
     out = np.zeros((3, len(off) - 1))
     for b in range(len(off) - 1):
         a = alive[off[b] : off[b + 1]]
@@ -103,7 +103,7 @@ def random_bound_case(rng, nh=None, R=None):
 
 def random_sample_tables(rng, nh, max_rows=60, max_samples=50):
     """Random inputs of the bounds' sample sums for `nh` HF candidates: `rr`, `cur`, `Dr`,
-    `suf`, `Vr`, `sufv`, `c0`, `nc` (as `voxax.esi._bound_samples` takes them)."""
+    `suf`, `Vr`, `sufv`, `c0`, `nc` (as `voxax._kernels.esi.bound_samples` takes them)."""
     nrow = int(rng.integers(1, max_rows))
     Dr, suf = rng.random((nrow, nh)), rng.random((nrow, nh + 1))
     Vr, sufv = rng.random((nrow, nh)) < 0.3, rng.random((nrow, nh + 1)) < 0.5

@@ -17,6 +17,9 @@ from _esi_shapes import (
 
 import voxax
 from voxax import data, esi, metrics
+from voxax._kernels import esi as kesi
+from voxax.esi import _search as bnb
+from voxax.esi import _select as selection
 
 OBLIQUE = np.array([0.3, -0.5, 0.8])
 
@@ -99,15 +102,15 @@ def test_depth_map_of_an_inscribed_sphere_lies_within_the_analytic_sphere():
 
 def test_depth_map_rejects_bad_input():
     cube = data.cube(1.0)
-    with pytest.raises(ValueError, match="direction is zero"):
+    with pytest.raises(ValueError, match="voxax.esi.depth_map: `direction` must be non-zero"):
         esi.depth_map(cube, (0.0, 0.0, 0.0))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(ValueError, match="`direction` must be finite"):
         esi.depth_map(cube, (np.nan, 0.0, 1.0))
     with pytest.raises(ValueError, match="shape"):
         esi.depth_map(cube, (1.0, 0.0))
     with pytest.raises(ValueError, match="closed"):
         esi.depth_map(cube.vertices, cube.faces[:-1], (0.0, 0.0, 1.0))
-    with pytest.raises(ValueError, match="empty"):
+    with pytest.raises(ValueError, match="`resolution` must be higher: the depth map is empty"):
         # a thin needle between the pixel centres of a 2x2 frame
         thin = voxax.Mesh(cube.vertices * np.array([1e-3, 1e-3, 1.0]), cube.faces)
         esi.depth_map(thin, (0.0, 0.0, 1.0), resolution=2)
@@ -119,9 +122,9 @@ def test_depth_map_rejects_bad_input():
         esi.depth_map(cube, (0, 0, 1), resolution=0)
     with pytest.raises(ValueError, match="closed"):
         esi.depth_map(voxax.BVH(cube.vertices, cube.faces[:-1]), (0.0, 0.0, 1.0))
-    with pytest.raises(TypeError, match="only the direction"):
+    with pytest.raises(TypeError, match="only `direction`"):
         esi.depth_map(voxax.BVH(cube), cube.faces, (0.0, 0.0, 1.0))
-    with pytest.raises(TypeError, match="missing"):
+    with pytest.raises(TypeError, match="`direction` must be given"):
         esi.depth_map(voxax.BVH(cube))
 
 
@@ -160,8 +163,9 @@ def test_convex_shapes_select_no_hf_and_occupancy_is_inside(shape):
         m = voxax.Mesh(b.vertices @ rotation(5).T, b.faces)
     r = esi.select(m, n_dhf=4, n_hf=6, max_hf=1, n_samples=1000, resolution=40)
     assert len(r.hf_axes) == 0
-    # the level after the last chosen one only looks below the chosen E minus tol
-    assert len(r.by_m) == 2 and np.isnan(r.by_m[1])
+    # the level after the last chosen one only looks below the chosen E minus tol: it
+    # has no entry in by_m (no NaN), and leaves / evaluations count it
+    assert len(r.by_m) == 1 and len(r.leaves) == len(r.evaluations) == 2 and np.isfinite(r.energy)
     p = np.random.default_rng(2).uniform(-1.1, 1.1, (100_000, 3))
     # a convex polyhedron is the intersection of its faces' half-spaces
     v = m.vertices[m.faces]
@@ -224,24 +228,24 @@ def test_select_and_occupancy_reject_bad_input():
     cube = data.cube(1.0)
     with pytest.raises(ValueError, match="closed"):
         esi.select(cube.vertices, cube.faces[:-2], n_dhf=2, n_hf=2)
-    with pytest.raises(ValueError, match="zero"):
+    with pytest.raises(ValueError, match="`candidates_dhf` must be non-zero"):
         esi.select(cube, candidates_dhf=[[0.0, 0.0, 0.0]], candidates_hf=np.eye(3))
-    with pytest.raises(ValueError, match="max_hf"):
+    with pytest.raises(ValueError, match="`max_hf` must be at least 0"):
         esi.select(cube, max_hf=-1)
-    with pytest.raises(ValueError, match=r"repeats a direction \(rows 0 and 2\)"):
+    with pytest.raises(ValueError, match=r"must not repeat a direction \(rows 0 and 2"):
         esi.select(cube, candidates_dhf=np.eye(3), candidates_hf=[[0, 0, 1], [0, 1, 0], [0, 0, 2]])
-    with pytest.raises(ValueError, match="direction is zero"):
+    with pytest.raises(ValueError, match="voxax.esi.occupancy: `esi` must be non-zero"):
         esi.occupancy(((0, 0, 0), ()), cube, np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="points"):
+    with pytest.raises(ValueError, match="`points` must have shape"):
         esi.occupancy(((0, 0, 1), ()), cube, np.zeros((2, 2)))
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="`esi` must be an ESI"):
         esi.occupancy("x", cube, np.zeros((2, 3)))
 
 
 @pytest.fixture(scope="module")
 def small_problem():
     cd, ch = esi.candidates(3, 4)
-    return esi._prepare("t", mug(24), None, cd, ch, 32, 400, 0, None)
+    return selection._prepare("t", mug(24), None, cd, ch, 32, 400, 0, None)
 
 
 def test_selection_rays_cached_per_sample(small_problem):
@@ -290,7 +294,7 @@ def test_selection_bounds_hold_for_every_choice_below_them(small_problem):
     checked = exact = 0
     for mm in (1, 2, 3):
         for i, (kp, km) in enumerate(dk):
-            t = esi._Dhf(prob, kp, km, hk, 85.0)
+            t = bnb._Dhf(prob, kp, km, hk, 85.0)
             stack = [t.root()]
             while stack:
                 node = stack.pop()
@@ -319,7 +323,7 @@ def test_selection_ray_registry_matches_direct_casts(small_problem):
     through the registry, against rays cast here; the direction-grouped column test only
     rejects rays that miss S."""
     prob, dk, hk = small_problem
-    esi._search(prob, dk, hk, 2, 1e-4, 1e-3, 85.0, False)
+    bnb._search(prob, dk, hk, 2, 1e-4, 1e-3, 85.0, False)
     reg = prob.registry(hk)
     known = np.argwhere(reg >= 0)
     assert len(known) > 1000
@@ -353,8 +357,8 @@ def test_column_casts_are_the_bvh_casts(small_problem):
     want = voxax.any_hits(prob.mesh, pts, prob.vec[ks], t_min=prob.eps)
     assert np.array_equal(got, want)
     assert 0.2 < got.mean() < 0.8
-    raw = esi._column_hits(pts, ks, prob._casts, 1)
-    assert np.array_equal(raw, esi._column_hits(pts, ks, prob._casts, 2))
+    raw = kesi.column_hits(pts, ks, prob._casts, 1)
+    assert np.array_equal(raw, kesi.column_hits(pts, ks, prob._casts, 2))
     assert np.array_equal(raw & 1 == 1, got) and not np.any((raw & 1) > (raw >> 1))
 
 
@@ -372,8 +376,8 @@ def test_column_test_kernel_is_its_formula():
     pts = rng.uniform(-1.5, 1.5, (4000, 3))
     pts[0] = np.nan
     ks = rng.integers(K, size=len(pts))
-    got = esi._column_test(pts, ks, frames, G, lims, 2)
-    assert np.array_equal(got, esi._column_test(pts, ks, frames, G, lims, 1))
+    got = kesi.column_test(pts, ks, frames, G, lims, 2)
+    assert np.array_equal(got, kesi.column_test(pts, ks, frames, G, lims, 1))
     checked = 0
     for j in range(len(pts)):
         q = frames[ks[j]]
@@ -389,9 +393,9 @@ def test_column_test_kernel_is_its_formula():
             checked += 1
     assert checked > 2000 and 0 < got.sum() < checked
     with pytest.raises(ValueError, match=r"outside \[0, 4\)"):
-        esi._column_test(pts, np.full(len(pts), K), frames, G, lims, None)
+        kesi.column_test(pts, np.full(len(pts), K), frames, G, lims, None)
     with pytest.raises(ValueError, match="cell width"):
-        esi._column_test(pts[:3], np.zeros(3, np.int64), np.where(np.arange(15) == 14, 0.0, frames[0])[None], G,
+        kesi.column_test(pts[:3], np.zeros(3, np.int64), np.where(np.arange(15) == 14, 0.0, frames[0])[None], G,
                          lims[:1], None)
 
 
@@ -400,7 +404,7 @@ def test_bnb_equals_exhaustive_up_to_three_hfs_on_a_knot(seed):
     """Every level m = 0..3 of the branch and bound against evaluating every leaf (E to the
     bit, same axes), on a knotted tube whose optimum keeps improving up to three HFs."""
     m = data.large(2000)
-    kw = dict(n_dhf=5, n_hf=7, max_hf=3, n_samples=800, resolution=40, stop_early=False, seed=seed)
+    kw = dict(n_dhf=5, n_hf=7, max_hf=3, n_samples=800, resolution=40, stop_early=False, key=seed)
     r, ex = esi.select(m, **kw), esi.select(m, exhaustive=True, **kw)
     assert (r.dhf_index, r.hf_indices) == (ex.dhf_index, ex.hf_indices)
     np.testing.assert_array_equal(r.by_m, ex.by_m)
@@ -415,7 +419,7 @@ def test_top_sums_are_the_sums_of_the_largest():
     for n in (0, 1, 5, 40):
         c = rng.integers(0, 50, n).astype(np.float64)
         for r in (1, 2, 3):
-            got = esi._top_sums(c, r)
+            got = bnb._top_sums(c, r)
             for s in range(1, r + 1):
                 want = [np.sort(c[j:])[::-1][:s].sum() for j in range(n)] + [0.0]
                 assert np.array_equal(got[s], want)
@@ -430,7 +434,7 @@ def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
     for IN, rows, cols, col_of, s3, wd, wt in cases:
         modes = [None] + ([col_of] if len(cols) or not len(rows) else [])
         for co in modes:
-            runs = [esi._bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, None)]
+            runs = [kesi.bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, None)]
             for run in runs[1:]:
                 for a, b in zip(runs[0], run):
                     np.testing.assert_array_equal(a, b)
@@ -439,7 +443,7 @@ def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
         # the sample sums, on tables of the same sizes
         tables = random_sample_tables(rng, IN.shape[0])
         for with_suf in (False, True):
-            got = esi._bound_samples(*tables, with_suf)
+            got = kesi.bound_samples(*tables, with_suf)
             want = bound_samples_reference(*tables, with_suf)
             for g, w in zip(got, want):
                 np.testing.assert_allclose(g, w, rtol=1e-12, atol=0)
@@ -448,8 +452,8 @@ def test_bound_kernels_are_their_sums_and_the_same_bits_for_any_thread_count():
         off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 8))))
         alive = rng.random(R) < 0.5
         want = bound_blocks_reference(alive, off, wd, wt)
-        np.testing.assert_allclose(esi._bound_blocks(alive, off, wd, wt), want, rtol=1e-12)
-        counts = esi._bound_blocks(alive, off, wd, wt, sums=False)
+        np.testing.assert_allclose(kesi.bound_blocks(alive, off, wd, wt), want, rtol=1e-12)
+        counts = kesi.bound_blocks(alive, off, wd, wt, sums=False)
         np.testing.assert_array_equal(counts[0], want[0])
         assert not counts[1:].any()
 
@@ -458,20 +462,20 @@ def test_bound_kernels_reject_bad_input():
     IN = np.zeros((4, 10), bool)
     w = np.ones(10)
     bad = {
-        "row": lambda: esi._bound_removals(IN, [10], [0], None, 0, w, w, 1),
-        "column": lambda: esi._bound_removals(IN, [1], [4], None, 0, w, w, 1),
-        "ascending": lambda: esi._bound_removals(IN, [1], [2, 1], None, 0, w, w, 1),
-        "column of a row": lambda: esi._bound_removals(IN, [1], [0], [1], 0, w, w, 1),
-        "columns of the rows": lambda: esi._bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 1),
-        "s3": lambda: esi._bound_removals(IN, [1], [0], None, 5, w, w, 1),
-        "finite": lambda: esi._bound_removals(IN, [1], [0], None, 0, np.full(10, np.nan), w, 1),
-        "offsets": lambda: esi._bound_blocks(np.ones(10, bool), [0, 5, 3], w, w),
-        "beyond": lambda: esi._bound_blocks(np.ones(10, bool), [0, 11], w, w),
-        "sample row": lambda: esi._bound_samples([7], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
+        "row": lambda: kesi.bound_removals(IN, [10], [0], None, 0, w, w, 1),
+        "column": lambda: kesi.bound_removals(IN, [1], [4], None, 0, w, w, 1),
+        "ascending": lambda: kesi.bound_removals(IN, [1], [2, 1], None, 0, w, w, 1),
+        "column of a row": lambda: kesi.bound_removals(IN, [1], [0], [1], 0, w, w, 1),
+        "columns of the rows": lambda: kesi.bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 1),
+        "s3": lambda: kesi.bound_removals(IN, [1], [0], None, 5, w, w, 1),
+        "finite": lambda: kesi.bound_removals(IN, [1], [0], None, 0, np.full(10, np.nan), w, 1),
+        "offsets": lambda: kesi.bound_blocks(np.ones(10, bool), [0, 5, 3], w, w),
+        "beyond": lambda: kesi.bound_blocks(np.ones(10, bool), [0, 11], w, w),
+        "sample row": lambda: kesi.bound_samples([7], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
                                                  np.zeros((5, 4), bool), np.zeros((5, 5), bool), 0, 2, True),
-        "c0 + nc": lambda: esi._bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
+        "c0 + nc": lambda: kesi.bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 5)),
                                               np.zeros((5, 4), bool), np.zeros((5, 5), bool), 3, 2, True),
-        "shape": lambda: esi._bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 4)),
+        "shape": lambda: kesi.bound_samples([1], [0.0], np.zeros((5, 4)), np.zeros((5, 4)),
                                             np.zeros((5, 4), bool), np.zeros((5, 5), bool), 0, 2, True),
     }  # fmt: skip
     for name, call in bad.items():
@@ -489,8 +493,8 @@ def test_bound_removal_sums_are_the_documented_order_to_the_bit():
     cols, s3 = np.array([2, 5, 6, 11, 17], np.int64), 3
     col_of = np.sort(rng.integers(0, len(cols), len(rows)))
     member = IN[np.ix_(cols, rows)].T
-    _, Md, Mt = esi._bound_removals(IN, rows, cols, None, s3, wd, wt, 2)
-    _, Md1, Mt1 = esi._bound_removals(IN, rows, cols, col_of, s3, wd, wt, 2)
+    _, Md, Mt = kesi.bound_removals(IN, rows, cols, None, s3, wd, wt, 2)
+    _, Md1, Mt1 = kesi.bound_removals(IN, rows, cols, col_of, s3, wd, wt, 2)
     for j, h in enumerate(range(s3, IN.shape[0])):
         for c in range(len(cols)):
             want = [0.0, 0.0]

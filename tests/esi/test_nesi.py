@@ -33,7 +33,7 @@ def test_restricted_domain_of_a_cube():
     # DHF along z, one HF along +x: the +x face is seen from z only at 90 degrees
     # (criterion 2), the +-y faces likewise; the +-z faces are covered by the DHF
     cube = data.cube(2.0)
-    d, frames, c, s = nesi.training_data((Z, [X]), cube, n_samples=3000, seed=1)
+    d, frames, c, s = nesi.training_data((Z, [X]), cube, n_samples=3000, key=1)
     u, v, w = frames[1]
     assert np.allclose(w, X)
     # recover world points of the HF's training samples: normalised (x, y, f) in its frame
@@ -54,7 +54,7 @@ def test_restriction_criteria_on_the_cube_faces():
     cube = data.cube(2.0)
     d0 = np.array([0.2, 0.1, 1.0])
     d1 = np.array([1.0, 0.3, 0.2])
-    d, frames, c, s = nesi.training_data((d0, [d1]), cube, n_samples=6000, seed=1)
+    d, frames, c, s = nesi.training_data((d0, [d1]), cube, n_samples=6000, key=1)
     r = d.restricted[0]
     assert len(r) > 2000
     assert abs((~r).mean() - 1 / 3) < 0.03
@@ -70,7 +70,7 @@ def test_restriction_criteria_on_the_cube_faces():
 def tiny_fit():
     m = data.icosphere(3, radius=0.8)
     ax = (Z, [X])
-    return m, ax, nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, seed=0)
+    return m, ax, nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, key=0)
 
 
 def test_float32_sine_of_the_queries_matches_numpy():
@@ -119,16 +119,16 @@ def test_tiny_fit_meshes_watertight(tiny_fit):
 
 def test_nesi_rejects_bad_input():
     cube = data.cube(1.0)
-    with pytest.raises(ValueError, match="lod"):
+    with pytest.raises(ValueError, match="voxax.nesi.fit: `lod` must be 1, 2, 3 or 4"):
         nesi.fit((Z, []), cube, lod=5)
     with pytest.raises(ValueError, match="closed"):
         nesi.fit((Z, []), cube.vertices, cube.faces[:-1], steps=0)
-    with pytest.raises(ValueError, match="direction is zero"):
+    with pytest.raises(ValueError, match="`esi` must be non-zero"):
         nesi.fit(((0, 0, 0), []), cube, steps=0)
     net = nesi.fit((Z, []), cube, steps=0, n_samples=500)
-    with pytest.raises(ValueError, match="points"):
+    with pytest.raises(ValueError, match="voxax.nesi.occupancy: `points` must have shape"):
         nesi.occupancy(net, np.zeros((3, 2)))
-    with pytest.raises(ValueError, match="resolution"):
+    with pytest.raises(ValueError, match="voxax.nesi.to_mesh: `resolution` must be at least 2"):
         nesi.to_mesh(net, resolution=1)
 
 
@@ -231,7 +231,22 @@ def test_a_second_fit_of_the_same_sizes_reuses_the_compiled_steps(tiny_fit, monk
         return losses(*a, **k)
 
     monkeypatch.setattr(nesi, "losses", counted)
-    again = nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, seed=0)
+    again = nesi.fit(ax, m, steps=60, normal_start=60, n_samples=1000, learning_rate=3e-3, key=0)
     assert traces["n"] == 1
     for a, b in zip(jax.tree_util.tree_leaves(net), jax.tree_util.tree_leaves(again), strict=True):
         assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_raytrace_is_the_same_at_every_scale_of_the_directions(tiny_fit):
+    """Concrete rays are cast in the normalised frame in float64: directions of any length
+    give the same entry points (`t` scaled by the inverse length), never a NaN."""
+    m, ax, net = tiny_fit
+    o = np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
+    o[:, 2] = 3.0
+    down = np.array([0.0, 0.0, -1.0])
+    t, hit = (np.asarray(a) for a in nesi.raytrace(net, o, down, n_steps=50))
+    assert hit.mean() > 0.9
+    for f in (1e-200, 2.0**-600, 1e200):
+        ts, hs = (np.asarray(a) for a in nesi.raytrace(net, o, down * f, n_steps=50))
+        assert np.array_equal(hs, hit) and not np.isnan(ts).any()
+        np.testing.assert_allclose(ts[hit] * f, t[hit], rtol=1e-12, atol=0)

@@ -39,7 +39,6 @@ import re
 import sys
 import time
 import traceback
-import types
 
 import jax
 
@@ -820,7 +819,7 @@ def run_spatial(rng, n_inputs):
             CALLS["spatial_knn"] += 2
             # the ESI column test (random frames and depth limits, points off the grid, NaN)
             # against its formula evaluated here, away from cell borders and limits
-            from voxax.esi import _column_test
+            from voxax._kernels import esi as _kesi
 
             sc = scale if scale > 0 else 1.0
             G = 1 + i % 7
@@ -835,8 +834,8 @@ def run_spatial(rng, n_inputs):
             lims[:, 1::5] = -np.inf
             qp = np.concatenate([p, [[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0]]])
             qk = rng.integers(3, size=len(qp))
-            got = _column_test(qp, qk, frames, G, lims, 1 + i % 2)
-            if not np.array_equal(got, _column_test(qp, qk, frames, G, lims, 1)):
+            got = _kesi.column_test(qp, qk, frames, G, lims, 1 + i % 2)
+            if not np.array_equal(got, _kesi.column_test(qp, qk, frames, G, lims, 1)):
                 fail(f"{label}: column test differs across thread counts")
             for j in range(len(qp)):
                 q_ = frames[qk[j]]
@@ -858,8 +857,7 @@ def run_spatial(rng, n_inputs):
             # both signs): the same bits for 1 and 2 threads, hits only where the column test
             # passes; on random soups the BVH's hits; the block-wise known casts equal them
             if len(f):
-                from voxax.esi import Mesh as _Mesh
-                from voxax.esi import _Casts, _column_hits, _column_inside, _column_known, _column_lists
+                from voxax._kernels import esi as _kesi
 
                 R = 1.8 * sc
                 Gl = 1 + i % 9
@@ -868,17 +866,17 @@ def run_spatial(rng, n_inputs):
                     q_, _ = np.linalg.qr(rng.normal(size=(3, 3)))
                     lf[li, :9] = q_.ravel()
                     lf[li, 12:15] = (1.0, R, 2 * R / Gl)
-                offs, ents, lo_, hi_ = _column_lists(_Mesh(v, f), lf, Gl, 1e-6 * sc, 1 + i % 2)
+                offs, ents, lo_, hi_ = _kesi.column_lists(v, f, lf, Gl, 1e-6 * sc, 1 + i % 2)
                 prm = np.repeat(lf, 2, axis=0)
                 prm[1::2, 12] = -1.0
                 dirs_ = lf[:, [2, 5, 8]].repeat(2, axis=0) * prm[:, 12:13]
                 lims_ = np.stack([hi_[0], -lo_[0], hi_[1], -lo_[1]])
-                casts = _Casts.make(prm, dirs_, [0, 0, 1, 1], Gl, lims_, offs, ents,
+                casts = _kesi.Casts.make(prm, dirs_, [0, 0, 1, 1], Gl, lims_, offs, ents,
                                     np.asarray(v, np.float64)[np.asarray(f)].reshape(-1, 9), 1e-9 * sc)
                 qp = np.concatenate([o, [[np.nan, 0.0, 0.0]]])
                 qk = rng.integers(4, size=len(qp))
-                got = _column_hits(qp, qk, casts, 2)
-                if not np.array_equal(got, _column_hits(qp, qk, casts, 1)) or np.any((got & 1) > (got >> 1)):
+                got = _kesi.column_hits(qp, qk, casts, 2)
+                if not np.array_equal(got, _kesi.column_hits(qp, qk, casts, 1)) or np.any((got & 1) > (got >> 1)):
                     fail(f"{label}: column casts differ across thread counts or hit without a look")
                 if kind == "random":
                     want = bvh.any_hits(o[k:], dirs_[qk[k:-1]], t_min=1e-9 * sc)
@@ -887,16 +885,16 @@ def run_spatial(rng, n_inputs):
                 IN = np.zeros((4, len(o)), bool)
                 ghit = np.full((4, len(o)), -1, np.int8)
                 pairs = np.array([(b, c) for b in range(2) for c in range(4)])
-                _column_known(pairs, [0, len(o) // 3, len(o)], IN, np.arange(len(o)), np.arange(4), ghit,
+                _kesi.column_known(pairs, [0, len(o) // 3, len(o)], IN, np.arange(len(o)), np.arange(4), ghit,
                               len(o), o, casts, 1 + i % 2)
-                direct = np.stack([_column_hits(o, np.full(len(o), c), casts, 1) & 1 for c in range(4)])
+                direct = np.stack([_kesi.column_hits(o, np.full(len(o), c), casts, 1) & 1 for c in range(4)])
                 if not (np.array_equal(IN, direct == 1) and np.array_equal(ghit, direct.astype(np.int8))):
                     fail(f"{label}: known column casts differ from the direct casts")
                 # inside two height fields, a block at a time (one with a single direction,
                 # points outside every block untouched): the direct casts' AND
                 third = len(o) // 3
                 blocks = [(0, third, 0, 3), (third, 2 * third, 2, -1)]
-                inside, _ = _column_inside(o, blocks, casts, 1 + i % 2)
+                inside, _ = _kesi.column_inside(o, blocks, casts, 1 + i % 2)
                 want = np.zeros(len(o), bool)
                 want[:third] = (direct[0] & direct[3])[:third] == 1
                 want[third : 2 * third] = direct[2][third : 2 * third] == 1
@@ -921,21 +919,19 @@ def run_spatial(rng, n_inputs):
             fail(f"{label}: raised\n" + traceback.format_exc())
         COUNTS["spatial"] += 1
     # hostile inputs: every path must raise a clear error
+    from voxax._kernels import esi as _kesi
     from voxax._kernels.cvt import assign as _assign_moments
     from voxax._kernels.cvt import assign_host as assign_moments_host
-    from voxax.esi import _column_test
 
     v, f = rng.uniform(-1, 1, (30, 3)), np.arange(30, dtype=np.int32).reshape(10, 3)
-    from voxax.esi import Mesh as _Mesh
-    from voxax.esi import _Casts, _column_hits, _column_inside, _column_known, _column_lists
 
     def good_casts(entries=None, bad=False):
-        offs, ents, lo_, hi_ = _column_lists(_Mesh(v, f), col_ok[None], 2, 1e-9, None)
+        offs, ents, lo_, hi_ = _kesi.column_lists(v, f, col_ok[None], 2, 1e-9, None)
         if entries is not None:
             ents = ents[:entries]
         if bad:
             ents = np.where(np.arange(len(ents)) == 0, 99, ents)
-        return _Casts.make(col_ok[None], [col_ok[[2, 5, 8]]], [0], 2, np.full((1, 4), np.inf), offs, ents,
+        return _kesi.Casts.make(col_ok[None], [col_ok[[2, 5, 8]]], [0], 2, np.full((1, 4), np.inf), offs, ents,
                            v[f].reshape(-1, 9), 1e-9)
 
     col_ok = np.array([1.0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1])  # identity frame, R = h = 1
@@ -963,48 +959,47 @@ def run_spatial(rng, n_inputs):
             jax.ShapeDtypeStruct((3, 3), jnp.float64), jax.ShapeDtypeStruct((3, 3), jnp.float64)))(
             jnp.asarray(v), jnp.asarray(f), jnp.zeros((3, 3))), "outputs"),
         # the ESI column test
-        "column test direction": (lambda: _column_test(v, np.full(30, 3), np.tile(col_ok, (3, 1)), 2,
+        "column test direction": (lambda: _kesi.column_test(v, np.full(30, 3), np.tile(col_ok, (3, 1)), 2,
                                                        np.zeros((3, 4)), None), r"outside \[0, 3\)"),
-        "column test negative direction": (lambda: _column_test(v, np.full(30, -1), np.tile(col_ok, (3, 1)), 2,
+        "column test negative direction": (lambda: _kesi.column_test(v, np.full(30, -1), np.tile(col_ok, (3, 1)), 2,
                                                                 np.zeros((3, 4)), None), "outside"),
-        "column test zero width": (lambda: _column_test(v, np.zeros(30, np.int64),
+        "column test zero width": (lambda: _kesi.column_test(v, np.zeros(30, np.int64),
                                                         np.where(np.arange(15) == 14, 0.0, col_ok)[None], 2,
                                                         np.zeros((1, 4)), None), "cell width"),
-        "column test NaN frame": (lambda: _column_test(v, np.zeros(30, np.int64), np.where(
+        "column test NaN frame": (lambda: _kesi.column_test(v, np.zeros(30, np.int64), np.where(
             np.arange(15) == 3, np.nan, col_ok)[None], 2, np.zeros((1, 4)), None), "finite"),
-        "column test resolution 0": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 0,
+        "column test resolution 0": (lambda: _kesi.column_test(v, np.zeros(30, np.int64), col_ok[None], 0,
                                                           np.zeros((1, 0)), None), "resolution"),
-        "column test short table": (lambda: _column_test(v, np.zeros(30, np.int64), col_ok[None], 2,
+        "column test short table": (lambda: _kesi.column_test(v, np.zeros(30, np.int64), col_ok[None], 2,
                                                          np.zeros((1, 3)), None), "lims"),
         "closest points negative bound": (lambda: voxax.BVH(v, f).closest_points(v, max_distance=-1.0), "max_distance"),
         "closest points NaN bound": (lambda: voxax.BVH(v, f).closest_points(v, max_distance=np.nan), "max_distance"),
         # the ESI column lists and casts
-        "column lists face index": (lambda: _column_lists(types.SimpleNamespace(vertices=v, faces=f + 1), col_ok[None],
-                                                          2, 0.0, None),
+        "column lists face index": (lambda: _kesi.column_lists(v, f + 1, col_ok[None], 2, 0.0, None),
                                     "vertex index"),
-        "column lists NaN vertex": (lambda: _column_lists(types.SimpleNamespace(vertices=np.where(v == v[0], np.nan, v),
-                                                                                faces=f), col_ok[None], 2, 0.0, None),
+        "column lists NaN vertex": (lambda: _kesi.column_lists(np.where(v == v[0], np.nan, v), f, col_ok[None], 2,
+                                                               0.0, None),
                                     "finite"),
-        "column lists negative margin": (lambda: _column_lists(_Mesh(v, f), col_ok[None], 2, -1.0, None), "margin"),
-        "column casts direction": (lambda: _column_hits(v, np.full(30, 1), good_casts(), None), "outside"),
-        "column casts short entries": (lambda: _column_hits(v, np.zeros(30, np.int64), good_casts(entries=3),
+        "column lists negative margin": (lambda: _kesi.column_lists(v, f, col_ok[None], 2, -1.0, None), "margin"),
+        "column casts direction": (lambda: _kesi.column_hits(v, np.full(30, 1), good_casts(), None), "outside"),
+        "column casts short entries": (lambda: _kesi.column_hits(v, np.zeros(30, np.int64), good_casts(entries=3),
                                                             None), "out of range"),
-        "column casts bad entry": (lambda: _column_hits(v, np.zeros(30, np.int64), good_casts(bad=True), None),
+        "column casts bad entry": (lambda: _kesi.column_hits(v, np.zeros(30, np.int64), good_casts(bad=True), None),
                                    "out of range"),
-        "column casts table shapes": (lambda: _Casts.make(col_ok[None], np.zeros((2, 3)), [0], 2, np.zeros((1, 4)),
+        "column casts table shapes": (lambda: _kesi.Casts.make(col_ok[None], np.zeros((2, 3)), [0], 2, np.zeros((1, 4)),
                                                           np.zeros(5, np.int64), [], np.zeros((0, 9)), 0.0), "shapes"),
-        "column known pair": (lambda: _column_known([[2, 0]], [0, 10, 30], np.zeros((1, 30), bool), np.arange(30),
+        "column known pair": (lambda: _kesi.column_known([[2, 0]], [0, 10, 30], np.zeros((1, 30), bool), np.arange(30),
                                                     [0], np.full((1, 30), -1, np.int8), 30, v, good_casts(), None),
                               "pair"),
-        "column known unregistered": (lambda: _column_known([[0, 0]], [0, 10, 30], np.zeros((1, 30), bool),
+        "column known unregistered": (lambda: _kesi.column_known([[0, 0]], [0, 10, 30], np.zeros((1, 30), bool),
                                                             np.full(30, -1), [0], np.full((1, 30), -1, np.int8), 30, v,
                                                             good_casts(), None), "not registered"),
-        "column known blocks": (lambda: _column_known([[0, 0]], [0, 40], np.zeros((1, 30), bool), np.arange(30),
+        "column known blocks": (lambda: _kesi.column_known([[0, 0]], [0, 40], np.zeros((1, 30), bool), np.arange(30),
                                                       [0], np.full((1, 30), -1, np.int8), 30, v, good_casts(), None),
                                 "blocks"),
-        "column inside direction": (lambda: _column_inside(v, [(0, 30, 1, -1)], good_casts(), None), "directions"),
-        "column inside range": (lambda: _column_inside(v, [(0, 31, 0, -1)], good_casts(), None), "start <= end"),
-        "column inside overlap": (lambda: _column_inside(v, [(0, 20, 0, -1), (10, 30, 0, -1)], good_casts(), None),
+        "column inside direction": (lambda: _kesi.column_inside(v, [(0, 30, 1, -1)], good_casts(), None), "directions"),
+        "column inside range": (lambda: _kesi.column_inside(v, [(0, 31, 0, -1)], good_casts(), None), "start <= end"),
+        "column inside overlap": (lambda: _kesi.column_inside(v, [(0, 20, 0, -1), (10, 30, 0, -1)], good_casts(), None),
                                   "overlap"),
         # the CVT assignment kernel, host and FFI
         "CVT assign NaN seed": (lambda: assign_moments_host(np.where(v == v[0], np.nan, v), v, np.ones(30)), "NaN"),
@@ -1132,7 +1127,7 @@ def run_bounds(rng, n_inputs):
         random_sample_tables,
     )
 
-    from voxax.esi import _bound_blocks, _bound_removals, _bound_samples
+    from voxax._kernels import esi as _kesi
 
     def close(label, got, want):
         for g, w in zip(got, want):
@@ -1142,7 +1137,7 @@ def run_bounds(rng, n_inputs):
     for t in range(n_inputs):
         IN, rows, cols, col_of, s3, wd, wt = random_bound_case(rng, nh=60 if t % 7 == 0 else None)
         for co in [None] + ([col_of] if len(cols) or not len(rows) else []):
-            runs = [_bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, 3)]
+            runs = [_kesi.bound_removals(IN, rows, cols, co, s3, wd, wt, th) for th in (1, 2, 3)]
             if any(not all(np.array_equal(a, b) for a, b in zip(runs[0], r)) for r in runs[1:]):
                 fail("bounds removals: results depend on the thread count")
             close("removals", runs[0], bound_removals_reference(IN, rows, cols, co, s3, wd, wt))
@@ -1150,11 +1145,11 @@ def run_bounds(rng, n_inputs):
             CALLS["esi_bounds"] += 3
         tables = random_sample_tables(rng, IN.shape[0], 40, 40)
         ws = bool(t % 2)
-        close("samples", _bound_samples(*tables, ws), bound_samples_reference(*tables, ws))
+        close("samples", _kesi.bound_samples(*tables, ws), bound_samples_reference(*tables, ws))
         R = IN.shape[1]
         off = np.sort(rng.integers(0, R + 1, int(rng.integers(1, 6))))
         alive = rng.random(R) < 0.5
-        close("blocks", [_bound_blocks(alive, off, wd, wt)], [bound_blocks_reference(alive, off, wd, wt)])
+        close("blocks", [_kesi.bound_blocks(alive, off, wd, wt)], [bound_blocks_reference(alive, off, wd, wt)])
         COUNTS["bounds"] += 2
         CALLS["esi_bounds"] += 2
     IN = np.zeros((4, 10), bool)
@@ -1162,19 +1157,19 @@ def run_bounds(rng, n_inputs):
     D5, B5 = np.zeros((5, 4)), np.zeros((5, 4), bool)
     D6, B6 = np.zeros((5, 5)), np.zeros((5, 5), bool)
     bad = {
-        "row": (lambda: _bound_removals(IN, [10], [0], None, 0, w, w, 2), "outside"),
-        "negative row": (lambda: _bound_removals(IN, [-1], [0], None, 0, w, w, 2), "outside"),
-        "column": (lambda: _bound_removals(IN, [1], [4], None, 0, w, w, 2), "outside"),
-        "columns order": (lambda: _bound_removals(IN, [1], [2, 1], None, 0, w, w, 2), "ascending"),
-        "column of a row": (lambda: _bound_removals(IN, [1], [0], [1], 0, w, w, 2), "outside"),
-        "columns of rows order": (lambda: _bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 2), "ascending"),
-        "s3": (lambda: _bound_removals(IN, [1], [0], None, 5, w, w, 2), "s3"),
-        "weights": (lambda: _bound_removals(IN, [1], [0], None, 0, w, np.full(10, np.inf), 2), "finite"),
-        "offsets order": (lambda: _bound_blocks(np.ones(10, bool), [0, 5, 3], w, w), "ascending"),
-        "offsets beyond": (lambda: _bound_blocks(np.ones(10, bool), [-1, 11], w, w), "ascending"),
-        "sample row": (lambda: _bound_samples([7], [0.0], D5, D6, B5, B6, 0, 2, True), "outside"),
-        "sample columns": (lambda: _bound_samples([1], [0.0], D5, D6, B5, B6, 3, 2, True), "c0"),
-        "sample shape": (lambda: _bound_samples([1], [0.0], D5, D5, B5, B6, 0, 2, True), "shape"),
+        "row": (lambda: _kesi.bound_removals(IN, [10], [0], None, 0, w, w, 2), "outside"),
+        "negative row": (lambda: _kesi.bound_removals(IN, [-1], [0], None, 0, w, w, 2), "outside"),
+        "column": (lambda: _kesi.bound_removals(IN, [1], [4], None, 0, w, w, 2), "outside"),
+        "columns order": (lambda: _kesi.bound_removals(IN, [1], [2, 1], None, 0, w, w, 2), "ascending"),
+        "column of a row": (lambda: _kesi.bound_removals(IN, [1], [0], [1], 0, w, w, 2), "outside"),
+        "columns of rows order": (lambda: _kesi.bound_removals(IN, [1, 2], [0, 1], [1, 0], 0, w, w, 2), "ascending"),
+        "s3": (lambda: _kesi.bound_removals(IN, [1], [0], None, 5, w, w, 2), "s3"),
+        "weights": (lambda: _kesi.bound_removals(IN, [1], [0], None, 0, w, np.full(10, np.inf), 2), "finite"),
+        "offsets order": (lambda: _kesi.bound_blocks(np.ones(10, bool), [0, 5, 3], w, w), "ascending"),
+        "offsets beyond": (lambda: _kesi.bound_blocks(np.ones(10, bool), [-1, 11], w, w), "ascending"),
+        "sample row": (lambda: _kesi.bound_samples([7], [0.0], D5, D6, B5, B6, 0, 2, True), "outside"),
+        "sample columns": (lambda: _kesi.bound_samples([1], [0.0], D5, D6, B5, B6, 3, 2, True), "c0"),
+        "sample shape": (lambda: _kesi.bound_samples([1], [0.0], D5, D5, B5, B6, 0, 2, True), "shape"),
     }
     expect_rejected("bounds", bad, (ValueError,))
 

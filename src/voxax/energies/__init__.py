@@ -10,6 +10,8 @@ Grid energies take the output `W` of `voxax.voxelize` (box-filtered winding numb
 - `volume(W, grid)`, `interpenetration(W_a, W_b)`: enclosed volume; overlap of two shapes.
 - On a `voxax.SparseGrid` (from `voxax.voxelize_sparse`), without the dense grid:
   `sparse_self_intersection`, `sparse_volume`, `sparse_column_sums`, `sparse_silhouette_z`.
+- `height_field_hull(W, axis, w)`, `esi_gap(W, axes, w)`: soft double-height-field hulls
+  and the gap of a shape to their intersection (explicit surface intersections on grids).
 
 Mesh energies:
 
@@ -47,10 +49,13 @@ from ._grid import (
     tiling,
     volume,
 )
+from ._height_fields import esi_gap, height_field_hull
 from ._objective import objective
 from ._sparse import sparse_column_sums, sparse_self_intersection, sparse_silhouette_z, sparse_volume
 
 __all__ = [
+    "height_field_hull",
+    "esi_gap",
     "mellowmax",
     "silhouettes",
     "cut_shape",
