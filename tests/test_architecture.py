@@ -42,3 +42,30 @@ def test_every_csrc_folder_is_in_the_architecture_doc():
     folders = sorted(p.name for p in (ROOT / "csrc").iterdir() if p.is_dir())
     missing = [name for name in folders if f"`{name}`" not in DOC and f"csrc/{name}/" not in DOC]
     assert not missing, f"docs/architecture.md does not name the csrc/ folders {missing}"
+
+
+def test_only_the_kernels_package_knows_the_c_abi():
+    """ctypes, FFI calls and C signatures appear in `voxax._kernels` only."""
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel.startswith("_kernels/"):
+            continue
+        text = path.read_text()
+        for pattern in ("import ctypes", "jax.ffi.ffi_call", "argtypes", ".restype"):
+            if pattern in text:
+                offenders.append(f"{rel}: {pattern}")
+    assert not offenders, "the C ABI outside voxax._kernels:\n" + "\n".join(sorted(offenders))
+
+
+def test_csrc_suffixes_say_what_a_file_holds():
+    """`*_ffi.cc` holds FFI handlers and no C entry points; `*_host.cc` the reverse."""
+    wrong = []
+    for path in (ROOT / "csrc").rglob("*.cc"):
+        text = path.read_text()
+        handlers, entry_points = "XLA_FFI_DEFINE_HANDLER" in text, 'extern "C"' in text
+        if path.name.endswith("_ffi.cc") and entry_points:
+            wrong.append(f"{path.name}: C entry points in an FFI file")
+        if path.name.endswith("_host.cc") and handlers:
+            wrong.append(f"{path.name}: FFI handlers in a host file")
+    assert not wrong, wrong

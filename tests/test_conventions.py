@@ -30,23 +30,8 @@ NOT_SURFACE_ARGUMENTS = {
     "voxax.energies.arap", "voxax.energies.arap_rotations", "voxax.energies.cotangent_weights",
 }
 
-# Rules not yet met, by test and callable: each is an expected failure (strict: once met,
-# the entry must go).
-PENDING = {
-    ("surface", "voxax.closest_points"), ("surface", "voxax.first_hits"), ("surface", "voxax.any_hits"),
-    ("surface", "voxax.all_hits"),
-    ("same", "voxax.closest_points"), ("same", "voxax.first_hits"),
-    ("errors", "voxax.closest_points"), ("errors", "voxax.first_hits"),
-}
-
-
-def _params(rule: str, entries, name_of=lambda e: e[0]):
-    """pytest parameters over `entries`, the PENDING ones of `rule` as strict expected failures."""
-    return [
-        pytest.param(e, id=name_of(e), marks=pytest.mark.xfail(strict=True, reason=f"the {rule} rule is not met yet"))
-        if (rule, name_of(e)) in PENDING else pytest.param(e, id=name_of(e))
-        for e in entries
-    ]
+def _params(entries, name_of=lambda e: e[0]):
+    return [pytest.param(e, id=name_of(e)) for e in entries]
 
 
 # The drivers that run longer than a second: each takes `progress`.
@@ -83,7 +68,7 @@ def test_the_walk_covers_every_namespace():
         assert any(name.rsplit(".", 1)[0] == ns for name, _, _ in CALLABLES), ns
 
 
-@pytest.mark.parametrize("entry", _params("key", CALLABLES))
+@pytest.mark.parametrize("entry", _params(CALLABLES))
 def test_randomness_is_key(entry):
     """`key` names the randomness; `seed` only survives as a deprecated alias (default None)."""
     name, _, sig = entry
@@ -92,14 +77,14 @@ def test_randomness_is_key(entry):
         assert sig.parameters["seed"].default is None, f"{name}: the deprecated `seed` must default to None"
 
 
-@pytest.mark.parametrize("entry", _params("threads", CALLABLES))
+@pytest.mark.parametrize("entry", _params(CALLABLES))
 def test_threads_has_one_meaning(entry):
     name, _, sig = entry
     if "threads" in sig.parameters:
         assert sig.parameters["threads"].default is None, f"{name}: `threads` must default to None"
 
 
-@pytest.mark.parametrize("entry", _params("progress", CALLABLES))
+@pytest.mark.parametrize("entry", _params(CALLABLES))
 def test_progress_has_one_default(entry):
     name, _, sig = entry
     if "progress" in sig.parameters:
@@ -112,7 +97,7 @@ def test_long_drivers_take_progress(name):
     assert "progress" in sig.parameters
 
 
-@pytest.mark.parametrize("entry", _params("surface", CALLABLES))
+@pytest.mark.parametrize("entry", _params(CALLABLES))
 def test_a_surface_argument_takes_every_form(entry):
     """A first parameter `vertices` is followed by `faces=None`; a first parameter `mesh` also
     accepts `faces` (the two-argument form, through `_validate.surface_first`)."""
@@ -190,7 +175,7 @@ def _forms():
     return {"mesh": ((BALL,), {}), "trimesh": ((tm,), {}), "pair": (((v, f),), {}), "arrays": ((v, f), {})}
 
 
-@pytest.mark.parametrize("call", _params("same", SURFACE_CALLS))
+@pytest.mark.parametrize("call", _params(SURFACE_CALLS))
 def test_every_surface_form_gives_the_same_result(call):
     name, args = call
     fn = _resolve(name)
@@ -201,7 +186,7 @@ def test_every_surface_form_gives_the_same_result(call):
         assert _same(first, value), f"{name}: the {form} form gives another result"
 
 
-@pytest.mark.parametrize("call", _params("errors", SURFACE_CALLS))
+@pytest.mark.parametrize("call", _params(SURFACE_CALLS))
 def test_errors_name_the_function(call):
     """A mesh whose faces index past its vertices is refused with "voxax.<ns>.<fn>: ..."."""
     name, args = call

@@ -9,7 +9,8 @@ import os
 
 import numpy as np
 
-from .. import _blas, _kernels
+from .. import _kernels
+from .._kernels import blas as _blas
 from .._kernels import esi as _kesi
 from .._mesh import Mesh, face_normals
 from .._spatial import BVH
@@ -84,7 +85,7 @@ class _Problem:
         self.B, self.Bn, self.Bd = [], [], []
         # one line (then one direction) per thread, each single-threaded (the BVH builds of
         # the height-field solids are; the results do not depend on the order), and one
-        # BLAS thread (see `voxax._blas`)
+        # BLAS thread (see `voxax._kernels.blas`)
         workers = max(1, min(_kernels.threads(threads) or (os.cpu_count() or 1), K))
         inner = 1 if workers > 1 else threads
         frames = [frame_for(ld / np.linalg.norm(ld), c, rad, resolution) for ld in line_dirs]

@@ -8,7 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import _blas
+from .._kernels import blas as _blas
 from .._kernels import esi as _kesi
 from ._problem import _Problem
 
@@ -326,7 +326,7 @@ class _Dhf:
 
 def _search(prob: _Problem, dk, hk, m, eps1, eps2, angle, exhaustive, *, cap=math.inf, first=None):
     """`_search_level` with one BLAS thread (its many mid-sized products run faster so, next
-    to the casts' thread pools; see `voxax._blas`)."""
+    to the casts' thread pools; see `voxax._kernels.blas`)."""
     with _blas.single_threaded():
         return _search_level(prob, dk, hk, m, eps1, eps2, angle, exhaustive, cap=cap, first=first)
 
