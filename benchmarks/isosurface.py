@@ -68,7 +68,7 @@ def main(argv=None):
     from skimage.measure import marching_cubes
 
     import voxax
-    from voxax._isosurface import host_topology
+    from voxax._kernels.contour import topology as host_topology
 
     rows = []
     for n in args.sizes:

@@ -15,7 +15,7 @@ from scipy.ndimage import gaussian_filter
 
 import voxax
 from voxax import reference
-from voxax._isosurface import host_topology
+from voxax._kernels.contour import topology as host_topology
 
 
 def norm_field(grid, r=0.6):

@@ -6,8 +6,10 @@ from _iso_checks import assert_closed_manifold
 from scipy.ndimage import gaussian_filter
 
 import voxax
-from voxax import _isosurface
-from voxax._isosurface import _close_value, _isosurface_streamed, _pad, host_topology
+from voxax._isosurface import stream
+from voxax._isosurface.checks import _pad
+from voxax._isosurface.stream import _close_value, _isosurface_streamed
+from voxax._kernels.contour import topology as host_topology
 
 
 def _same(a, b):
@@ -58,7 +60,7 @@ def test_automatic_slabs_and_non_contiguous_input(rng, monkeypatch):
     grid = voxax.Grid.cube(12)
     f = gaussian_filter(rng.standard_normal(grid.shape), 1.5)
     whole = voxax.isosurface(f, grid, 0.0, close=True)
-    monkeypatch.setattr(_isosurface, "_SLAB_CELLS", 2 * 14 * 14)  # 2 planes of the padded grid
+    monkeypatch.setattr(stream, "_SLAB_CELLS", 2 * 14 * 14)  # 2 planes of the padded grid
     _same(voxax.isosurface(f, grid, 0.0, close=True), whole)
     # a transposed view is read slab by slab (copied one slab at a time)
     ft = np.ascontiguousarray(f.transpose(2, 1, 0)).transpose(2, 1, 0)

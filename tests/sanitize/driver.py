@@ -1373,7 +1373,9 @@ def run_fc(rng, n_inputs):
 
 def run_marching_cubes(rng, count):
     """Fuzzes the marching-cubes kernel: eager (exact size) and FFI (capacity) paths."""
-    from voxax._isosurface import _Count, _isosurface_streamed, host_topology
+    from voxax._isosurface.stream import _isosurface_streamed
+    from voxax._kernels.contour import Count as _Count
+    from voxax._kernels.contour import topology as host_topology
 
     def field(shape, dtype):
         kind = rng.integers(6)

@@ -1,0 +1,220 @@
+"""The eager `isosurface` of concrete samples, streamed over slabs of x planes."""
+
+from __future__ import annotations
+
+import warnings
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._grid import Grid
+from .checks import _INT32_MAX, _explicit_pad, _float, _padded
+from .interpolate import _vertices_of
+from .mesh import IsoMesh
+from .topology import _Count
+
+# Cells per slab of the eager path (64 MiB of float32 samples): grids up to this size run as
+# one slab; larger ones are swept slab by slab, so that nothing of the grid's size is
+# allocated besides the result (no padded copy, no mask, no float64 copy).
+_SLAB_CELLS = 1 << 24
+
+
+def _close_value(values: np.ndarray, level: float, inside: str, close, planes: int):
+    """The pad value of `close` (as in `_pad`), reading `values` slab by slab."""
+    if close is True:
+        span = 0.0
+        for a in range(0, max(values.shape[0], 1), planes):
+            part = values[a : a + planes]
+            if part.size:
+                # max |f - level| in float64 without a float64 copy: the rounded difference
+                # is monotone in f, so its extremes come from the extreme samples
+                lo, hi = float(np.min(part)), float(np.max(part))
+                span = max(span, hi - level, level - lo)
+        outward = 1.0 if inside == "below" else -1.0
+        return np.asarray(level + outward * (span if span > 0 else 1.0), values.dtype)
+    return np.asarray(_explicit_pad(close, level, inside), values.dtype)
+
+
+def _edge_keys(edges: np.ndarray, strides: np.ndarray, offset: int) -> np.ndarray:
+    """Sort keys `d * (global lower cell) + axis` of edges given in local cell indices."""
+    d = len(strides)
+    diff = (edges[:, 1] - edges[:, 0]).astype(np.int64)
+    axis = np.zeros(len(edges), np.int64)
+    for a, st in enumerate(strides):
+        axis[diff == st] = a
+    return (edges[:, 0].astype(np.int64) + offset) * d + axis
+
+
+def _isosurface_streamed(
+    values: np.ndarray, grid: Grid, level: float, inside: str, close, planes=None
+) -> IsoMesh:
+    """The eager `isosurface` of concrete samples `values` (of `grid.shape`), swept over slabs.
+
+    Slab `s` covers the x planes `a..b` (`b = a + planes`, the last one clipped) of the
+    (padded, with `close`) grid; neighbouring slabs share one plane. Each slab runs the C++
+    kernel on its own (a view of `values`, or a padded copy of the slab with `close`). A slab
+    owns the vertices whose lower cell lies in its planes `a..b-1` (the last slab: all), so
+    the concatenated vertices are numbered exactly as in one sweep (by edge id); faces of a
+    slab that use vertices of its last plane are renumbered to those of the next slab's first
+    plane, found by their edge keys. Vertex positions are interpolated per slab by the same
+    compiled elementwise function. The result is the same, bit for bit, for any `planes`.
+    Memory: the result, plus one slab's samples, topology and (with `close`) padded copy.
+    """
+    d = grid.dim
+    base = grid.shape
+    shape = tuple(n + 2 for n in base) if close is not False else base
+    m = int(np.prod(shape[1:], dtype=np.int64))
+    if planes is None:
+        planes = max(1, _SLAB_CELLS // max(m, 1))
+    planes = int(planes)
+    pad = None
+    if close is not False:
+        _check_finite_slabs(values, planes)
+        pad = _close_value(values, level, inside, close, planes)
+        g = _padded(grid)
+    else:
+        g = grid
+    if int(np.prod(shape, dtype=np.int64)) > _INT32_MAX:
+        raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
+    nx = shape[0]
+    starts = list(range(0, max(nx - 1, 1), planes))
+    spans = [(a, min(a + planes, nx - 1)) for a in starts]
+    view = pad is None and values.flags.c_contiguous and values.dtype in (np.float32, np.float64)
+
+    slab = _Slab(values, pad, shape)
+    kept, counts = _count_slabs(slab, spans, level, view)
+    n_vertices = sum(o for o, _ in counts)
+    n_faces = sum(f for _, f in counts)
+    if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
+        raise ValueError("isosurface: more than 2^31 - 1 vertices or faces")
+    ft = np.dtype(_float())
+    edges = np.zeros((n_vertices, 2), np.int32)
+    faces = np.zeros((n_faces, d), np.int32)
+    vertices = np.zeros((n_vertices, d), ft)
+    strides = np.array([int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)])
+    order = None if inside == "below" else ([1, 0] if d == 2 else [0, 2, 1])
+    gaps = []
+    voff = foff = 0
+    pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
+
+    for s, (a, b) in enumerate(spans):
+        c = kept[s] if kept[s] is not None else _Count(slab(a, b), level)
+        kept[s] = None
+        part = c.values
+        el, fl = c.fill()
+        own, nf = counts[s]
+        gl = el[:own].astype(np.int64) + a * m
+        edges[voff : voff + own] = gl
+        if pending is not None:
+            pf, pown, poff, pfo, pkeys = pending
+            nfirst = int(np.searchsorted(el[:, 0], m))
+            keys = _edge_keys(el[:nfirst], strides, a * m)
+            idx = np.searchsorted(keys, pkeys)
+            if len(pkeys) and (
+                idx.max() >= len(keys) or not np.array_equal(keys[idx], pkeys)
+            ):
+                raise RuntimeError("isosurface: slabs disagree on a shared plane")
+            _put_faces(faces, pf, pown, poff, pfo, voff + idx, order)
+            pending = None
+        if s == len(spans) - 1:
+            _put_faces(faces, fl, own, voff, foff, None, order)
+        else:
+            pending = (fl, own, voff, foff, _edge_keys(el[own:], strides, a * m))
+        if own:
+            flat = part.reshape(-1)
+            v, gap = _vertices_of(flat[el[:own, 0]], flat[el[:own, 1]], gl, g, level)
+            vertices[voff : voff + own] = v
+            gaps.append(gap)
+        del part, el, fl, c
+        voff += own
+        foff += nf
+    min_gap = jnp.asarray(np.inf, ft)
+    for gap in gaps:
+        min_gap = jnp.minimum(min_gap, gap)
+    if n_faces == 0:
+        _warn_empty(values, pad, level)
+    out_v = jnp.asarray(vertices)
+    del vertices
+    out_f = jnp.asarray(faces)
+    del faces
+    out_e = jnp.asarray(edges)
+    del edges
+    return IsoMesh(
+        out_v,
+        out_f,
+        out_e,
+        jnp.asarray(n_vertices, jnp.int32),
+        jnp.asarray(n_faces, jnp.int32),
+        min_gap,
+    )
+
+
+def _check_finite_slabs(values: np.ndarray, planes: int):
+    for a in range(0, max(values.shape[0], 1), planes):
+        if not np.all(np.isfinite(values[a : a + planes])):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+
+
+class _Slab:
+    """The samples of x planes `a..b` of the (padded, with a pad value) grid: a view of
+    `values`, or a padded copy of those planes."""
+
+    def __init__(self, values: np.ndarray, pad, shape):
+        self.values, self.pad, self.shape = values, pad, shape
+
+    def __call__(self, a: int, b: int) -> np.ndarray:
+        values, pad, shape = self.values, self.pad, self.shape
+        if pad is None:
+            return values[a : b + 1]
+        out = np.empty((b - a + 1,) + shape[1:], values.dtype)
+        out[...] = pad
+        lo, hi = max(a, 1), min(b, values.shape[0])
+        if lo <= hi:
+            inner = (slice(1, -1),) * (len(shape) - 1)
+            out[(slice(lo - a, hi - a + 1),) + inner] = values[lo - 1 : hi]
+        return out
+
+
+def _count_slabs(slab: _Slab, spans, level: float, view: bool):
+    """Pass 1: per slab, the vertices it owns and its faces (the contexts of views are kept
+    for pass 2, None for padded copies)."""
+    kept, counts = [], []
+    for s, (a, b) in enumerate(spans):
+        part = slab(a, b)
+        if slab.pad is None and not np.all(np.isfinite(part)):
+            raise ValueError("isosurface: `values` contain NaN or Inf")
+        c = _Count(part, level)
+        last = s == len(spans) - 1
+        own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
+        counts.append((own, c.n_faces))
+        if view:
+            kept.append(c)
+        else:
+            c.release()
+            kept.append(None)
+    return kept, counts
+
+
+def _put_faces(dest, fl, own, off, at, mapped, order):
+    """Writes a slab's faces at row `at`: its own vertices shifted by `off`, those of its last
+    plane through `mapped` (the next slab's numbering), columns in `order`."""
+    out = fl.astype(np.int64)
+    tail = out >= own
+    out[~tail] += off
+    if mapped is not None:
+        out[tail] = mapped[out[tail] - own]
+    if order is not None:
+        out = out[:, order]
+    dest[at : at + len(fl)] = out
+
+
+def _warn_empty(values: np.ndarray, pad, level: float):
+    lo, hi = float(values.min()), float(values.max())
+    if pad is not None:
+        lo, hi = min(lo, float(pad)), max(hi, float(pad))
+    warnings.warn(
+        f"isosurface: the field does not cross level {level} (values in "
+        f"[{lo:.6g}, {hi:.6g}]): the mesh is empty",
+        RuntimeWarning,
+        stacklevel=4,
+    )
