@@ -21,6 +21,7 @@
 #include "common/constants.h"
 #include "common/errors.h"
 #include "common/grid.h"
+#include "common/host_pool.h"
 #include "common/parallel.h"
 #include "common/validate.h"
 #include "contour/marching_cubes.h"
@@ -228,7 +229,7 @@ int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape,
     c->values = values;
     c->dtype = dtype;
     c->level = level;
-    c->threads = std::max(1, threads);
+    c->threads = spatial::resolve_threads(threads);  // 0: all cores
     ThreadRun run{c->threads};
     bool ok;
     if (dtype == 0) {

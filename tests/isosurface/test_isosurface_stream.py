@@ -1,5 +1,6 @@
 """The eager isosurface swept over slabs of x planes: the same result, bit for bit, as one sweep."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from _iso_checks import assert_closed_manifold
@@ -82,3 +83,27 @@ def test_bad_values_in_a_later_slab(rng):
     with pytest.warns(RuntimeWarning, match="does not cross"):
         iso = _isosurface_streamed(np.ones(grid.shape), grid, 0.0, "below", False, planes=3)
     assert int(iso.n_faces) == 0 and float(iso.min_gap) == np.inf
+
+
+def test_threads_follow_the_one_rule(monkeypatch):
+    """`threads` and VOXAX_NUM_THREADS reach the kernel through `voxax._kernels.threads`;
+    any count gives the same bits; bad counts are refused naming the function."""
+    from voxax._kernels import contour
+
+    grid = voxax.Grid.cube(12)
+    f = np.linalg.norm(grid.centers(), axis=-1) - 0.55
+    seen = []
+    real = contour.resolve_threads
+    monkeypatch.setattr(contour, "resolve_threads", lambda t: seen.append((t, real(t))) or real(t))
+    one = voxax.isosurface(f, grid, threads=1)
+    monkeypatch.setenv("VOXAX_NUM_THREADS", "3")
+    env = voxax.isosurface(f, grid, close=True)
+    sdf = voxax.isosurface_fn(lambda r, x: jnp.linalg.norm(x, axis=-1) - r, 0.55, grid, threads=2)
+    assert seen[0] == (1, 1) and (None, 3) in seen and (2, 2) in seen
+    _same(one, voxax.isosurface(f, grid, threads=2))
+    assert int(env.n_faces) == int(one.n_faces) == int(sdf.n_faces) > 0
+    for bad, err in ((0, ValueError), (-2, ValueError), (1.5, TypeError), (True, TypeError)):
+        with pytest.raises(err, match=r"voxax.isosurface: `threads` must be"):
+            voxax.isosurface(f, grid, threads=bad)
+        with pytest.raises(err, match=r"voxax.isosurface_topology: `threads` must be"):
+            voxax.isosurface_topology(f, grid, threads=bad)

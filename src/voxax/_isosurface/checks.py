@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _kernels
 from .._grid import Grid
 
 _INT32_MAX = np.iinfo(np.int32).max
@@ -164,6 +165,15 @@ def _pad(values, grid: Grid, level: float, inside: str, close):
     mask = np.pad(np.zeros(grid.shape, bool), 1, constant_values=True)
     out = jnp.where(mask, pad, out)
     return out, _padded(grid)
+
+
+def _check_threads(threads, name):
+    """Checks `threads` by the one rule (`voxax._kernels.threads`), errors naming `name`."""
+    try:
+        _kernels.threads(threads)
+        return threads
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"voxax.{name}: {err}") from None
 
 
 def _float():

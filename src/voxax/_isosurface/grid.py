@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._grid import Grid
-from .checks import _INT32_MAX, _capacities, _check_inside, _check_level, _check_values, _concrete, _pad
+from .checks import _INT32_MAX, _capacities, _check_inside, _check_level, _check_threads, _check_values, _concrete, _pad
 from .interpolate import _interpolate, _interpolate_eager
 from .mesh import IsoMesh
 from .stream import _isosurface_streamed
@@ -61,12 +61,14 @@ def isosurface_topology(
     inside: str = "below",
     close=False,
     capacity=None,
+    threads: int | None = None,
 ):
     """The combinatorial part of [`isosurface`][voxax.isosurface] (no gradient flows through it).
 
     Same arguments as `isosurface`; returns an `IsoMesh` whose vertices are computed from the
     samples, with `jax.lax.stop_gradient` applied to them.
     """
+    _check_threads(threads, "isosurface_topology")
     return isosurface(
         jax.lax.stop_gradient(_check_values(values, grid, "isosurface_topology")),
         grid,
@@ -74,6 +76,7 @@ def isosurface_topology(
         inside=inside,
         close=close,
         capacity=capacity,
+        threads=threads,
     )
 
 
@@ -85,6 +88,7 @@ def isosurface(
     inside: str = "below",
     close=False,
     capacity=None,
+    threads: int | None = None,
 ) -> IsoMesh:
     """Extracts the iso-surface `f = level` of a sampled field by marching cubes (squares in 2D).
 
@@ -126,6 +130,9 @@ def isosurface(
       surfaces reaching the grid's boundary close there. Vertices on the padding edges lie
       between the boundary cell centres and the padding cells, up to one cell beyond `grid`.
     - `capacity`: `None`, an int (vertices and faces) or a `(vertices, faces)` pair.
+    - `threads`: threads of the eager path's kernel, an int >= 1 or `None` (`VOXAX_NUM_THREADS`,
+      or all cores); the result is the same for any count. The `capacity` path runs on
+      XLA's CPU thread pool instead.
 
     **Returns:**
 
@@ -148,12 +155,13 @@ def isosurface(
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     caps = _capacities(capacity, name)
+    _check_threads(threads, name)
     values = _check_values(values, grid, name)
     d = grid.dim
     batch = values.shape[: values.ndim - d]
     if caps is None and not isinstance(values, jax.core.Tracer) and all(n == 1 for n in batch):
         iso = _isosurface_streamed(
-            np.asarray(values).reshape(grid.shape), grid, level, inside, close
+            np.asarray(values).reshape(grid.shape), grid, level, inside, close, threads=threads
         )
         if not batch:
             return iso
@@ -169,7 +177,7 @@ def isosurface(
         raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
     batch = values.shape[: values.ndim - d]
     if caps is None:
-        edges, faces, nv, nf = _eager_topology(concrete, grid, level, batch)
+        edges, faces, nv, nf = _eager_topology(concrete, grid, level, batch, threads)
     else:
         edges, faces, nv, nf = _capacity_topology(values, level, d, caps)
     if inside == "above":
@@ -181,7 +189,7 @@ def isosurface(
     return IsoMesh(vertices, faces, jnp.asarray(edges), nv, nf, min_gap)
 
 
-def _eager_topology(concrete, grid: Grid, level: float, batch):
+def _eager_topology(concrete, grid: Grid, level: float, batch, threads):
     """Exact-size topology of concrete samples (a batch of at most one field)."""
     if concrete is None:
         raise TypeError(
@@ -194,7 +202,7 @@ def _eager_topology(concrete, grid: Grid, level: float, batch):
             "isosurface: batched values need a static `capacity=` (results of different sizes are padded)"
         )
     edges, faces = host_topology(
-        flat[0] if flat.shape[0] else np.zeros(grid.shape), level
+        flat[0] if flat.shape[0] else np.zeros(grid.shape), level, threads
     )
     if len(faces) == 0:
         warnings.warn(

@@ -35,6 +35,7 @@ def isosurface_fn(
     band=None,
     lipschitz=None,
     chunk: int = 1 << 16,
+    threads: int | None = None,
 ) -> IsoMesh:
     """Iso-surface of a field given as a function, differentiable in its parameters (MeshSDF).
 
@@ -81,6 +82,7 @@ def isosurface_fn(
     - `band`: `None` or the `samples` of a previous result on the same grid.
     - `lipschitz`: `None` or a Lipschitz bound of `fn` in `x`.
     - `chunk`: points per evaluation of `fn` on the eager paths.
+    - `threads`: as in [`isosurface`][voxax.isosurface] (its eager marching cubes).
 
     **Returns:**
 
@@ -130,6 +132,7 @@ def isosurface_fn(
         inside=inside,
         close=False if pad is None else pad,
         capacity=capacity,
+        threads=threads,
     )
     v = _rule_vertices(fn, params, p0, iso, grid, level, pad, rule)
     return dataclasses.replace(iso, vertices=v, samples=samples, n_evaluated=evaluated)

@@ -46,7 +46,7 @@ def _edge_keys(edges: np.ndarray, strides: np.ndarray, offset: int) -> np.ndarra
 
 
 def _isosurface_streamed(
-    values: np.ndarray, grid: Grid, level: float, inside: str, close, planes=None
+    values: np.ndarray, grid: Grid, level: float, inside: str, close, planes=None, threads=None
 ) -> IsoMesh:
     """The eager `isosurface` of concrete samples `values` (of `grid.shape`), swept over slabs.
 
@@ -82,7 +82,7 @@ def _isosurface_streamed(
     view = pad is None and values.flags.c_contiguous and values.dtype in (np.float32, np.float64)
 
     slab = _Slab(values, pad, shape)
-    kept, counts = _count_slabs(slab, spans, level, view)
+    kept, counts = _count_slabs(slab, spans, level, view, threads)
     n_vertices = sum(o for o, _ in counts)
     n_faces = sum(f for _, f in counts)
     if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
@@ -98,7 +98,7 @@ def _isosurface_streamed(
     pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
 
     for s, (a, b) in enumerate(spans):
-        c = kept[s] if kept[s] is not None else _Count(slab(a, b), level)
+        c = kept[s] if kept[s] is not None else _Count(slab(a, b), level, threads)
         kept[s] = None
         part = c.values
         el, fl = c.fill()
@@ -175,7 +175,7 @@ class _Slab:
         return out
 
 
-def _count_slabs(slab: _Slab, spans, level: float, view: bool):
+def _count_slabs(slab: _Slab, spans, level: float, view: bool, threads):
     """Pass 1: per slab, the vertices it owns and its faces (the contexts of views are kept
     for pass 2, None for padded copies)."""
     kept, counts = [], []
@@ -183,7 +183,7 @@ def _count_slabs(slab: _Slab, spans, level: float, view: bool):
         part = slab(a, b)
         if slab.pad is None and not np.all(np.isfinite(part)):
             raise ValueError("isosurface: `values` contain NaN or Inf")
-        c = _Count(part, level)
+        c = _Count(part, level, threads)
         last = s == len(spans) - 1
         own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
         counts.append((own, c.n_faces))

@@ -14,7 +14,7 @@ __all__ = ["_Count", "_ffi_topology", "host_topology"]
 def host_topology(values: np.ndarray, level: float, threads: int | None = None):
     """Exact-size topology of one field: `edges (V, 2)`, `faces (F, d)` (int32).
 
-    `values` is a NumPy array (float32 or float64) of the grid's shape; `threads` defaults to
-    the number of CPUs (the result does not depend on it). No input checks: see `isosurface`.
+    `values` is a NumPy array (float32 or float64) of the grid's shape; `threads`: as in
+    `voxax._kernels.threads` (the result does not depend on it). No input checks: see `isosurface`.
     """
     return contour.topology(values, level, threads)

@@ -4,7 +4,6 @@ through ctypes and the `voxax_marching_cubes` FFI call. Arrays in, arrays out.""
 from __future__ import annotations
 
 import ctypes
-import os
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +11,7 @@ import numpy as np
 
 from . import _loader
 from ._ctypes import ERRLEN, I64, VP, declare, error_buffer
+from ._ctypes import threads as resolve_threads
 
 __all__ = ["Count", "marching_cubes", "topology"]
 
@@ -29,10 +29,6 @@ _SIGNATURES = {
 
 def _lib():
     return declare(_SIGNATURES)
-
-
-def _threads() -> int:
-    return max(1, min(os.cpu_count() or 1, 64))
 
 
 class Count:
@@ -54,7 +50,7 @@ class Count:
         self.ctx = ctypes.c_void_p()
         err = error_buffer()
         rc = lib.voxax_mc_count(
-            values.ctypes.data, dtype, dim, shape, float(level), threads or _threads(),
+            values.ctypes.data, dtype, dim, shape, float(level), resolve_threads(threads),
             ctypes.byref(self.ctx), counts, err, ERRLEN,
         )
         if rc != 0:
