@@ -30,8 +30,10 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -286,9 +288,26 @@ inline const SquareTable& square_table() {
 // face: the bilinear saddle value is >= level. With p1, p2 the positive and n1,
 // n2 the negative diagonal (g = f - level), the saddle value is
 // (p1 p2 - n1 n2) / (p1 + p2 - n1 - n2) and the denominator is positive.
-// Both cubes sharing a face evaluate the same two products.
+// Both cubes sharing a face evaluate the same two products. The comparison is
+// that of the exact products (scale-invariant): where a rounded product leaves
+// the normal range (below about 1e-154 or above 1e154 per factor) the products
+// are compared as mantissa and exponent; elsewhere the rounded products give
+// the same answer.
 inline bool face_connected(double p1, double p2, double n1, double n2) {
-  return p1 * p2 >= n1 * n2;
+  const double a = p1 * p2, b = n1 * n2;
+  const double lo = std::numeric_limits<double>::min();
+  const double hi = std::numeric_limits<double>::max();
+  if ((a >= lo || a == 0.0) && b >= lo && a <= hi && b <= hi) {
+    // a == 0 only when p1 or p2 is 0 (b > 0: the negative samples are not 0)
+    if (a != 0.0 || p1 == 0.0 || p2 == 0.0) return a >= b;
+  }
+  if (p1 == 0.0 || p2 == 0.0) return false;  // b > 0
+  int e1, e2, e3, e4, ea, eb;
+  double ma = std::frexp(std::frexp(p1, &e1) * std::frexp(p2, &e2), &ea);
+  double mb = std::frexp(std::frexp(n1, &e3) * std::frexp(n2, &e4), &eb);
+  ea += e1 + e2;
+  eb += e3 + e4;
+  return ea != eb ? ea > eb : ma >= mb;
 }
 
 // -- the sweep

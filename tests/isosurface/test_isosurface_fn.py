@@ -177,6 +177,22 @@ def test_bad_input():
         voxax.isosurface_fn(sphere, 0.5, grid, lipschitz=-1.0)
     with pytest.raises(ValueError, match="band"):
         voxax.isosurface_fn(sphere, 0.5, grid, band=np.zeros((4, 4, 4)))
+    for chunk in (-1, 0, 2.5, True):
+        with pytest.raises(ValueError, match="`chunk` must be an int >= 1"):
+            voxax.isosurface_fn(sphere, 0.5, grid, chunk=chunk)
+    with pytest.raises(ValueError, match="`lipschitz` must be"):
+        voxax.isosurface_fn(sphere, 0.5, grid, lipschitz="1")
+    with pytest.raises(ValueError, match="`close` must be"):
+        voxax.isosurface_fn(sphere, 0.5, grid, close=np.nan)
+    scalar = lambda r, x: jnp.sum(x) - r  # noqa: E731 - one value for all points
+    wide = lambda r, x: jnp.stack([sphere(r, x)] * 2, -1)  # noqa: E731
+    for bad in (scalar, wide):
+        with pytest.raises(ValueError, match=r"must return one value per point, shape \(\d+,\)"):
+            voxax.isosurface_fn(bad, 0.5, grid)
+        with pytest.raises(ValueError, match="one value per point"):
+            jax.jit(lambda r, bad=bad: voxax.isosurface_fn(bad, r, grid, capacity=500).vertices)(0.5)
+    with pytest.raises(TypeError, match="real values"):
+        voxax.isosurface_fn(lambda r, x: sphere(r, x) * 1j, 0.5, grid)
     with pytest.raises(TypeError, match="eager"):
         jax.jit(
             lambda r: (

@@ -37,7 +37,7 @@ def _concrete_tree(tree):
 def _check_values(values, grid: Grid, name: str):
     if not isinstance(grid, Grid):
         raise TypeError(
-            f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
+            f"voxax.{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
         )
     if not hasattr(values, "dtype"):
         values = np.asarray(values)
@@ -48,12 +48,12 @@ def _check_values(values, grid: Grid, name: str):
         )
     elif dtype not in (np.float32, np.float64):
         raise TypeError(
-            f"{name}: `values` must be a real float array, got dtype {dtype}"
+            f"voxax.{name}: `values` must be a real float array, got dtype {dtype}"
         )
     d = grid.dim
     if values.ndim < d or tuple(values.shape[values.ndim - d :]) != grid.shape:
         raise ValueError(
-            f"{name}: `values` must have shape (..., {', '.join(map(str, grid.shape))}) to match the grid, "
+            f"voxax.{name}: `values` must have shape (..., {', '.join(map(str, grid.shape))}) to match the grid, "
             f"got {tuple(values.shape)}"
         )
     if isinstance(values, (jax.Array, np.ndarray)):
@@ -72,10 +72,10 @@ def _check_level(level, name):
         level = float(level)
     except (TypeError, jax.errors.ConcretizationTypeError):
         raise TypeError(
-            f"{name}: `level` must be a Python number (it is static under jit), got {level!r}"
+            f"voxax.{name}: `level` must be a Python number (it is static under jit), got {level!r}"
         ) from None
     if not np.isfinite(level):
-        raise ValueError(f"{name}: `level` must be finite, got {level}")
+        raise ValueError(f"voxax.{name}: `level` must be finite, got {level}")
     return level
 
 
@@ -95,11 +95,11 @@ def _capacities(capacity, name):
             vcap, fcap = (int(c) for c in capacity)
         except (TypeError, ValueError):
             raise TypeError(
-                f"{name}: `capacity` must be an int or a (vertices, faces) pair, got {capacity!r}"
+                f"voxax.{name}: `capacity` must be an int or a (vertices, faces) pair, got {capacity!r}"
             ) from None
     if not (1 <= vcap <= _INT32_MAX and 1 <= fcap <= _INT32_MAX):
         raise ValueError(
-            f"{name}: capacities must lie in [1, 2^31 - 1], got {(vcap, fcap)}"
+            f"voxax.{name}: capacities must lie in [1, 2^31 - 1], got {(vcap, fcap)}"
         )
     return vcap, fcap
 
@@ -115,12 +115,17 @@ def _padded(grid: Grid) -> Grid:
 
 def _explicit_pad(close, level: float, inside: str) -> float:
     """The pad value given as `close=<value>`: finite, and on the outside of the level."""
-    pad = float(close)
+    side = "above" if inside == "below" else "below"
+    try:
+        pad = float(close)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"voxax.isosurface: `close` must be True, False or a finite value {side} the level, got {close!r}"
+        ) from None
     ok = pad > level if inside == "below" else pad < level
     if not np.isfinite(pad) or not ok:
-        side = "above" if inside == "below" else "below"
         raise ValueError(
-            f"isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
+            f"voxax.isosurface: `close` must be True or a finite value {side} the level, got {close!r}"
         )
     return pad
 

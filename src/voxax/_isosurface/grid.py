@@ -12,6 +12,7 @@ from .._grid import Grid
 from .checks import _INT32_MAX, _capacities, _check_inside, _check_level, _check_threads, _check_values, _concrete, _pad
 from .interpolate import _interpolate, _interpolate_eager
 from .mesh import IsoMesh
+from .scale import rescale_traced, unscale
 from .stream import _isosurface_streamed
 from .topology import _ffi_topology, host_topology
 
@@ -47,10 +48,16 @@ def isosurface_vertices(
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     values = _check_values(values, grid, name)
+    values, _ = _rescaled(values, level)
     if close is not False:
         values, grid = _pad(values, grid, level, inside, close)
-    v, _ = _interpolate(values, topology.edges, topology.n_vertices, grid, level)
-    return v
+    edges = _check_topology(topology, grid, name)
+    v, gap = _interpolate(values, edges, topology.n_vertices, grid, level)
+    msg = (
+        f"voxax.{name}: `values` must differ at the two ends of every edge of `topology` "
+        "(f_a == f_b leaves a vertex undefined)"
+    )
+    return _refuse(v, gap == 0, msg)
 
 
 def isosurface_topology(
@@ -113,9 +120,14 @@ def isosurface(
       input and the result it holds only one slab's worth of memory (with `close`, a padded
       copy of one slab instead of the whole grid); the result is the same, bit for bit.
     - jittable (`capacity` given): padded arrays of static size; `n_vertices`/`n_faces` give
-      the counts, and a result that does not fit raises an error (through
-      `equinox.error_if`). Use this path under `jax.jit` and `jax.vmap` (leading axes of
-      `values` are batch axes too).
+      the counts, and a result that does not fit raises a `JaxRuntimeError` whose one-line
+      message names the capacity it needs. Use this path under `jax.jit` and `jax.vmap`
+      (leading axes of `values` are batch axes too).
+
+    Samples of magnitude outside about `[1e-270, 1e270]` (float64; `[1e-27, 1e27]` for
+    float32), subnormal ones included, are rescaled by a power of two before the
+    interpolation, which is the same for `2^k f` (bit for bit where no sample is subnormal).
+    Under jit this holds for `level=0`; at other levels keep the field inside that range.
 
     **Arguments:**
 
@@ -168,13 +180,16 @@ def isosurface(
         return jax.tree_util.tree_map(lambda x: x.reshape(batch + x.shape), iso)
     concrete = _concrete(values)
     if concrete is not None and not np.all(np.isfinite(concrete)):
-        raise ValueError("isosurface: `values` contain NaN or Inf")
+        raise ValueError("voxax.isosurface: `values` must be finite (they contain NaN or Inf)")
+    values, k = _rescaled(values, level)
+    if concrete is not None:
+        concrete = _concrete(values)
     if close is not False:
         values, grid = _pad(values, grid, level, inside, close)
         if concrete is not None:
             concrete = _concrete(values)
     if grid.size > _INT32_MAX:
-        raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
+        raise ValueError("voxax.isosurface: the grid has more than 2^31 - 1 cells")
     batch = values.shape[: values.ndim - d]
     if caps is None:
         edges, faces, nv, nf = _eager_topology(concrete, grid, level, batch, threads)
@@ -186,6 +201,8 @@ def isosurface(
         vertices, min_gap = _interpolate_eager(np.asarray(values), edges, grid, level)
     else:
         vertices, min_gap = _interpolate(values, jnp.asarray(edges), nv, grid, level)
+    if k is not None:
+        min_gap = unscale(min_gap, k)
     return IsoMesh(vertices, faces, jnp.asarray(edges), nv, nf, min_gap)
 
 
@@ -193,20 +210,20 @@ def _eager_topology(concrete, grid: Grid, level: float, batch, threads):
     """Exact-size topology of concrete samples (a batch of at most one field)."""
     if concrete is None:
         raise TypeError(
-            "isosurface: the eager path needs concrete values; under jax.jit or jax.vmap pass a static "
+            "voxax.isosurface: the eager path needs concrete values; under jax.jit or jax.vmap pass a static "
             "`capacity=` (the largest number of vertices/faces expected)"
         )
     flat = concrete.reshape((-1,) + grid.shape)
     if batch and flat.shape[0] != 1:
         raise ValueError(
-            "isosurface: batched values need a static `capacity=` (results of different sizes are padded)"
+            "voxax.isosurface: batched values need a static `capacity=` (results of different sizes are padded)"
         )
     edges, faces = host_topology(
         flat[0] if flat.shape[0] else np.zeros(grid.shape), level, threads
     )
     if len(faces) == 0:
         warnings.warn(
-            f"isosurface: the field does not cross level {level} (values in "
+            f"voxax.isosurface: the field does not cross level {level} (values in "
             f"[{concrete.min():.6g}, {concrete.max():.6g}]): the mesh is empty",
             RuntimeWarning,
             stacklevel=3,
@@ -219,20 +236,62 @@ def _eager_topology(concrete, grid: Grid, level: float, batch, threads):
 
 
 def _capacity_topology(values, level: float, d: int, caps):
-    """Topology padded to static capacities, through the FFI call (jittable)."""
-    import equinox as eqx
-
+    """Topology padded to static capacities, through the FFI call (jittable). A mesh that
+    does not fit is refused by the kernel, naming the capacity it needs."""
     vcap, fcap = caps
     edges, faces, counts = _ffi_topology(
         jax.lax.stop_gradient(values), level, d, vcap, fcap
     )
-    nv, nf = counts[..., 0], counts[..., 1]
-    over = jnp.any(nv > vcap) | jnp.any(nf > fcap)
+    return edges, faces, counts[..., 0], counts[..., 1]
+
+
+def _rescaled(values, level: float):
+    """Samples of a level-0 field rescaled by a power of two when their magnitudes leave the
+    range XLA computes with (see `scale`), and the traced exponent (None: not rescaled).
+    Fields of another level keep their values (their level is static in the kernel)."""
+    if level != 0.0:
+        return values, None
+    return rescale_traced(jnp.asarray(values), 0.0)
+
+
+def _refuse(x, bad, msg: str):
+    """`x`, or a `ValueError(msg)` when `bad` holds: eagerly when `bad` is concrete, else
+    through `equinox.error_if`."""
+    concrete = _concrete(bad)
+    if concrete is not None:
+        if np.any(concrete):
+            raise ValueError(msg)
+        return x
+    import equinox as eqx
+
+    return eqx.error_if(x, jnp.any(bad), msg)
+
+
+def _check_topology(topology, grid: Grid, name: str):
+    """The edges of `topology`, checked to be crossed edges of `grid` (the padded grid with
+    `close`): cell indices in range, one grid step apart along an axis."""
+    if not isinstance(topology, IsoMesh):
+        raise TypeError(
+            f"voxax.{name}: `topology` must be an IsoMesh (from isosurface_topology), got {type(topology).__name__}"
+        )
+    edges = jnp.asarray(topology.edges)
+    d = grid.dim
+    if edges.ndim < 2 or edges.shape[-1] != 2 or jnp.shape(topology.faces)[-1] != d:
+        raise ValueError(
+            f"voxax.{name}: `topology` must come from a {d}D grid (edges (V, 2), faces (F, {d})), "
+            f"got edges {tuple(edges.shape)} and faces {tuple(jnp.shape(topology.faces))}"
+        )
+    shape = grid.shape
+    strides = [int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)]
+    ia, ib = edges[..., 0], edges[..., 1]
+    valid = jnp.arange(edges.shape[-2]) < jnp.asarray(topology.n_vertices)[..., None]
+    step = ib - ia
+    along = jnp.zeros(step.shape, bool)
+    for s in strides:
+        along = along | (step == s)
+    bad = valid & ((ia < 0) | (ib >= grid.size) | ~along)
     msg = (
-        f"isosurface: the mesh does not fit the capacity (vertices, faces) = ({vcap}, {fcap}); "
-        "pass a larger `capacity=`"
+        f"voxax.{name}: `topology` must be made on this grid {shape} with the same `close` "
+        "setting: its edges are not edges of this grid"
     )
-    edges = eqx.error_if(edges, over, msg)
-    nv = jnp.minimum(nv, vcap)
-    nf = jnp.minimum(nf, fcap)
-    return edges, faces, nv, nf
+    return _refuse(edges, bad, msg)

@@ -13,13 +13,13 @@ from .checks import _check_inside, _check_level, _concrete_tree, _float, _padded
 from .grid import isosurface
 from .interpolate import _cell_points
 from .mesh import IsoMesh
-from .samples import _band_samples, _evaluate_np, _lipschitz_samples
+from .samples import _band_samples, _evaluate_np, _lipschitz_samples, field_values
 
 _RULES = ("meshsdf", "theorem1", "level_set", "interpolation")
 
 
 def _field_gradient(fn, params, points):
-    return jax.grad(lambda x: jnp.sum(fn(params, x)))(points)
+    return jax.grad(lambda x: jnp.sum(field_values(fn(params, x), x.shape[-2])))(points)
 
 
 def isosurface_fn(
@@ -103,25 +103,30 @@ def isosurface_fn(
     name = "isosurface_fn"
     if not callable(fn):
         raise TypeError(
-            f"{name}: `fn` must be callable as fn(params, x), got {type(fn).__name__}"
+            f"voxax.{name}: `fn` must be callable as fn(params, x), got {type(fn).__name__}"
         )
     if rule not in _RULES:
-        raise ValueError(f"{name}: `rule` must be one of {_RULES}, got {rule!r}")
+        raise ValueError(f"voxax.{name}: `rule` must be one of {_RULES}, got {rule!r}")
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     if not isinstance(grid, Grid):
         raise TypeError(
-            f"{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
+            f"voxax.{name}: `grid` must be a voxax.Grid, got {type(grid).__name__}"
         )
-    if lipschitz is not None and not (np.isfinite(lipschitz) and lipschitz > 0):
+    if lipschitz is not None and not (_is_number(lipschitz) and np.isfinite(lipschitz) and lipschitz > 0):
         raise ValueError(
-            f"{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}"
+            f"voxax.{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}"
         )
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"voxax.{name}: `chunk` must be an int >= 1 (points per evaluation), got {chunk!r}")
+    chunk = int(chunk)
     outward = 1.0 if inside == "below" else -1.0
     pad = None
     if close is True:
         pad = level + outward * max(grid.spacing)
     elif close is not False:
+        if not _is_number(close) or not np.isfinite(close):
+            raise ValueError(f"voxax.{name}: `close` must be True, False or a finite number, got {close!r}")
         pad = float(close)
     p0 = jax.lax.stop_gradient(params)
     samples, evaluated = _sample(fn, p0, grid, level, pad, capacity, band, lipschitz, chunk)
@@ -146,7 +151,7 @@ def _sample(fn, p0, grid: Grid, level: float, pad, capacity, band, lipschitz, ch
     if fast:
         if capacity is not None or _concrete_tree(p0) is None:
             raise TypeError(
-                f"{name}: `band` and `lipschitz` work on eager calls only (no jit, no capacity)"
+                f"voxax.{name}: `band` and `lipschitz` work on eager calls only (no jit, no capacity)"
             )
         p0 = _concrete_tree(p0)
         if band is not None:
@@ -166,7 +171,7 @@ def _sample(fn, p0, grid: Grid, level: float, pad, capacity, band, lipschitz, ch
             evaluated = grid.size
         else:
             samples = (
-                jnp.asarray(fn(p0, jnp.asarray(pts, _float())))
+                field_values(fn(p0, jnp.asarray(pts, _float())), len(pts))
                 .astype(_float())
                 .reshape(grid.shape)
             )
@@ -183,7 +188,7 @@ def _rule_vertices(fn, params, p0, iso, grid: Grid, level: float, pad, rule: str
         pa, pb = _cell_points(ia, g), _cell_points(ib, g)
 
         def at(idx, p):
-            f = jnp.asarray(fn(params, p)).astype(_float())
+            f = field_values(fn(params, p), p.shape[-2]).astype(_float())
             if pad is None:
                 return f
             coords = jnp.stack(jnp.unravel_index(idx, g.shape), -1)
@@ -205,7 +210,11 @@ def _rule_vertices(fn, params, p0, iso, grid: Grid, level: float, pad, rule: str
         else:
             direction = grad / safe2
         direction = jnp.where(valid & (norm2 > 0), direction, 0.0)
-        f = jnp.asarray(fn(params, v0)).astype(_float())
+        f = field_values(fn(params, v0), v0.shape[-2]).astype(_float())
         delta = f - jax.lax.stop_gradient(f)
         v = v0 - direction * delta[..., None]
     return v
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)

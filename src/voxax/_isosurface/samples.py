@@ -8,6 +8,21 @@ import numpy as np
 from .._grid import Grid
 
 
+def field_values(f, n: int):
+    """The values `fn` returned for `n` points as an `(n,)` array (NumPy or JAX); `(n, 1)`
+    is accepted, anything else refused."""
+    shape = tuple(f.shape if hasattr(f, "shape") else np.shape(f))
+    if shape not in ((n,), (n, 1)):
+        raise ValueError(
+            f"voxax.isosurface_fn: `fn(params, x)` must return one value per point, shape ({n},) "
+            f"for x of shape ({n}, d), got shape {shape}"
+        )
+    dtype = np.dtype(f.dtype if hasattr(f, "dtype") else np.asarray(f).dtype)
+    if dtype.kind not in "fiub":
+        raise TypeError(f"voxax.isosurface_fn: `fn(params, x)` must return real values, got dtype {dtype}")
+    return jnp.reshape(f, (n,))
+
+
 def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
     """`fn(params, points)` in chunks, as a float64 NumPy array (no gradient)."""
     out = np.empty(points.shape[0], np.float64)
@@ -19,7 +34,7 @@ def _evaluate_np(fn, params, points: np.ndarray, chunk: int) -> np.ndarray:
         size = min(max(chunk, n), max(256, 1 << max(n - 1, 0).bit_length()))
         if size > n:
             part = np.concatenate([part, np.broadcast_to(part[:1], (size - n,) + part.shape[1:])])
-        out[s : s + n] = np.asarray(fn(params, jnp.asarray(part)), np.float64).reshape(-1)[:n]
+        out[s : s + n] = np.asarray(field_values(fn(params, jnp.asarray(part)), size), np.float64)[:n]
     return out
 
 
@@ -134,7 +149,7 @@ def _band_samples(
     previous = np.asarray(previous, np.float64)
     if previous.shape != grid.shape:
         raise ValueError(
-            f"isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}"
+            f"voxax.isosurface_fn: `band` must have the grid's shape {grid.shape}, got {previous.shape}"
         )
     before = previous >= level
     todo = _strip_pad(_active_corners(_with_pad(previous, pad), level), pad)

@@ -11,6 +11,7 @@ from .._grid import Grid
 from .checks import _INT32_MAX, _explicit_pad, _float, _padded
 from .interpolate import _vertices_of
 from .mesh import IsoMesh
+from .scale import rescale_np
 from .topology import _Count
 
 # Cells per slab of the eager path (64 MiB of float32 samples): grids up to this size run as
@@ -67,15 +68,18 @@ def _isosurface_streamed(
     if planes is None:
         planes = max(1, _SLAB_CELLS // max(m, 1))
     planes = int(planes)
+    lo, hi = _value_range(values, planes)
+    explicit = 0.0 if isinstance(close, bool) else abs(_explicit_pad(close, level, inside))
+    given = level
+    values, level, k = rescale_np(values, level, max(-lo, hi, abs(level), explicit))
     pad = None
     if close is not False:
-        _check_finite_slabs(values, planes)
-        pad = _close_value(values, level, inside, close, planes)
+        pad = _close_value(values, level, inside, close if close is True else np.ldexp(float(close), k), planes)
         g = _padded(grid)
     else:
         g = grid
     if int(np.prod(shape, dtype=np.int64)) > _INT32_MAX:
-        raise ValueError("isosurface: the grid has more than 2^31 - 1 cells")
+        raise ValueError("voxax.isosurface: the grid has more than 2^31 - 1 cells")
     nx = shape[0]
     starts = list(range(0, max(nx - 1, 1), planes))
     spans = [(a, min(a + planes, nx - 1)) for a in starts]
@@ -86,7 +90,7 @@ def _isosurface_streamed(
     n_vertices = sum(o for o, _ in counts)
     n_faces = sum(f for _, f in counts)
     if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
-        raise ValueError("isosurface: more than 2^31 - 1 vertices or faces")
+        raise ValueError("voxax.isosurface: more than 2^31 - 1 vertices or faces")
     ft = np.dtype(_float())
     edges = np.zeros((n_vertices, 2), np.int32)
     faces = np.zeros((n_faces, d), np.int32)
@@ -113,7 +117,7 @@ def _isosurface_streamed(
             if len(pkeys) and (
                 idx.max() >= len(keys) or not np.array_equal(keys[idx], pkeys)
             ):
-                raise RuntimeError("isosurface: slabs disagree on a shared plane")
+                raise RuntimeError("voxax.isosurface: slabs disagree on a shared plane")
             _put_faces(faces, pf, pown, poff, pfo, voff + idx, order)
             pending = None
         if s == len(spans) - 1:
@@ -131,8 +135,10 @@ def _isosurface_streamed(
     min_gap = jnp.asarray(np.inf, ft)
     for gap in gaps:
         min_gap = jnp.minimum(min_gap, gap)
+    if k:
+        min_gap = jnp.asarray(np.ldexp(float(min_gap), -k), ft)
     if n_faces == 0:
-        _warn_empty(values, pad, level)
+        _warn_empty(lo, hi, None if pad is None else np.ldexp(float(pad), -k), given)
     out_v = jnp.asarray(vertices)
     del vertices
     out_f = jnp.asarray(faces)
@@ -149,10 +155,17 @@ def _isosurface_streamed(
     )
 
 
-def _check_finite_slabs(values: np.ndarray, planes: int):
+def _value_range(values: np.ndarray, planes: int):
+    """The smallest and largest sample (float), read slab by slab; refuses NaN and Inf."""
+    lo, hi = np.inf, -np.inf
     for a in range(0, max(values.shape[0], 1), planes):
-        if not np.all(np.isfinite(values[a : a + planes])):
-            raise ValueError("isosurface: `values` contain NaN or Inf")
+        part = values[a : a + planes]
+        if part.size:
+            plo, phi = float(np.min(part)), float(np.max(part))  # NaN propagates
+            if not (np.isfinite(plo) and np.isfinite(phi)):
+                raise ValueError("voxax.isosurface: `values` must be finite (they contain NaN or Inf)")
+            lo, hi = min(lo, plo), max(hi, phi)
+    return (lo, hi) if values.size else (0.0, 0.0)
 
 
 class _Slab:
@@ -181,8 +194,6 @@ def _count_slabs(slab: _Slab, spans, level: float, view: bool, threads):
     kept, counts = [], []
     for s, (a, b) in enumerate(spans):
         part = slab(a, b)
-        if slab.pad is None and not np.all(np.isfinite(part)):
-            raise ValueError("isosurface: `values` contain NaN or Inf")
         c = _Count(part, level, threads)
         last = s == len(spans) - 1
         own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
@@ -208,12 +219,11 @@ def _put_faces(dest, fl, own, off, at, mapped, order):
     dest[at : at + len(fl)] = out
 
 
-def _warn_empty(values: np.ndarray, pad, level: float):
-    lo, hi = float(values.min()), float(values.max())
+def _warn_empty(lo: float, hi: float, pad, level: float):
     if pad is not None:
         lo, hi = min(lo, float(pad)), max(hi, float(pad))
     warnings.warn(
-        f"isosurface: the field does not cross level {level} (values in "
+        f"voxax.isosurface: the field does not cross level {level} (values in "
         f"[{lo:.6g}, {hi:.6g}]): the mesh is empty",
         RuntimeWarning,
         stacklevel=4,
