@@ -210,8 +210,8 @@ def _eager_topology(concrete, grid: Grid, level: float, batch, threads):
     """Exact-size topology of concrete samples (a batch of at most one field)."""
     if concrete is None:
         raise TypeError(
-            "voxax.isosurface: the eager path needs concrete values; under jax.jit or jax.vmap pass a static "
-            "`capacity=` (the largest number of vertices/faces expected)"
+            "voxax.isosurface: `capacity` must be given under jax.jit or jax.vmap (the eager path needs "
+            "concrete values): pass a static capacity=(vertices, faces), the fast path for loops"
         )
     flat = concrete.reshape((-1,) + grid.shape)
     if batch and flat.shape[0] != 1:

@@ -63,7 +63,7 @@ def _interpolate_eager(values: np.ndarray, edges: np.ndarray, grid: Grid, level:
     fb = jnp.asarray(np.take_along_axis(flat, padded[..., 1], axis=-1), ft)
     nv = jnp.full(edges.shape[:-2], n, jnp.int32)
     v, min_gap = _from_samples_jit(fa, fb, jnp.asarray(padded), nv, grid, jnp.asarray(level, ft))
-    return v[..., :n, :], min_gap
+    return jnp.asarray(np.asarray(v)[..., :n, :]), min_gap  # sliced in NumPy: no compilation per n
 
 
 def _vertices_of(fa, fb, edges: np.ndarray, grid: Grid, level: float):

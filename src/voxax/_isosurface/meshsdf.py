@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -57,6 +59,13 @@ def isosurface_fn(
     straight-through construction `v = sg(v0) - sg(d)·(f(v0; θ) - sg(f(v0; θ)))` (`sg` =
     `stop_gradient`, `d` the rule's direction): forward values are exactly `v0`, and it
     composes with `jit`, `grad` and `vmap` (over `params`, with `capacity`).
+
+    Speed: eager calls compile `fn` (and the rule's vertex update) once per structure, that
+    is per field function object, grid, level, `close` and rule, plus the parameters' tree
+    and shapes, and reuse it across calls (vertex arrays are padded to powers of two), so a
+    loop of eager calls costs a few milliseconds per call after the first. Pass the same
+    function object each time (a new lambda per call compiles again). Inside a `jax.jit`
+    with a static `capacity=` the whole step compiles once and is the fastest path.
 
     Fast paths for expensive fields (eager calls only; the mesh is identical to dense
     evaluation when their assumptions hold):
@@ -139,7 +148,7 @@ def isosurface_fn(
         capacity=capacity,
         threads=threads,
     )
-    v = _rule_vertices(fn, params, p0, iso, grid, level, pad, rule)
+    v = _rule_vertices(fn, params, iso, grid, level, pad, rule, eager=capacity is None)
     return dataclasses.replace(iso, vertices=v, samples=samples, n_evaluated=evaluated)
 
 
@@ -155,10 +164,10 @@ def _sample(fn, p0, grid: Grid, level: float, pad, capacity, band, lipschitz, ch
             )
         p0 = _concrete_tree(p0)
         if band is not None:
-            samples, evaluated = _band_samples(fn, p0, grid, level, band, pad, chunk)
+            samples, evaluated = _band_samples(_compiled_field(fn), p0, grid, level, band, pad, chunk)
         else:
             samples, evaluated = _lipschitz_samples(
-                fn, p0, grid, level, float(lipschitz), pad, chunk
+                _compiled_field(fn), p0, grid, level, float(lipschitz), pad, chunk
             )
         samples = jnp.asarray(samples, _float())
     else:
@@ -166,7 +175,7 @@ def _sample(fn, p0, grid: Grid, level: float, pad, capacity, band, lipschitz, ch
         concrete = _concrete_tree(p0)
         if capacity is None and concrete is not None:
             samples = jnp.asarray(
-                _evaluate_np(fn, concrete, pts, chunk).reshape(grid.shape), _float()
+                _evaluate_np(_compiled_field(fn), concrete, pts, chunk).reshape(grid.shape), _float()
             )
             evaluated = grid.size
         else:
@@ -178,13 +187,33 @@ def _sample(fn, p0, grid: Grid, level: float, pad, capacity, band, lipschitz, ch
     return samples, evaluated
 
 
-def _rule_vertices(fn, params, p0, iso, grid: Grid, level: float, pad, rule: str):
-    """The vertices of `iso` carrying the gradient of `rule` in `params`."""
-    v0 = jax.lax.stop_gradient(iso.vertices)
-    valid = (jnp.arange(v0.shape[-2]) < iso.n_vertices[..., None])[..., None]
+def _rule_vertices(fn, params, iso, grid: Grid, level: float, pad, rule: str, eager: bool):
+    """The vertices of `iso` carrying the gradient of `rule` in `params`, by a compiled
+    function cached by structure (`fn`, grid, level, pad, rule; jit adds the shapes of the
+    parameters). Eagerly the vertex arrays are padded to a power of two, so that repeated
+    calls with varying vertex counts reuse a handful of compilations."""
+    v0, edges, nv = iso.vertices, iso.edges, iso.n_vertices
+    n = v0.shape[-2]
+    if eager:  # padded in NumPy (no compilation per vertex count)
+        size = max(64, 1 << max(n - 1, 0).bit_length())
+        widths = [(0, 0)] * (v0.ndim - 2) + [(0, size - n), (0, 0)]
+        v0, edges = (jnp.asarray(np.pad(np.asarray(a), widths)) for a in (v0, edges))
+    core = functools.partial(_rule_core, fn, grid, level, pad, rule)
+    v = _cached_call(("rule", fn, grid, level, pad, rule), core, params, v0, edges, nv)
+    if not eager:
+        return v
+    if isinstance(v, jax.core.Tracer):
+        return v[..., :n, :]
+    return jnp.asarray(np.asarray(v)[..., :n, :])
+
+
+def _rule_core(fn, grid: Grid, level: float, pad, rule: str, params, v0, edges, n_vertices):
+    p0 = jax.lax.stop_gradient(params)
+    v0 = jax.lax.stop_gradient(v0)
+    valid = (jnp.arange(v0.shape[-2]) < n_vertices[..., None])[..., None]
     if rule == "interpolation":
         g = _padded(grid) if pad is not None else grid
-        ia, ib = iso.edges[..., 0], iso.edges[..., 1]
+        ia, ib = edges[..., 0], edges[..., 1]
         pa, pb = _cell_points(ia, g), _cell_points(ib, g)
 
         def at(idx, p):
@@ -214,6 +243,45 @@ def _rule_vertices(fn, params, p0, iso, grid: Grid, level: float, pad, rule: str
         delta = f - jax.lax.stop_gradient(f)
         v = v0 - direction * delta[..., None]
     return v
+
+
+
+
+# Compiled functions by structure: at most _CACHE_SIZE, the least recently used dropped.
+_CACHE: collections.OrderedDict = collections.OrderedDict()
+_CACHE_SIZE = 32
+_PLAIN = object()  # the marker of functions that cannot be traced (run as they are)
+
+
+def _cached_call(key, fn, *args):
+    """`jax.jit(fn)(*args)`, the compiled function kept under `key` (which holds the user's
+    field function, so a new lambda per call is a new entry). Functions that cannot be
+    traced (NumPy code on concrete values) and unhashable keys run uncompiled."""
+    try:
+        hash(key)
+    except TypeError:
+        return fn(*args)
+    compiled = _CACHE.get(key)
+    if compiled is None:
+        compiled = _CACHE[key] = jax.jit(fn)
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    else:
+        _CACHE.move_to_end(key)
+    if compiled is _PLAIN:
+        return fn(*args)
+    try:
+        return compiled(*args)
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(args)):
+            raise
+        _CACHE[key] = _PLAIN
+        return fn(*args)
+
+
+def _compiled_field(fn):
+    """`fn` as a function of `(params, points)` compiled and cached by `_cached_call`."""
+    return lambda params, x: _cached_call(("field", fn), fn, params, x)
 
 
 def _is_number(x) -> bool:
