@@ -213,9 +213,11 @@ void set_error(char* buf, int64_t len, const std::string& msg) {
 extern "C" {
 
 // Pass 1. Returns 0 on success and fills counts[0] = vertices, counts[1] =
-// faces and *ctx; a non-zero status leaves an error message in err.
+// faces, range[0], range[1] = the smallest and largest sample, and *ctx; a
+// non-zero status leaves an error message in err (NaN or infinite samples: 1).
 int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape, double level,
-                   int threads, void** ctx, int64_t* counts, char* err, int64_t errlen) {
+                   int threads, void** ctx, int64_t* counts, double* range, char* err,
+                   int64_t errlen) {
   using namespace voxax;
   *ctx = nullptr;
   try {
@@ -253,6 +255,12 @@ int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape,
       set_error(err, errlen, "voxax.isosurface: out of memory");
       return 2;
     }
+    if (c->counts.non_finite) {
+      set_error(err, errlen, "voxax.isosurface: `values` must be finite (they contain NaN or Inf)");
+      return 1;
+    }
+    range[0] = c->counts.lo;
+    range[1] = c->counts.hi;
     counts[0] = c->counts.total_vertices();
     counts[1] = c->counts.total_faces();
     if (counts[0] > kInt32Max || counts[1] > kInt32Max) {

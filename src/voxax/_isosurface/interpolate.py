@@ -66,20 +66,26 @@ def _interpolate_eager(values: np.ndarray, edges: np.ndarray, grid: Grid, level:
     return jnp.asarray(np.asarray(v)[..., :n, :]), min_gap  # sliced in NumPy: no compilation per n
 
 
-def _vertices_of(fa, fb, edges: np.ndarray, grid: Grid, level: float):
-    """Vertex positions (NumPy) and min gap of gathered samples, by the compiled
-    interpolation (vertex counts rounded up to a power of two, as in `_interpolate_eager`)."""
+def _vertices_of(fa, fb, edges: np.ndarray, grid: Grid, level: float, k: int = 0):
+    """Vertex positions (NumPy) and min gap (of `2^k` times the samples) of gathered
+    samples, by the compiled interpolation (vertex counts rounded up to a power of two, as in
+    `_interpolate_eager`). With `k`, the samples and the level are scaled by `2^k` first
+    (exact), so that XLA sees no subnormal or huge samples."""
     ft = _float()
+    if k:
+        fa, fb = np.ldexp(np.asarray(fa, np.float64), k), np.ldexp(np.asarray(fb, np.float64), k)
+        level = float(np.ldexp(level, k))
     n = len(edges)
     bucket = max(64, 1 << max(n - 1, 0).bit_length())
     pe = np.zeros((bucket, 2), np.int32)
     pe[:n] = edges
-    pa = np.zeros(bucket, fa.dtype)
-    pb = np.zeros(bucket, fb.dtype)
+    # converted in NumPy (exact), not by a dispatched XLA conversion
+    pa = np.zeros(bucket, ft)
+    pb = np.zeros(bucket, ft)
     pa[:n], pb[:n] = fa, fb
     v, gap = _from_samples_jit(
-        jnp.asarray(pa, ft),
-        jnp.asarray(pb, ft),
+        jnp.asarray(pa),
+        jnp.asarray(pb),
         jnp.asarray(pe),
         jnp.asarray(n, jnp.int32),
         grid,

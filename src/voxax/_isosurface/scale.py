@@ -30,14 +30,10 @@ def needs_scale(m: float, dtype) -> bool:
     return m > 0 and not lo <= _exponent(m) <= hi
 
 
-def rescale_np(values: np.ndarray, level: float, m: float):
-    """`(values * 2^k, level * 2^k, k)` with `2^k m` in [0.5, 1), or the inputs and 0 when
-    no scaling is needed. `m` is the largest magnitude of the values and the level."""
-    if not needs_scale(m, values.dtype):
-        return values, level, 0
-    k = -_exponent(m)
-    out = np.ldexp(values.astype(np.float64), k).astype(values.dtype)  # exact
-    return out, float(np.ldexp(level, k)), k
+def scale_exponent(m: float, dtype) -> int:
+    """The `k` of `2^k m` in [0.5, 1) when a field of largest magnitude `m` (of `|f|` and
+    `|level|`) is rescaled, else 0."""
+    return -_exponent(m) if needs_scale(m, dtype) else 0
 
 
 def _info(dtype):

@@ -11,7 +11,7 @@ from .._grid import Grid
 from .checks import _INT32_MAX, _explicit_pad, _float, _padded
 from .interpolate import _vertices_of
 from .mesh import IsoMesh
-from .scale import rescale_np
+from .scale import scale_exponent
 from .topology import _Count
 
 # Cells per slab of the eager path (64 MiB of float32 samples): grids up to this size run as
@@ -68,13 +68,10 @@ def _isosurface_streamed(
     if planes is None:
         planes = max(1, _SLAB_CELLS // max(m, 1))
     planes = int(planes)
-    lo, hi = _value_range(values, planes)
-    explicit = 0.0 if isinstance(close, bool) else abs(_explicit_pad(close, level, inside))
-    given = level
-    values, level, k = rescale_np(values, level, max(-lo, hi, abs(level), explicit))
     pad = None
     if close is not False:
-        pad = _close_value(values, level, inside, close if close is True else np.ldexp(float(close), k), planes)
+        _value_range(values, planes)  # NaN and Inf refused before padding
+        pad = _close_value(values, level, inside, close, planes)
         g = _padded(grid)
     else:
         g = grid
@@ -86,17 +83,32 @@ def _isosurface_streamed(
     view = pad is None and values.flags.c_contiguous and values.dtype in (np.float32, np.float64)
 
     slab = _Slab(values, pad, shape)
-    kept, counts = _count_slabs(slab, spans, level, view, threads)
+    kept, counts, (lo, hi) = _count_slabs(slab, spans, level, view, threads)
+    # samples outside XLA's range: the interpolation runs on 2^k times them (exact)
+    k = scale_exponent(max(-lo, hi, abs(level)), values.dtype)
     n_vertices = sum(o for o, _ in counts)
     n_faces = sum(f for _, f in counts)
     if n_vertices > _INT32_MAX or n_faces > _INT32_MAX:
         raise ValueError("voxax.isosurface: more than 2^31 - 1 vertices or faces")
     ft = np.dtype(_float())
+    order = None if inside == "below" else ([1, 0] if d == 2 else [0, 2, 1])
+    if len(spans) == 1:  # one sweep: the kernel's arrays are the result
+        c = kept[0] if kept[0] is not None else _Count(slab(*spans[0]), level, threads)
+        part = c.values
+        edges, faces = c.fill()
+        if order is not None:
+            faces = faces[:, order]
+        vertices, gaps = np.zeros((0, d), ft), []
+        if n_vertices:
+            flat = part.reshape(-1)
+            vertices, gap = _vertices_of(flat[edges[:, 0]], flat[edges[:, 1]], edges, g, level, k)
+            gaps.append(gap)
+        del part, c
+        return _result(vertices, faces, edges, gaps, k, (lo, hi, pad, level))
     edges = np.zeros((n_vertices, 2), np.int32)
     faces = np.zeros((n_faces, d), np.int32)
     vertices = np.zeros((n_vertices, d), ft)
     strides = np.array([int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)])
-    order = None if inside == "below" else ([1, 0] if d == 2 else [0, 2, 1])
     gaps = []
     voff = foff = 0
     pending = None  # (faces, own, vertex offset, face offset, keys of its last-plane vertices)
@@ -107,8 +119,9 @@ def _isosurface_streamed(
         part = c.values
         el, fl = c.fill()
         own, nf = counts[s]
-        gl = el[:own].astype(np.int64) + a * m
-        edges[voff : voff + own] = gl
+        gl = edges[voff : voff + own]
+        gl[...] = el[:own]
+        gl += a * m  # int32: below the cell count
         if pending is not None:
             pf, pown, poff, pfo, pkeys = pending
             nfirst = int(np.searchsorted(el[:, 0], m))
@@ -126,19 +139,28 @@ def _isosurface_streamed(
             pending = (fl, own, voff, foff, _edge_keys(el[own:], strides, a * m))
         if own:
             flat = part.reshape(-1)
-            v, gap = _vertices_of(flat[el[:own, 0]], flat[el[:own, 1]], gl, g, level)
+            v, gap = _vertices_of(flat[el[:own, 0]], flat[el[:own, 1]], gl, g, level, k)
             vertices[voff : voff + own] = v
             gaps.append(gap)
         del part, el, fl, c
         voff += own
         foff += nf
+    return _result(vertices, faces, edges, gaps, k, (lo, hi, pad, level))
+
+
+def _result(vertices, faces, edges, gaps, k: int, empty) -> IsoMesh:
+    """The `IsoMesh` of the assembled NumPy arrays; `gaps` the slabs' min gaps (scaled by
+    `2^k`), `empty` = (lo, hi, pad, level) for the warning of an empty mesh."""
+    ft = vertices.dtype
     min_gap = jnp.asarray(np.inf, ft)
     for gap in gaps:
         min_gap = jnp.minimum(min_gap, gap)
     if k:
         min_gap = jnp.asarray(np.ldexp(float(min_gap), -k), ft)
+    n_vertices, n_faces = len(vertices), len(faces)
     if n_faces == 0:
-        _warn_empty(lo, hi, None if pad is None else np.ldexp(float(pad), -k), given)
+        lo, hi, pad, level = empty
+        _warn_empty(lo, hi, pad, level)
     out_v = jnp.asarray(vertices)
     del vertices
     out_f = jnp.asarray(faces)
@@ -190,33 +212,37 @@ class _Slab:
 
 def _count_slabs(slab: _Slab, spans, level: float, view: bool, threads):
     """Pass 1: per slab, the vertices it owns and its faces (the contexts of views are kept
-    for pass 2, None for padded copies)."""
+    for pass 2, None for padded copies), and the samples' range (NaN and Inf refused)."""
     kept, counts = [], []
+    lo, hi = np.inf, -np.inf
     for s, (a, b) in enumerate(spans):
         part = slab(a, b)
         c = _Count(part, level, threads)
         last = s == len(spans) - 1
         own = c.n_vertices - (0 if last else c.slice_vertices(b - a))
         counts.append((own, c.n_faces))
+        lo, hi = min(lo, c.lo), max(hi, c.hi)
         if view:
             kept.append(c)
         else:
             c.release()
             kept.append(None)
-    return kept, counts
+    return kept, counts, (lo, hi)
 
 
 def _put_faces(dest, fl, own, off, at, mapped, order):
     """Writes a slab's faces at row `at`: its own vertices shifted by `off`, those of its last
     plane through `mapped` (the next slab's numbering), columns in `order`."""
-    out = fl.astype(np.int64)
-    tail = out >= own
-    out[~tail] += off
+    out = dest[at : at + len(fl)]
     if mapped is not None:
-        out[tail] = mapped[out[tail] - own]
-    if order is not None:
-        out = out[:, order]
-    dest[at : at + len(fl)] = out
+        tail = fl >= own
+        src = np.where(tail, 0, fl + off)
+        src[tail] = mapped[fl[tail] - own]
+    else:
+        src = fl
+        src += off  # int32: below the vertex count
+    for col, from_col in enumerate(order if order is not None else range(fl.shape[1])):
+        out[:, col] = src[:, from_col]
 
 
 def _warn_empty(lo: float, hi: float, pad, level: float):
@@ -226,5 +252,5 @@ def _warn_empty(lo: float, hi: float, pad, level: float):
         f"voxax.isosurface: the field does not cross level {level} (values in "
         f"[{lo:.6g}, {hi:.6g}]): the mesh is empty",
         RuntimeWarning,
-        stacklevel=4,
+        stacklevel=5,
     )

@@ -19,7 +19,7 @@ _SIGNATURES = {
     "voxax_mc_count": (
         ctypes.c_int,
         [VP, ctypes.c_int, ctypes.c_int, I64, ctypes.c_double, ctypes.c_int, ctypes.POINTER(VP), I64,
-         ctypes.c_char_p, ctypes.c_int64],
+         ctypes.POINTER(ctypes.c_double), ctypes.c_char_p, ctypes.c_int64],
     ),
     "voxax_mc_fill": (ctypes.c_int, [VP, VP, VP]),
     "voxax_mc_release": (None, [VP]),
@@ -32,7 +32,8 @@ def _lib():
 
 
 class Count:
-    """Pass 1 of the C++ kernel on one array: the counts, and a context for pass 2.
+    """Pass 1 of the C++ kernel on one array: the counts, the samples' range (`lo`, `hi`;
+    NaN or Inf is a `ValueError`), and a context for pass 2.
 
     Holds a reference to the (contiguous) samples, which pass 2 reads again.
     """
@@ -47,16 +48,18 @@ class Count:
         dtype = 0 if values.dtype == np.float32 else 1
         shape = (ctypes.c_int64 * 3)(*(list(values.shape) + [1] * (3 - dim)))
         counts = (ctypes.c_int64 * 2)()
+        rng = (ctypes.c_double * 2)()
         self.ctx = ctypes.c_void_p()
         err = error_buffer()
         rc = lib.voxax_mc_count(
             values.ctypes.data, dtype, dim, shape, float(level), resolve_threads(threads),
-            ctypes.byref(self.ctx), counts, err, ERRLEN,
+            ctypes.byref(self.ctx), counts, rng, err, ERRLEN,
         )
         if rc != 0:
             msg = err.value.decode(errors="replace")
             raise (MemoryError if rc == 2 else ValueError)(msg)
         self.n_vertices, self.n_faces = int(counts[0]), int(counts[1])
+        self.lo, self.hi = float(rng[0]), float(rng[1])  # the samples' range (all finite)
 
     def slice_vertices(self, i: int) -> int:
         """Vertices owned by x slice `i` (crossed edges with their lower cell there)."""
