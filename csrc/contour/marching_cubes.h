@@ -341,11 +341,12 @@ struct Sampler {
 // Per x slice i: the crossed edges whose lower cell lies in slice i, and the
 // faces of the cubes (squares) between slices i and i + 1.
 struct Counts {
-  double lo = 0, hi = 0;            // the smallest and largest sample (after the count pass)
-  bool non_finite = false;          // a sample is NaN or infinite
-  std::vector<int64_t> vertices;    // per slice
-  std::vector<int64_t> faces;       // per slice
-  std::vector<int64_t> voff, foff;  // exclusive prefix sums, size n[0] + 1
+  double lo = 0, hi = 0;             // the smallest and largest sample (after the count pass)
+  bool non_finite = false;           // a sample is NaN or infinite
+  std::unique_ptr<uint8_t[]> signs;  // 1 where g >= 0, per cell (after the count pass)
+  std::vector<int64_t> vertices;     // per slice
+  std::vector<int64_t> faces;        // per slice
+  std::vector<int64_t> voff, foff;   // exclusive prefix sums, size n[0] + 1
   int64_t total_vertices() const { return voff.back(); }
   int64_t total_faces() const { return foff.back(); }
   void finish() {
@@ -635,19 +636,26 @@ bool count_pass(const Sampler<T>& s, const Shape& sh, Run&& run, Counts* out) {
     return true;
   }
   std::vector<Range> ranges(size_t(std::max<int64_t>(chunks, 1)));
-  const bool ok = run(chunks, [&](int64_t c) {
-    const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
-    std::vector<uint8_t> a(m), b(m);
-    slice_signs(s, sh, i0, a.data());
-    for (int64_t i = i0; i < i1; ++i) {
+  // The signs of every slice, kept for the fill pass (one byte per cell).
+  out->signs.reset(new uint8_t[size_t(nx * m)]);
+  uint8_t* signs = out->signs.get();
+  bool ok = run(chunks, [&](int64_t c) {
+    const int64_t i1 = std::min(nx, (c + 1) * cs);
+    for (int64_t i = c * cs; i < i1; ++i) {
+      slice_signs(s, sh, i, signs + i * m);
       slice_range(s, sh, i, &ranges[size_t(c)]);
-      const bool has_next = i + 1 < nx;
-      if (has_next) slice_signs(s, sh, i + 1, b.data());
-      out->vertices[i] = slice_edges(sh, i, a.data(), b.data(), 0, nullptr);
-      if (has_next) out->faces[i] = slab_face_count(s, sh, i, a.data(), b.data());
-      a.swap(b);
     }
   });
+  ok = ok && run(chunks, [&](int64_t c) {
+         const int64_t i1 = std::min(nx, (c + 1) * cs);
+         for (int64_t i = c * cs; i < i1; ++i) {
+           const bool has_next = i + 1 < nx;
+           const uint8_t* a = signs + i * m;
+           const uint8_t* b = has_next ? a + m : a;
+           out->vertices[i] = slice_edges(sh, i, a, b, 0, nullptr);
+           if (has_next) out->faces[i] = slab_face_count(s, sh, i, a, b);
+         }
+       });
   if (!ok) return false;
   Range all;
   for (const Range& r : ranges) {
@@ -673,23 +681,23 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
   if (!has_cells(sh)) return true;
   return run(chunks, [&](int64_t c) {
     const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
-    std::vector<uint8_t> sa(m), sb(m), sc(m);
+    const uint8_t* signs = cnt.signs.get();
+    const uint8_t* sa = signs + i0 * m;
+    const uint8_t* sb = i0 + 1 < nx ? sa + m : sa;
+    const uint8_t* sc = sb;
     // Map entries are written before they are read (crossed edges only).
     std::unique_ptr<int32_t[]> map_a(new int32_t[d * m]), map_b(new int32_t[d * m]);
     int32_t* ma = map_a.get();
     int32_t* mb = map_b.get();
     // Slice i's map needs the signs of slices i and i + 1.
-    slice_signs(s, sh, i0, sa.data());
-    if (i0 + 1 < nx) slice_signs(s, sh, i0 + 1, sb.data());
-    slice_edges(sh, i0, sa.data(), sb.data(), cnt.voff[i0], ma, edges, vcap);
+    slice_edges(sh, i0, sa, sb, cnt.voff[i0], ma, edges, vcap);
     for (int64_t i = i0; i < i1; ++i) {
       const bool has_next = i + 1 < nx;
       if (!has_next) break;
       // Map of slice i + 1 (needs the signs of slice i + 2).
-      if (i + 2 < nx) slice_signs(s, sh, i + 2, sc.data());
+      sc = i + 2 < nx ? signs + (i + 2) * m : sb;
       // Slice i + 1's vertices are written by the chunk that owns the slice.
-      slice_edges(sh, i + 1, sb.data(), sc.data(), cnt.voff[i + 1], mb,
-                  i + 1 < i1 ? edges : nullptr, vcap);
+      slice_edges(sh, i + 1, sb, sc, cnt.voff[i + 1], mb, i + 1 < i1 ? edges : nullptr, vcap);
       // Faces of slab i.
       int64_t fid = cnt.foff[i];
       {
@@ -698,8 +706,8 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
           const int64_t ny = sh.n[1], nz = sh.n[2];
           std::vector<uint8_t> cfg(size_t(std::max<int64_t>(nz - 1, 1)));
           for (int64_t j = 0; j + 1 < ny; ++j) {
-            const uint8_t* a0 = sa.data() + j * nz;
-            const uint8_t* a1 = sb.data() + j * nz;
+            const uint8_t* a0 = sa + j * nz;
+            const uint8_t* a1 = sb + j * nz;
             if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
             row_configs(a0, a1, nz, nz, cfg.data());
             for_crossed(cfg.data(), nz - 1, [&](int64_t k) {
@@ -720,7 +728,7 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
         } else {
           const SquareTable& tb = square_table();
           for (int64_t j = 0; j + 1 < sh.n[1]; ++j) {
-            const int idx = square_index(s, sh, i, j, sa.data(), sb.data());
+            const int idx = square_index(s, sh, i, j, sa, sb);
             const int ns = tb.count[idx];
             for (int t = 0; t < ns; ++t, ++fid) {
               if (fid >= fcap) continue;
@@ -737,8 +745,8 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
           }
         }
       }
-      sa.swap(sb);
-      sb.swap(sc);
+      sa = sb;
+      sb = sc;
       std::swap(ma, mb);
     }
   });

@@ -107,3 +107,16 @@ def test_threads_follow_the_one_rule(monkeypatch):
             voxax.isosurface(f, grid, threads=bad)
         with pytest.raises(err, match=r"voxax.isosurface_topology: `threads` must be"):
             voxax.isosurface_topology(f, grid, threads=bad)
+
+
+def test_concurrent_python_threads_give_the_same_bits():
+    """Four Python threads calling at once (ctypes releases the GIL) get the bits of one call."""
+    import concurrent.futures
+
+    grid = voxax.Grid.cube(14)
+    f = gaussian_filter(np.random.default_rng(3).standard_normal(grid.shape), 1.2)
+    alone = voxax.isosurface(f, grid, close=True)
+    with concurrent.futures.ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda _: voxax.isosurface(f, grid, close=True, threads=2), range(4)))
+    for got in results:
+        _same(got, alone)
