@@ -5,7 +5,10 @@ Cases (float32 samples on n^3 grids over [-1, 1]^3):
 - `sphere`: the distance field |x| - 0.6, level 0;
 - `large`: `voxelize(data.large())` (about 100K faces), level 0.5 (`inside="above"`).
 
-Timed (best of `--repeats`, after one warm-up call):
+Timed at equal threads: scikit-image and PyMCubes run on one thread, so voxax runs with
+`threads=1`; every repeat times each method once, in turn (interleaved), after one warm-up
+call each, and the table gives medians. A separately labelled column gives voxax on all
+cores (`threads=None`). The load average is recorded before and after.
 
 - `voxax kernel`: the C++ topology (count + fill passes; exact-size arrays);
 - `voxax isosurface`: the full eager `voxax.isosurface` (kernel, then the float64 vertex
@@ -14,7 +17,7 @@ Timed (best of `--repeats`, after one warm-up call):
 - `pymcubes`: `mcubes.marching_cubes`.
 
 Before timing, the vertex counts of all three are printed (they agree up to the handling of
-ambiguous cubes). Ratios are `time(other) / time(voxax isosurface)`.
+ambiguous cubes). Ratios are `time(other) / time(voxax isosurface, 1 thread)`.
 
 Usage:
 
@@ -40,14 +43,22 @@ from pathlib import Path
 import numpy as np
 
 
-def best_of(fn, repeats):
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
+def interleaved(fns: dict, repeats: int) -> dict:
+    """Median seconds of each function: one warm-up call each, then `repeats` rounds that
+    call every function once, in turn."""
+    for fn in fns.values():
         fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+    times = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def load() -> str:
+    return "/".join(f"{x:.1f}" for x in os.getloadavg())
 
 
 def main(argv=None):
@@ -68,9 +79,10 @@ def main(argv=None):
     from skimage.measure import marching_cubes
 
     import voxax
-    from voxax._isosurface import host_topology
+    from voxax._kernels.contour import topology as host_topology
 
     rows = []
+    load_before = load()
     for n in args.sizes:
         grid = voxax.Grid.cube(n)
         for case in args.cases:
@@ -101,50 +113,41 @@ def main(argv=None):
                 flush=True,
             )
             del v_sk, f_sk, v_mc, f_mc
-            t_kernel = best_of(
-                lambda f=f, level=level: host_topology(f, level), args.repeats
-            )
-            t_iso = best_of(
-                lambda f=f, grid=grid, level=level, inside=inside: voxax.isosurface(
-                    f, grid, level, inside=inside
-                ).vertices.block_until_ready(),
+            times = interleaved(
+                {
+                    "kernel": lambda f=f, level=level: host_topology(f, level, 1),
+                    "iso": lambda f=f, grid=grid, level=level, inside=inside: voxax.isosurface(
+                        f, grid, level, inside=inside, threads=1
+                    ).vertices.block_until_ready(),
+                    "iso_all": lambda f=f, grid=grid, level=level, inside=inside: voxax.isosurface(
+                        f, grid, level, inside=inside
+                    ).vertices.block_until_ready(),
+                    "skimage": lambda f=f, level=level: marching_cubes(f, level, allow_degenerate=False),
+                    "pymcubes": lambda f=f, level=level: mcubes.marching_cubes(f, level),
+                },
                 args.repeats,
             )
-            t_sk = best_of(
-                lambda f=f, level=level: marching_cubes(
-                    f, level, allow_degenerate=False
-                ),
-                args.repeats,
-            )
-            t_mc = best_of(
-                lambda f=f, level=level: mcubes.marching_cubes(f, level), args.repeats
-            )
-            row = {
-                "case": case,
-                "n": n,
-                "faces": len(fc),
-                "kernel": t_kernel,
-                "iso": t_iso,
-                "skimage": t_sk,
-                "pymcubes": t_mc,
-            }
+            row = {"case": case, "n": n, "faces": len(fc), **times}
             rows.append(row)
             print(
-                f"  kernel {t_kernel:.3f} s, isosurface {t_iso:.3f} s, skimage {t_sk:.3f} s ({t_sk / t_iso:.1f}x), "
-                f"pymcubes {t_mc:.3f} s ({t_mc / t_iso:.1f}x)",
+                f"  kernel {times['kernel']:.3f} s, isosurface {times['iso']:.3f} s (all cores "
+                f"{times['iso_all']:.3f} s), skimage {times['skimage']:.3f} s "
+                f"({times['skimage'] / times['iso']:.2f}x), pymcubes {times['pymcubes']:.3f} s "
+                f"({times['pymcubes'] / times['iso']:.2f}x); load {load()}",
                 flush=True,
             )
             del f
     table = [
-        "| case | grid | faces | voxax kernel | voxax isosurface | skimage / voxax | PyMCubes / voxax "
-        "| skimage / kernel |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | grid | faces | voxax kernel, 1 thread | voxax isosurface, 1 thread | skimage / voxax "
+        "(1 thread each) | PyMCubes / voxax (1 thread each) | skimage / kernel | voxax isosurface, "
+        f"all {os.cpu_count()} cores (separate) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         table.append(
             f"| {r['case']} | {r['n']}^3 | {r['faces']} | {r['kernel']:.3f} s | {r['iso']:.3f} s | "
-            f"{r['skimage'] / r['iso']:.1f}x | {r['pymcubes'] / r['iso']:.1f}x | "
-            f"{r['skimage'] / r['kernel']:.1f}x |"
+            f"{r['skimage'] / r['iso']:.2f}x | {r['pymcubes'] / r['iso']:.2f}x | "
+            f"{r['skimage'] / r['kernel']:.2f}x | {r['iso_all']:.3f} s |"
         )
     machine = (
         f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
@@ -161,7 +164,10 @@ def main(argv=None):
         cmd = "python benchmarks/isosurface.py " + " ".join(
             argv if argv is not None else sys.argv[1:]
         )
-        body = f"{start}\n\nMachine: {machine}. Command: `{cmd}`. Best of {args.repeats}.\n\n{text}\n\n{end}"
+        body = (
+            f"{start}\n\nMachine: {machine}. Command: `{cmd}`. Medians of {args.repeats} interleaved "
+            f"repeats; load average (1/5/15 min) {load_before} before, {load()} after.\n\n{text}\n\n{end}"
+        )
         old = readme.read_text()
         if start in old:
             new = re.sub(

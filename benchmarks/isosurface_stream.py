@@ -54,7 +54,7 @@ def child(n, close, check):
     import numpy as np
 
     import voxax
-    from voxax._isosurface import _isosurface_streamed
+    from voxax._isosurface.stream import _isosurface_streamed
 
     # warm up the compiled interpolation on a small grid (not timed)
     voxax.isosurface(np.linalg.norm(voxax.Grid.cube(16).centers(), axis=-1) - 0.6, voxax.Grid.cube(16))

@@ -59,6 +59,7 @@ CHECKED_ELSEWHERE = {
     "cvt.fragments", "cvt.rdt", "cvt.remesh",  # tests/cvt
     "fc.pieces", "fc.decode", "fc.roundtrip",  # tests/fc
     "all_hits", "any_hits", "first_hits", "winding_number",  # tests/spatial
+    "isosurface", "isosurface_fn", "isosurface_topology",  # tests/isosurface
 }
 
 

@@ -4,8 +4,8 @@
 // voxax_marching_cubes(values (..., *shape)) -> edges (..., VC, 2) int32,
 //   faces (..., FC, dim) int32, counts (..., 2) int32
 // with attributes level (double) and dim (int64, 2 or 3). counts holds the
-// true vertex and face counts (saturated at 2^31 - 1); entries beyond the
-// capacities are dropped, padding is 0.
+// true vertex and face counts; padding is 0. A mesh that does not fit the
+// capacities is an error that names the capacity it needs.
 
 #include <atomic>
 #include <cmath>
@@ -21,6 +21,7 @@
 #include "common/constants.h"
 #include "common/errors.h"
 #include "common/grid.h"
+#include "common/host_pool.h"
 #include "common/parallel.h"
 #include "common/validate.h"
 #include "contour/marching_cubes.h"
@@ -55,6 +56,7 @@ ffi::Error mc_impl(ffi::ThreadPool* pool, const Shape& sh, int64_t batch, const 
     ParallelFor::run(pool, n, body);
     return true;
   };
+  int64_t need_v = 0, need_f = 0;  // the largest counts of items that do not fit
   for (int64_t b = 0; b < batch; ++b) {
     const T* v = values + b * cells;
     const int64_t bad = first_non_finite(v, cells);
@@ -73,10 +75,19 @@ ffi::Error mc_impl(ffi::ThreadPool* pool, const Shape& sh, int64_t batch, const 
     const int64_t nv = cnt.total_vertices(), nf = cnt.total_faces();
     counts[2 * b] = int32_t(std::min(nv, kInt32Max));
     counts[2 * b + 1] = int32_t(std::min(nf, kInt32Max));
-    if (nv > kInt32Max) continue;  // overflow: reported through the counts
+    if (nv > vcap || nf > fcap) {  // reported once every item is counted
+      need_v = std::max(need_v, nv);
+      need_f = std::max(need_f, nf);
+      continue;
+    }
     if (!contour::fill_pass(s, sh, cnt, run, eb, vcap, fb, fcap))
       return ffi::Error(ffi::ErrorCode::kResourceExhausted, "voxax.isosurface: out of memory");
   }
+  if (need_v || need_f)
+    return ffi::Error::InvalidArgument(
+        "voxax.isosurface: the mesh needs capacity=(" + std::to_string(std::max(need_v, vcap)) +
+        ", " + std::to_string(std::max(need_f, fcap)) + ") (vertices, faces) or more, got (" +
+        std::to_string(vcap) + ", " + std::to_string(fcap) + ")");
   return ffi::Error::Success();
 }
 
@@ -202,9 +213,11 @@ void set_error(char* buf, int64_t len, const std::string& msg) {
 extern "C" {
 
 // Pass 1. Returns 0 on success and fills counts[0] = vertices, counts[1] =
-// faces and *ctx; a non-zero status leaves an error message in err.
+// faces, range[0], range[1] = the smallest and largest sample, and *ctx; a
+// non-zero status leaves an error message in err (NaN or infinite samples: 1).
 int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape, double level,
-                   int threads, void** ctx, int64_t* counts, char* err, int64_t errlen) {
+                   int threads, void** ctx, int64_t* counts, double* range, char* err,
+                   int64_t errlen) {
   using namespace voxax;
   *ctx = nullptr;
   try {
@@ -228,7 +241,7 @@ int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape,
     c->values = values;
     c->dtype = dtype;
     c->level = level;
-    c->threads = std::max(1, threads);
+    c->threads = spatial::resolve_threads(threads);  // 0: all cores
     ThreadRun run{c->threads};
     bool ok;
     if (dtype == 0) {
@@ -242,6 +255,12 @@ int voxax_mc_count(const void* values, int dtype, int dim, const int64_t* shape,
       set_error(err, errlen, "voxax.isosurface: out of memory");
       return 2;
     }
+    if (c->counts.non_finite) {
+      set_error(err, errlen, "voxax.isosurface: `values` must be finite (they contain NaN or Inf)");
+      return 1;
+    }
+    range[0] = c->counts.lo;
+    range[1] = c->counts.hi;
     counts[0] = c->counts.total_vertices();
     counts[1] = c->counts.total_faces();
     if (counts[0] > kInt32Max || counts[1] > kInt32Max) {

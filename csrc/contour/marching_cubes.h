@@ -30,8 +30,10 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -286,9 +288,26 @@ inline const SquareTable& square_table() {
 // face: the bilinear saddle value is >= level. With p1, p2 the positive and n1,
 // n2 the negative diagonal (g = f - level), the saddle value is
 // (p1 p2 - n1 n2) / (p1 + p2 - n1 - n2) and the denominator is positive.
-// Both cubes sharing a face evaluate the same two products.
+// Both cubes sharing a face evaluate the same two products. The comparison is
+// that of the exact products (scale-invariant): where a rounded product leaves
+// the normal range (below about 1e-154 or above 1e154 per factor) the products
+// are compared as mantissa and exponent; elsewhere the rounded products give
+// the same answer.
 inline bool face_connected(double p1, double p2, double n1, double n2) {
-  return p1 * p2 >= n1 * n2;
+  const double a = p1 * p2, b = n1 * n2;
+  const double lo = std::numeric_limits<double>::min();
+  const double hi = std::numeric_limits<double>::max();
+  if ((a >= lo || a == 0.0) && b >= lo && a <= hi && b <= hi) {
+    // a == 0 only when p1 or p2 is 0 (b > 0: the negative samples are not 0)
+    if (a != 0.0 || p1 == 0.0 || p2 == 0.0) return a >= b;
+  }
+  if (p1 == 0.0 || p2 == 0.0) return false;  // b > 0
+  int e1, e2, e3, e4, ea, eb;
+  double ma = std::frexp(std::frexp(p1, &e1) * std::frexp(p2, &e2), &ea);
+  double mb = std::frexp(std::frexp(n1, &e3) * std::frexp(n2, &e4), &eb);
+  ea += e1 + e2;
+  eb += e3 + e4;
+  return ea != eb ? ea > eb : ma >= mb;
 }
 
 // -- the sweep
@@ -322,9 +341,12 @@ struct Sampler {
 // Per x slice i: the crossed edges whose lower cell lies in slice i, and the
 // faces of the cubes (squares) between slices i and i + 1.
 struct Counts {
-  std::vector<int64_t> vertices;    // per slice
-  std::vector<int64_t> faces;       // per slice
-  std::vector<int64_t> voff, foff;  // exclusive prefix sums, size n[0] + 1
+  double lo = 0, hi = 0;             // the smallest and largest sample (after the count pass)
+  bool non_finite = false;           // a sample is NaN or infinite
+  std::unique_ptr<uint8_t[]> signs;  // 1 where g >= 0, per cell (after the count pass)
+  std::vector<int64_t> vertices;     // per slice
+  std::vector<int64_t> faces;        // per slice
+  std::vector<int64_t> voff, foff;   // exclusive prefix sums, size n[0] + 1
   int64_t total_vertices() const { return voff.back(); }
   int64_t total_faces() const { return foff.back(); }
   void finish() {
@@ -354,6 +376,35 @@ inline void slice_signs(const Sampler<T>& s, const Shape& sh, int64_t i, uint8_t
   }
 }
 
+template <typename T>
+inline int cube_index_of(const Sampler<T>& s, const Shape& sh, const CubeTable& tb, int64_t i,
+                         int64_t j, int64_t k, int cfg);
+
+// The range of the samples of a chunk, and whether one is NaN (a NaN is never
+// selected by the comparisons; an infinity ends up in lo or hi).
+struct Range {
+  double lo = std::numeric_limits<double>::infinity();
+  double hi = -std::numeric_limits<double>::infinity();
+  bool nan = false;
+};
+
+template <typename T>
+inline void slice_range(const Sampler<T>& s, const Shape& sh, int64_t i, Range* r) {
+  const int64_t m = sh.slice();
+  const T* v = s.v + i * m;
+  T lo = std::numeric_limits<T>::infinity(), hi = -lo;
+  unsigned nan = 0;
+  for (int64_t c = 0; c < m; ++c) {
+    const T x = v[c];
+    lo = x < lo ? x : lo;
+    hi = x > hi ? x : hi;
+    nan |= unsigned(x != x);
+  }
+  r->lo = std::min(r->lo, double(lo));
+  r->hi = std::max(r->hi, double(hi));
+  r->nan = r->nan || nan;
+}
+
 // The table index of cube (i, j, k) given the signs of slices i and i + 1.
 template <typename T>
 inline int cube_index(const Sampler<T>& s, const Shape& sh, const CubeTable& tb, int64_t i,
@@ -362,6 +413,16 @@ inline int cube_index(const Sampler<T>& s, const Shape& sh, const CubeTable& tb,
   const int64_t r0 = j * nz + k, r1 = r0 + nz;
   const int cfg = s0[r0] | (s1[r0] << 1) | (s0[r1] << 2) | (s1[r1] << 3) | (s0[r0 + 1] << 4) |
                   (s1[r0 + 1] << 5) | (s0[r1 + 1] << 6) | (s1[r1 + 1] << 7);
+  return cube_index_of(s, sh, tb, i, j, k, cfg);
+}
+
+// The table index of cube (i, j, k) of sign configuration `cfg` (see
+// row_configs): the configuration, with the decider's bits on ambiguous faces.
+template <typename T>
+inline int cube_index_of(const Sampler<T>& s, const Shape& sh, const CubeTable& tb, int64_t i,
+                         int64_t j, int64_t k, int cfg) {
+  const int64_t nz = sh.n[2];
+  const int64_t r0 = j * nz + k;
   const int amb = tb.ambiguous[cfg];
   if (!amb) return cfg;
   int dec = 0;
@@ -411,6 +472,53 @@ inline bool row_varies(const uint8_t* r0, int64_t len, const uint8_t* a, const u
   return acc != 0;
 }
 
+// The sign configurations of the cubes of one row (cube k joins cells k and
+// k + 1 of rows a0, b0 of slice i and a1, b1 of slice i + 1; b = a + nz):
+// out[k], k < len - 1, with bit c for corner c as in cube_index. Branch-free,
+// written for vectorization.
+inline void row_configs(const uint8_t* a0, const uint8_t* a1, int64_t len, int64_t nz,
+                        uint8_t* out) {
+  const uint8_t* b0 = a0 + nz;
+  const uint8_t* b1 = a1 + nz;
+  for (int64_t k = 0; k + 1 < len; ++k)
+    out[k] = uint8_t(a0[k] | (a1[k] << 1) | (b0[k] << 2) | (b1[k] << 3) | (a0[k + 1] << 4) |
+                     (a1[k + 1] << 5) | (b0[k + 1] << 6) | (b1[k + 1] << 7));
+}
+
+// Whether the 8 bytes at p are all 0 or all 255 (uniform cubes, or no crossed
+// edge).
+inline bool word_uniform(const uint8_t* p) {
+  uint64_t w;
+  std::memcpy(&w, p, 8);
+  return w == 0 || w == ~uint64_t{0};
+}
+
+// Calls body(k) for every k < n with cfg[k] not 0 or 255 (a cube with a
+// crossing), in increasing k; runs of uniform cubes are skipped 8 at a time.
+template <typename Body>
+inline void for_crossed(const uint8_t* cfg, int64_t n, Body&& body) {
+  int64_t k = 0;
+  for (; k + 8 <= n; k += 8) {
+    if (word_uniform(cfg + k)) continue;
+    for (int64_t t = k; t < k + 8; ++t)
+      if (cfg[t] != 0 && cfg[t] != 255) body(t);
+  }
+  for (; k < n; ++k)
+    if (cfg[k] != 0 && cfg[k] != 255) body(k);
+}
+
+// Crossed edges of one row counted without branches: along the row and to the
+// rows given (null: none).
+inline int64_t row_edge_count(const uint8_t* r, int64_t len, const uint8_t* rx, const uint8_t* ry) {
+  uint32_t n = 0;
+  for (int64_t k = 0; k + 1 < len; ++k) n += uint32_t(r[k] ^ r[k + 1]);
+  if (rx)
+    for (int64_t k = 0; k < len; ++k) n += uint32_t(r[k] ^ rx[k]);
+  if (ry)
+    for (int64_t k = 0; k < len; ++k) n += uint32_t(r[k] ^ ry[k]);
+  return n;
+}
+
 // Crossed edges owned by slice i (its cells are their lower ends), counted or
 // numbered. When `map` (size dim * slice) is given, map[dim * cell + axis]
 // receives the vertex id of every crossed edge; other entries are not written.
@@ -430,26 +538,44 @@ inline int64_t slice_edges(const Shape& sh, int64_t i, const uint8_t* s0, const 
   };
   if (sh.dim == 3) {
     const int64_t ny = sh.n[1], nz = sh.n[2];
+    std::vector<uint8_t> cross(map ? size_t(nz) : 0);
     for (int64_t j = 0; j < ny; ++j) {
       const int64_t c0 = j * nz;
       const uint8_t* r = s0 + c0;
       const uint8_t* rx = has_next ? s1 + c0 : nullptr;
       const uint8_t* ry = j + 1 < ny ? r + nz : nullptr;
-      if (!row_varies(r, nz, rx, ry, nullptr)) continue;
-      for (int64_t k = 0; k < nz; ++k) {
-        const uint8_t a = r[k];
-        const bool cx = rx && rx[k] != a;
-        const bool cy = ry && ry[k] != a;
-        const bool cz = k + 1 < nz && r[k + 1] != a;
-        if (map && (cx | cy | cz)) {
-          int32_t* mp = map + 3 * (c0 + k);
-          const int64_t cell = base + c0 + k;
-          if (cx) mp[0] = int32_t(id), put(id, cell, m);
-          if (cy) mp[1] = int32_t(id + cx), put(id + cx, cell, nz);
-          if (cz) mp[2] = int32_t(id + cx + cy), put(id + cx + cy, cell, 1);
-        }
-        id += cx + cy + cz;
+      if (!map) {
+        id += row_edge_count(r, nz, rx, ry);
+        continue;
       }
+      if (!row_varies(r, nz, rx, ry, nullptr)) continue;
+      // Bits 0, 1, 2 of cross[k]: the edges along x, y, z from cell k cross.
+      uint8_t* cr = cross.data();
+      for (int64_t k = 0; k + 1 < nz; ++k) cr[k] = uint8_t((r[k] ^ r[k + 1]) << 2);
+      cr[nz - 1] = 0;
+      if (rx)
+        for (int64_t k = 0; k < nz; ++k) cr[k] |= uint8_t(r[k] ^ rx[k]);
+      if (ry)
+        for (int64_t k = 0; k < nz; ++k) cr[k] |= uint8_t((r[k] ^ ry[k]) << 1);
+      int64_t k = 0;
+      auto cell_edges = [&](int64_t kk) {
+        const int b = cr[kk];
+        if (!b) return;
+        const int cx = b & 1, cy = (b >> 1) & 1, cz = b >> 2;
+        int32_t* mp = map + 3 * (c0 + kk);
+        const int64_t cell = base + c0 + kk;
+        if (cx) mp[0] = int32_t(id), put(id, cell, m);
+        if (cy) mp[1] = int32_t(id + cx), put(id + cx, cell, nz);
+        if (cz) mp[2] = int32_t(id + cx + cy), put(id + cx + cy, cell, 1);
+        id += cx + cy + cz;
+      };
+      for (; k + 8 <= nz; k += 8) {
+        uint64_t w;
+        std::memcpy(&w, cr + k, 8);
+        if (!w) continue;
+        for (int64_t t = k; t < k + 8; ++t) cell_edges(t);
+      }
+      for (; k < nz; ++k) cell_edges(k);
     }
   } else {
     const int64_t ny = sh.n[1];
@@ -476,17 +602,15 @@ inline int64_t slab_face_count(const Sampler<T>& s, const Shape& sh, int64_t i, 
   if (sh.dim == 3) {
     const CubeTable& tb = cube_table();
     const int64_t ny = sh.n[1], nz = sh.n[2];
+    std::vector<uint8_t> cfg(size_t(std::max<int64_t>(nz - 1, 1)));
     for (int64_t j = 0; j + 1 < ny; ++j) {
       const uint8_t* a0 = s0 + j * nz;
       const uint8_t* a1 = s1 + j * nz;
       if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
-      for (int64_t k = 0; k + 1 < nz; ++k) {
-        // Skip uniform cubes cheaply.
-        const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
-                        a0[k + nz + 1] + a1[k + nz + 1];
-        if (sum == 0 || sum == 8) continue;
-        n += tb.count[cube_index(s, sh, tb, i, j, k, s0, s1)];
-      }
+      row_configs(a0, a1, nz, nz, cfg.data());
+      for_crossed(cfg.data(), nz - 1, [&](int64_t k) {
+        n += tb.count[cube_index_of(s, sh, tb, i, j, k, cfg[size_t(k)])];
+      });
     }
   } else {
     const SquareTable& tb = square_table();
@@ -503,23 +627,47 @@ bool count_pass(const Sampler<T>& s, const Shape& sh, Run&& run, Counts* out) {
   out->vertices.assign(nx, 0);
   out->faces.assign(nx, 0);
   if (!has_cells(sh)) {
+    Range all;
+    for (int64_t i = 0; i < nx; ++i) slice_range(s, sh, i, &all);
+    out->lo = all.lo;
+    out->hi = all.hi;
+    out->non_finite = all.nan || !std::isfinite(all.lo) || !std::isfinite(all.hi);
     out->finish();
     return true;
   }
-  const bool ok = run(chunks, [&](int64_t c) {
-    const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
-    std::vector<uint8_t> a(m), b(m);
-    slice_signs(s, sh, i0, a.data());
-    for (int64_t i = i0; i < i1; ++i) {
-      const bool has_next = i + 1 < nx;
-      if (has_next) slice_signs(s, sh, i + 1, b.data());
-      out->vertices[i] = slice_edges(sh, i, a.data(), b.data(), 0, nullptr);
-      if (has_next) out->faces[i] = slab_face_count(s, sh, i, a.data(), b.data());
-      a.swap(b);
+  std::vector<Range> ranges(size_t(std::max<int64_t>(chunks, 1)));
+  // The signs of every slice, kept for the fill pass (one byte per cell).
+  out->signs.reset(new uint8_t[size_t(nx * m)]);
+  uint8_t* signs = out->signs.get();
+  bool ok = run(chunks, [&](int64_t c) {
+    const int64_t i1 = std::min(nx, (c + 1) * cs);
+    for (int64_t i = c * cs; i < i1; ++i) {
+      slice_signs(s, sh, i, signs + i * m);
+      slice_range(s, sh, i, &ranges[size_t(c)]);
     }
   });
-  if (ok) out->finish();
-  return ok;
+  ok = ok && run(chunks, [&](int64_t c) {
+         const int64_t i1 = std::min(nx, (c + 1) * cs);
+         for (int64_t i = c * cs; i < i1; ++i) {
+           const bool has_next = i + 1 < nx;
+           const uint8_t* a = signs + i * m;
+           const uint8_t* b = has_next ? a + m : a;
+           out->vertices[i] = slice_edges(sh, i, a, b, 0, nullptr);
+           if (has_next) out->faces[i] = slab_face_count(s, sh, i, a, b);
+         }
+       });
+  if (!ok) return false;
+  Range all;
+  for (const Range& r : ranges) {
+    all.lo = std::min(all.lo, r.lo);
+    all.hi = std::max(all.hi, r.hi);
+    all.nan = all.nan || r.nan;
+  }
+  out->lo = all.lo;
+  out->hi = all.hi;
+  out->non_finite = all.nan || !std::isfinite(all.lo) || !std::isfinite(all.hi);
+  out->finish();
+  return true;
 }
 
 // Pass 2: writes the vertices' cell pairs (edges, (V, 2)) and the faces
@@ -533,38 +681,37 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
   if (!has_cells(sh)) return true;
   return run(chunks, [&](int64_t c) {
     const int64_t i0 = c * cs, i1 = std::min(nx, i0 + cs);
-    std::vector<uint8_t> sa(m), sb(m), sc(m);
+    const uint8_t* signs = cnt.signs.get();
+    const uint8_t* sa = signs + i0 * m;
+    const uint8_t* sb = i0 + 1 < nx ? sa + m : sa;
+    const uint8_t* sc = sb;
     // Map entries are written before they are read (crossed edges only).
     std::unique_ptr<int32_t[]> map_a(new int32_t[d * m]), map_b(new int32_t[d * m]);
     int32_t* ma = map_a.get();
     int32_t* mb = map_b.get();
     // Slice i's map needs the signs of slices i and i + 1.
-    slice_signs(s, sh, i0, sa.data());
-    if (i0 + 1 < nx) slice_signs(s, sh, i0 + 1, sb.data());
-    slice_edges(sh, i0, sa.data(), sb.data(), cnt.voff[i0], ma, edges, vcap);
+    slice_edges(sh, i0, sa, sb, cnt.voff[i0], ma, edges, vcap);
     for (int64_t i = i0; i < i1; ++i) {
       const bool has_next = i + 1 < nx;
       if (!has_next) break;
       // Map of slice i + 1 (needs the signs of slice i + 2).
-      if (i + 2 < nx) slice_signs(s, sh, i + 2, sc.data());
+      sc = i + 2 < nx ? signs + (i + 2) * m : sb;
       // Slice i + 1's vertices are written by the chunk that owns the slice.
-      slice_edges(sh, i + 1, sb.data(), sc.data(), cnt.voff[i + 1], mb,
-                  i + 1 < i1 ? edges : nullptr, vcap);
+      slice_edges(sh, i + 1, sb, sc, cnt.voff[i + 1], mb, i + 1 < i1 ? edges : nullptr, vcap);
       // Faces of slab i.
       int64_t fid = cnt.foff[i];
       {
         if (d == 3) {
           const CubeTable& tb = cube_table();
           const int64_t ny = sh.n[1], nz = sh.n[2];
+          std::vector<uint8_t> cfg(size_t(std::max<int64_t>(nz - 1, 1)));
           for (int64_t j = 0; j + 1 < ny; ++j) {
-            const uint8_t* a0 = sa.data() + j * nz;
-            const uint8_t* a1 = sb.data() + j * nz;
+            const uint8_t* a0 = sa + j * nz;
+            const uint8_t* a1 = sb + j * nz;
             if (!row_varies(a0, nz, a1, a0 + nz, a1 + nz)) continue;
-            for (int64_t k = 0; k + 1 < nz; ++k) {
-              const int sum = a0[k] + a1[k] + a0[k + nz] + a1[k + nz] + a0[k + 1] + a1[k + 1] +
-                              a0[k + nz + 1] + a1[k + nz + 1];
-              if (sum == 0 || sum == 8) continue;
-              const int idx = cube_index(s, sh, tb, i, j, k, sa.data(), sb.data());
+            row_configs(a0, a1, nz, nz, cfg.data());
+            for_crossed(cfg.data(), nz - 1, [&](int64_t k) {
+              const int idx = cube_index_of(s, sh, tb, i, j, k, cfg[size_t(k)]);
               const int nt = tb.count[idx];
               for (int t = 0; t < nt; ++t, ++fid) {
                 if (fid >= fcap) continue;
@@ -576,12 +723,12 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
                   faces[3 * fid + v] = mp[3 * cell + axis];
                 }
               }
-            }
+            });
           }
         } else {
           const SquareTable& tb = square_table();
           for (int64_t j = 0; j + 1 < sh.n[1]; ++j) {
-            const int idx = square_index(s, sh, i, j, sa.data(), sb.data());
+            const int idx = square_index(s, sh, i, j, sa, sb);
             const int ns = tb.count[idx];
             for (int t = 0; t < ns; ++t, ++fid) {
               if (fid >= fcap) continue;
@@ -598,8 +745,8 @@ bool fill_pass(const Sampler<T>& s, const Shape& sh, const Counts& cnt, Run&& ru
           }
         }
       }
-      sa.swap(sb);
-      sb.swap(sc);
+      sa = sb;
+      sb = sc;
       std::swap(ma, mb);
     }
   });

@@ -15,7 +15,7 @@ from scipy.ndimage import gaussian_filter
 
 import voxax
 from voxax import reference
-from voxax._isosurface import host_topology
+from voxax._kernels.contour import topology as host_topology
 
 
 def norm_field(grid, r=0.6):
@@ -316,10 +316,76 @@ def test_vmap_over_fields(rng):
 def test_capacity_overflow_is_a_clear_error():
     grid = voxax.Grid.cube(16)
     f = norm_field(grid)
-    with pytest.raises(Exception, match="capacity"):
-        jax.jit(lambda x: voxax.isosurface(x, grid, capacity=50).vertices)(
-            f
-        ).block_until_ready()
+    nv, nf = (int(c) for c in (lambda i: (i.n_vertices, i.n_faces))(voxax.isosurface(f, grid)))
+    for cap in (50, (nv, nf - 1)):
+        with pytest.raises(Exception) as info:
+            jax.jit(lambda x, cap=cap: voxax.isosurface(x, grid, capacity=cap).vertices)(
+                f
+            ).block_until_ready()
+        # one line that names the capacity needed
+        line = str(info.value).strip()
+        assert "\n" not in line and f"needs capacity=({max(nv, 50 if cap == 50 else nv)}, {nf})" in line, line
+    # a batch: the largest counts of the items that do not fit
+    two = np.stack([f, norm_field(grid, 0.3)])
+    with pytest.raises(Exception, match=rf"needs capacity=\({nv}, {nf}\)"):
+        jax.vmap(lambda x: voxax.isosurface(x, grid, capacity=(nv - 1, nf)).faces)(two).block_until_ready()
+
+
+def test_scale_invariance_subnormal_and_huge_fields(rng):
+    """A field times 2^k gives the same mesh, bit for bit, for k from -1060 (all samples
+    subnormal) to +1000, eagerly and under jit (level 0); the gradient keeps its scale."""
+    grid = voxax.Grid.cube(10)
+    f = np.round(gaussian_filter(rng.standard_normal(grid.shape), 1.0) * 2**12) / 2**12
+    ref = voxax.isosurface(f, grid)
+    jit = jax.jit(lambda x: voxax.isosurface(x, grid, capacity=4000))
+    rj = jit(f)
+    n = int(ref.n_vertices)
+    assert n > 50
+    ref_fixed = np.asarray(voxax.isosurface_vertices(f, ref, grid)).tobytes()
+    for k in (-1060, -1030, -600, 600, 1000):
+        g = np.ldexp(f, k)
+        assert np.array_equal(np.ldexp(g, -k), f)  # exact: at most 11 significant bits
+        iso = voxax.isosurface(g, grid)
+        assert np.asarray(iso.vertices).tobytes() == np.asarray(ref.vertices).tobytes(), k
+        assert np.array_equal(iso.faces, ref.faces)
+        assert float(iso.min_gap) == float(np.ldexp(float(ref.min_gap), k))
+        out = jit(g)
+        assert int(out.n_vertices) == n and np.array_equal(out.faces, rj.faces), k
+        assert np.asarray(out.vertices).tobytes() == np.asarray(rj.vertices).tobytes(), k
+        top = voxax.isosurface_topology(g, grid)
+        assert np.array_equal(top.edges, ref.edges)
+        assert np.asarray(voxax.isosurface_vertices(g, top, grid)).tobytes() == ref_fixed, k
+    # float32 samples far below float32's normal range
+    g32 = np.ldexp(f, -136).astype(np.float32)
+    assert np.all(np.abs(g32) < np.finfo(np.float32).tiny)
+    f32, back = voxax.isosurface(g32, grid), voxax.isosurface(np.ldexp(g32.astype(np.float64), 136), grid)
+    assert int(f32.n_faces) > 0 and np.array_equal(f32.faces, back.faces)
+    assert np.asarray(f32.vertices).tobytes() == np.asarray(back.vertices).tobytes()
+    # the kernel's saddle decider compares exact products (underflowing ones included)
+    for k in (-700, -520, 520):
+        e, fc = host_topology(np.ldexp(f, k), 0.0)
+        e0, fc0 = host_topology(f, 0.0)
+        assert np.array_equal(e, e0) and np.array_equal(fc, fc0), k
+
+
+def test_vertices_of_another_grids_topology_are_refused():
+    small, big = voxax.Grid.cube(8), voxax.Grid.cube(12)
+    f, g = norm_field(small), norm_field(big)
+    top = voxax.isosurface_topology(g, big)
+    with pytest.raises(ValueError, match="`topology` must be made on this grid"):
+        voxax.isosurface_vertices(f, top, small)
+    with pytest.raises(Exception, match="`topology` must be made on this grid"):
+        jax.jit(lambda x: voxax.isosurface_vertices(x, top, small))(f).block_until_ready()
+    with pytest.raises(ValueError, match="`topology` must be made on this grid"):
+        voxax.isosurface_vertices(g, voxax.isosurface_topology(g, big, close=True), big)
+    with pytest.raises(ValueError, match="2D grid"):
+        voxax.isosurface_vertices(f[:, :, 0], voxax.isosurface_topology(f, small), voxax.Grid((-1, -1), (1, 1), (8, 8)))
+    with pytest.raises(TypeError, match="IsoMesh"):
+        voxax.isosurface_vertices(f, (top.vertices, top.faces), small)
+    with pytest.raises(ValueError, match="must differ at the two ends"):
+        voxax.isosurface_vertices(np.zeros(big.shape), top, big)
+    ok = voxax.isosurface_vertices(g, top, big)
+    np.testing.assert_allclose(ok, top.vertices, rtol=0, atol=1e-12)
 
 
 # -- gradients -------------------------------------------------------------------------------
@@ -410,6 +476,8 @@ def test_bad_input():
         voxax.isosurface(f.astype(np.complex128), grid)
     with pytest.raises(ValueError, match="close"):
         voxax.isosurface(f, grid, close=-5.0)
+    with pytest.raises(TypeError, match="`close` must be"):
+        voxax.isosurface(f, grid, close="yes")
     with pytest.warns(RuntimeWarning, match="does not cross"):
         iso = voxax.isosurface(f, grid, level=10.0)
     assert iso.vertices.shape == (0, 3) and iso.faces.shape == (0, 3)

@@ -177,6 +177,22 @@ def test_bad_input():
         voxax.isosurface_fn(sphere, 0.5, grid, lipschitz=-1.0)
     with pytest.raises(ValueError, match="band"):
         voxax.isosurface_fn(sphere, 0.5, grid, band=np.zeros((4, 4, 4)))
+    for chunk in (-1, 0, 2.5, True):
+        with pytest.raises(ValueError, match="`chunk` must be an int >= 1"):
+            voxax.isosurface_fn(sphere, 0.5, grid, chunk=chunk)
+    with pytest.raises(ValueError, match="`lipschitz` must be"):
+        voxax.isosurface_fn(sphere, 0.5, grid, lipschitz="1")
+    with pytest.raises(ValueError, match="`close` must be"):
+        voxax.isosurface_fn(sphere, 0.5, grid, close=np.nan)
+    scalar = lambda r, x: jnp.sum(x) - r  # noqa: E731 - one value for all points
+    wide = lambda r, x: jnp.stack([sphere(r, x)] * 2, -1)  # noqa: E731
+    for bad in (scalar, wide):
+        with pytest.raises(ValueError, match=r"must return one value per point, shape \(\d+,\)"):
+            voxax.isosurface_fn(bad, 0.5, grid)
+        with pytest.raises(ValueError, match="one value per point"):
+            jax.jit(lambda r, bad=bad: voxax.isosurface_fn(bad, r, grid, capacity=500).vertices)(0.5)
+    with pytest.raises(TypeError, match="real values"):
+        voxax.isosurface_fn(lambda r, x: sphere(r, x) * 1j, 0.5, grid)
     with pytest.raises(TypeError, match="eager"):
         jax.jit(
             lambda r: (
@@ -185,3 +201,31 @@ def test_bad_input():
                 ).vertices
             )
         )(0.5)
+
+
+def test_eager_calls_reuse_the_compiled_field():
+    """Repeated eager calls with the same field function trace it once per structure (vertex
+    counts vary within a power of two), and give the same result as a fresh function."""
+    traced = []
+
+    def field(r, x):
+        traced.append(isinstance(x, jax.core.Tracer))
+        return jnp.linalg.norm(x, axis=-1) - r
+
+    grid = voxax.Grid.cube(16)
+    first = voxax.isosurface_fn(field, 0.5, grid)
+    n = len(traced)
+    assert n and all(traced)
+    counts = set()
+    for r in (0.5, 0.53, 0.56, 0.6):  # 312 to 449 vertices: one bucket of 512
+        iso = voxax.isosurface_fn(field, r, grid)
+        counts.add(int(iso.n_vertices))
+        g = jax.grad(lambda r: jnp.sum(voxax.isosurface_fn(field, r, grid).vertices))(r)
+        assert np.isfinite(g)
+    assert len(counts) > 1 and len(traced) <= n + 2  # the gradient's trace, at most
+    fresh = voxax.isosurface_fn(lambda r, x: jnp.linalg.norm(x, axis=-1) - r, 0.5, grid)
+    assert np.asarray(fresh.vertices).tobytes() == np.asarray(first.vertices).tobytes()
+    # a field written with NumPy (not traceable) still runs, uncompiled
+    np_field = lambda r, x: np.linalg.norm(np.asarray(x), axis=-1) - r  # noqa: E731
+    out = voxax.isosurface_fn(np_field, 0.5, grid, rule="interpolation")
+    assert np.array_equal(out.faces, first.faces)

@@ -1,13 +1,16 @@
 """The eager isosurface swept over slabs of x planes: the same result, bit for bit, as one sweep."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from _iso_checks import assert_closed_manifold
 from scipy.ndimage import gaussian_filter
 
 import voxax
-from voxax import _isosurface
-from voxax._isosurface import _close_value, _isosurface_streamed, _pad, host_topology
+from voxax._isosurface import stream
+from voxax._isosurface.checks import _pad
+from voxax._isosurface.stream import _close_value, _isosurface_streamed
+from voxax._kernels.contour import topology as host_topology
 
 
 def _same(a, b):
@@ -58,7 +61,7 @@ def test_automatic_slabs_and_non_contiguous_input(rng, monkeypatch):
     grid = voxax.Grid.cube(12)
     f = gaussian_filter(rng.standard_normal(grid.shape), 1.5)
     whole = voxax.isosurface(f, grid, 0.0, close=True)
-    monkeypatch.setattr(_isosurface, "_SLAB_CELLS", 2 * 14 * 14)  # 2 planes of the padded grid
+    monkeypatch.setattr(stream, "_SLAB_CELLS", 2 * 14 * 14)  # 2 planes of the padded grid
     _same(voxax.isosurface(f, grid, 0.0, close=True), whole)
     # a transposed view is read slab by slab (copied one slab at a time)
     ft = np.ascontiguousarray(f.transpose(2, 1, 0)).transpose(2, 1, 0)
@@ -80,3 +83,40 @@ def test_bad_values_in_a_later_slab(rng):
     with pytest.warns(RuntimeWarning, match="does not cross"):
         iso = _isosurface_streamed(np.ones(grid.shape), grid, 0.0, "below", False, planes=3)
     assert int(iso.n_faces) == 0 and float(iso.min_gap) == np.inf
+
+
+def test_threads_follow_the_one_rule(monkeypatch):
+    """`threads` and VOXAX_NUM_THREADS reach the kernel through `voxax._kernels.threads`;
+    any count gives the same bits; bad counts are refused naming the function."""
+    from voxax._kernels import contour
+
+    grid = voxax.Grid.cube(12)
+    f = np.linalg.norm(grid.centers(), axis=-1) - 0.55
+    seen = []
+    real = contour.resolve_threads
+    monkeypatch.setattr(contour, "resolve_threads", lambda t: seen.append((t, real(t))) or real(t))
+    one = voxax.isosurface(f, grid, threads=1)
+    monkeypatch.setenv("VOXAX_NUM_THREADS", "3")
+    env = voxax.isosurface(f, grid, close=True)
+    sdf = voxax.isosurface_fn(lambda r, x: jnp.linalg.norm(x, axis=-1) - r, 0.55, grid, threads=2)
+    assert seen[0] == (1, 1) and (None, 3) in seen and (2, 2) in seen
+    _same(one, voxax.isosurface(f, grid, threads=2))
+    assert int(env.n_faces) == int(one.n_faces) == int(sdf.n_faces) > 0
+    for bad, err in ((0, ValueError), (-2, ValueError), (1.5, TypeError), (True, TypeError)):
+        with pytest.raises(err, match=r"voxax.isosurface: `threads` must be"):
+            voxax.isosurface(f, grid, threads=bad)
+        with pytest.raises(err, match=r"voxax.isosurface_topology: `threads` must be"):
+            voxax.isosurface_topology(f, grid, threads=bad)
+
+
+def test_concurrent_python_threads_give_the_same_bits():
+    """Four Python threads calling at once (ctypes releases the GIL) get the bits of one call."""
+    import concurrent.futures
+
+    grid = voxax.Grid.cube(14)
+    f = gaussian_filter(np.random.default_rng(3).standard_normal(grid.shape), 1.2)
+    alone = voxax.isosurface(f, grid, close=True)
+    with concurrent.futures.ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda _: voxax.isosurface(f, grid, close=True, threads=2), range(4)))
+    for got in results:
+        _same(got, alone)

@@ -39,6 +39,7 @@ import re
 import sys
 import time
 import traceback
+import warnings
 
 import jax
 
@@ -1503,7 +1504,9 @@ def run_fc(rng, n_inputs):
 
 def run_marching_cubes(rng, count):
     """Fuzzes the marching-cubes kernel: eager (exact size) and FFI (capacity) paths."""
-    from voxax._isosurface import _Count, _isosurface_streamed, host_topology
+    from voxax._isosurface.stream import _isosurface_streamed
+    from voxax._kernels.contour import Count as _Count
+    from voxax._kernels.contour import topology as host_topology
 
     def field(shape, dtype):
         kind = rng.integers(6)
@@ -1569,22 +1572,70 @@ def run_marching_cubes(rng, count):
         if dim == 2 and len(pf):
             if not (np.array_equal(np.sort(pf[:, 0]), np.arange(len(pe))) and np.array_equal(np.sort(pf[:, 1]), np.arange(len(pe)))):
                 fail(f"{label}: padded 2D output is not made of closed loops")
-        # the capacity path: exact fit, too small (overflow reported, nothing out of bounds)
-        for cap in (max(1, nv), max(1, len(faces)), 1):
+        # the capacity path: a fit equals the eager output; too small is refused, naming the
+        # capacity needed (nothing written out of bounds)
+        for cap in (max(1, nv, len(faces)), max(1, nv), max(1, len(faces)), 1):
             call = jax.ffi.ffi_call(
                 _kernels.MARCHING_CUBES,
                 (jax.ShapeDtypeStruct((cap, 2), jnp.int32), jax.ShapeDtypeStruct((cap, dim), jnp.int32),
                  jax.ShapeDtypeStruct((2,), jnp.int32)),
                 vmap_method="expand_dims",
             )
-            e2, f2, c2 = call(jnp.asarray(f), level=np.float64(level), dim=np.int64(dim))
             CALLS["mc_ffi"] += 1
+            fits = cap >= nv and cap >= len(faces)
+            try:
+                e2, f2, c2 = jax.block_until_ready(call(jnp.asarray(f), level=np.float64(level), dim=np.int64(dim)))
+            except Exception as err:  # noqa: BLE001
+                need = f"needs capacity=({max(nv, cap)}, {max(len(faces), cap)})"
+                if fits or need not in str(err):
+                    fail(f"{label}: capacity {cap} for ({nv}, {len(faces)}): {str(err)[:200]}")
+                continue
+            if not fits:
+                fail(f"{label}: capacity {cap} accepted for ({nv}, {len(faces)})")
             if int(c2[0]) != nv or int(c2[1]) != len(faces):
                 fail(f"{label}: FFI counts {np.asarray(c2)} differ from the eager ({nv}, {len(faces)})")
-            k, kf = min(cap, nv), min(cap, len(faces))
-            if not np.array_equal(np.asarray(e2)[:k], edges[:k]) or not np.array_equal(np.asarray(f2)[:kf], faces[:kf]):
+            if not np.array_equal(np.asarray(e2)[:nv], edges) or not np.array_equal(np.asarray(f2)[: len(faces)], faces):
                 fail(f"{label}: FFI output differs from the eager output")
-    # invalid input: NaN, Inf, bad attributes and output shapes
+        # scale invariance: the topology of 2^k f is that of f (exact products in the decider),
+        # and the eager mesh's vertices are the same bits (subnormal and huge samples included)
+        if f.dtype == np.float64 and level == 0.0 and np.isfinite(f).all():
+            q = np.round(f / max(float(np.abs(f).max()), 1e-300) * 2**10) / 2**10
+            e0, f0 = host_topology(q, 0.0)
+            grid = Grid((0.0,) * dim, tuple(float(n) for n in shape), shape)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                base = voxax.isosurface(q, grid)
+                for k in (-1050, -700, 600):
+                    ek, fk = host_topology(np.ldexp(q, k), 0.0)
+                    CALLS["mc_host"] += 1
+                    if not (np.array_equal(ek, e0) and np.array_equal(fk, f0)):
+                        fail(f"{label}: the topology of 2^{k} f differs from that of f")
+                    iso = voxax.isosurface(np.ldexp(q, k), grid)
+                    CALLS["mc_host"] += 1
+                    if np.asarray(iso.vertices).tobytes() != np.asarray(base.vertices).tobytes():
+                        fail(f"{label}: the vertices of 2^{k} f differ from those of f")
+    # invalid input: NaN, Inf, bad attributes and output shapes, another grid's topology,
+    # bad arguments of isosurface_fn
+    g8, g12 = Grid.cube(8), Grid.cube(12)
+    f12 = np.linalg.norm(g12.centers(), axis=-1) - 0.5
+    sphere = lambda r, x: jnp.linalg.norm(x, axis=-1) - r  # noqa: E731
+    top12 = voxax.isosurface_topology(f12, g12)
+    hostile = {
+        "topology of another grid": (lambda: voxax.isosurface_vertices(f12[:8, :8, :8], top12, g8), "made on this grid"),
+        "topology of another grid (jit)": (lambda: jax.block_until_ready(jax.jit(lambda x: voxax.isosurface_vertices(x, top12, g8))(f12[:8, :8, :8])), "made on this grid"),
+        "isosurface_fn chunk -1": (lambda: voxax.isosurface_fn(sphere, 0.5, g8, chunk=-1), "chunk"),
+        "isosurface_fn scalar field": (lambda: voxax.isosurface_fn(lambda r, x: jnp.sum(x) - r, 0.5, g8), "one value per point"),
+        "isosurface threads 0": (lambda: voxax.isosurface(f12, g12, threads=0), "threads"),
+        "isosurface close string": (lambda: voxax.isosurface(f12, g12, close="yes"), "close"),
+    }
+    for name, (call, match) in hostile.items():
+        COUNTS["marching_cubes_invalid"] += 1
+        try:
+            call()
+            fail(f"marching cubes: {name} accepted")
+        except Exception as err:  # noqa: BLE001
+            if match not in str(err) or "voxax" not in str(err):
+                fail(f"marching cubes: {name}: unclear error {str(err)[:200]!r}")
     for bad in (np.nan, np.inf):
         f = np.zeros((4, 4, 4))
         f[1, 2, 3] = bad
