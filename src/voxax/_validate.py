@@ -467,3 +467,17 @@ def check_allocation(where: str, nbytes: float, what: str) -> None:
             f"{where}: {what} needs about {nbytes / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB "
             "of memory available; use a coarser grid"
         )
+
+
+def int32_faces(faces):
+    """Faces as an int32 JAX array. Concrete indices are cast (check their range first);
+    traced ones are clipped to [-1, 2^31 - 1] first, so that indices beyond int32 stay out
+    of range (and the kernels refuse them) instead of wrapping into it."""
+    import jax.numpy as jnp
+
+    kind = np.dtype(faces.dtype)
+    if kind == np.int32:
+        return jnp.asarray(faces)
+    if is_concrete(faces):
+        return jnp.asarray(np.asarray(faces).astype(np.int32))
+    return jnp.clip(faces, -1 if kind.kind == "i" else 0, INT32_MAX).astype(jnp.int32)

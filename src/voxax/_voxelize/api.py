@@ -93,36 +93,13 @@ def _check(vertices, faces, grid, where="voxax.voxelize"):
     batch = np.broadcast_shapes(tuple(vertices.shape[:-2]), tuple(faces.shape[:-2]))
     _check_memory(grid, batch, vdtype)
     vertices = jnp.asarray(vertices, dtype=vdtype)
-    fdtype = np.dtype(faces.dtype)
-    if fdtype != np.int32:
-        if _validate.is_concrete(faces):
-            faces = np.asarray(faces).astype(np.int32)  # in range: checked above
-        else:
-            # Traced indices are checked in the kernel; clipping first keeps values
-            # beyond int32 out of range instead of wrapping them into it.
-            faces = jnp.clip(faces, -1 if fdtype.kind == "i" else 0, _INT32_MAX).astype(jnp.int32)
-    faces = jnp.asarray(faces)
-    return vertices, faces
-
-
-def _available_memory() -> int:
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return 1 << 62
+    return vertices, _validate.int32_faces(faces)  # concrete indices: in range, checked above
 
 
 def _check_memory(grid: Grid, batch, dtype) -> None:
     count = int(np.prod(batch, dtype=np.float64)) * grid.size
     nbytes = count * np.dtype(dtype).itemsize
-    available = _available_memory()
+    available = _validate.available_memory()
     if nbytes > available:
         raise MemoryError(
             f"voxax.voxelize: the output of shape {tuple(batch) + grid.shape} needs {nbytes / 2**30:.1f} GiB, "

@@ -475,13 +475,7 @@ def _check(where, vertices, faces, grid):
     if vdtype == np.float64 and not jax.config.jax_enable_x64:
         vdtype = np.dtype(np.float32)
     vertices = jnp.asarray(vertices, dtype=vdtype)
-    fdtype = np.dtype(faces.dtype)
-    if fdtype != np.int32:
-        if _validate.is_concrete(faces):
-            faces = np.asarray(faces).astype(np.int32)  # in range: checked above
-        else:
-            faces = jnp.clip(faces, -1 if fdtype.kind == "i" else 0, _INT32_MAX).astype(jnp.int32)
-    return vertices, jnp.asarray(faces)
+    return vertices, _validate.int32_faces(faces)  # concrete indices: in range, checked above
 
 
 def _lead(vertices, faces):
