@@ -16,18 +16,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 import time
 import warnings
 from collections.abc import Callable
-
-from ._cli_types import at_least as _at_least
-from ._cli_types import integer as _integer
-from ._cli_types import non_negative as _non_negative
-from ._cli_types import number as _number
-from ._cli_types import positive as _positive
-from ._cli_types import resolution as _resolution
 
 __all__ = ["COMMANDS", "Command", "UsageError", "build_parser", "main"]
 
@@ -63,6 +57,66 @@ class _Parser(argparse.ArgumentParser):
         err = UsageError(f"{message} (see '{self.prog} --help')")
         err.prog = self.prog
         raise err
+
+
+# -- option types: each check gives one clear line ------------------------------------------
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _resolution(multiple: int = 1, least: int = 1) -> Callable[[str], int]:
+    least = max(least, multiple)
+
+    def check(text: str) -> int:
+        n = _integer(text)
+        if n < least:
+            raise argparse.ArgumentTypeError(f"the resolution must be at least {least}, got {n}")
+        if n % multiple:
+            raise argparse.ArgumentTypeError(f"the resolution must be a multiple of {multiple}, got {n}")
+        return n
+
+    check.__name__ = "resolution"
+    return check
+
+
+def _at_least(least: int) -> Callable[[str], int]:
+    def check(text: str) -> int:
+        n = _integer(text)
+        if n < least:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {least}, got {n}")
+        return n
+
+    check.__name__ = "count"
+    return check
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
 
 
 # -- shared pieces ----------------------------------------------------------------------------
