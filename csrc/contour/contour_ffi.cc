@@ -20,6 +20,7 @@
 #include "common/batch.h"
 #include "common/constants.h"
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/host_pool.h"
 #include "common/parallel.h"
@@ -89,9 +90,15 @@ ffi::Error mc_impl(ffi::ThreadPool* pool, const Shape& sh, int64_t batch, const 
   return ffi::Error::Success();
 }
 
+constexpr char kLevel[] = "level";
+constexpr char kDim[] = "dim";
+
 ffi::Error MarchingCubes(ffi::ThreadPool pool, ffi::AnyBuffer values,
                          ffi::Result<ffi::AnyBuffer> edges, ffi::Result<ffi::AnyBuffer> faces,
-                         ffi::Result<ffi::AnyBuffer> counts, double level, int64_t dim) {
+                         ffi::Result<ffi::AnyBuffer> counts, ffi::Attr<double, kLevel> level_attr,
+                         ffi::Attr<int64_t, kDim> dim_attr) {
+  const double level = *level_attr;
+  const int64_t dim = *dim_attr;
   if (dim != 2 && dim != 3)
     return ffi::Error::InvalidArgument("voxax.isosurface: dim must be 2 or 3");
   if (!std::isfinite(level))
@@ -155,18 +162,7 @@ ffi::Error MarchingCubes(ffi::ThreadPool pool, ffi::AnyBuffer values,
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_marching_cubes, MarchingCubes)
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_marching_cubes, voxax::MarchingCubes,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::AnyBuffer>()
-                                  .Attr<double>("level")
-                                  .Attr<int64_t>("dim"));
-
-#pragma GCC visibility pop

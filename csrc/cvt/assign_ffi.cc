@@ -9,6 +9,7 @@
 #include <string>
 
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/parallel.h"
 #include "cvt/assign.h"
 #include "cvt/assign_checks.h"
@@ -49,20 +50,7 @@ ffi::Error CvtAssign(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> seeds,
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_cvt_assign, CvtAssign)
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_cvt_assign, voxax::CvtAssign,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>());
-
-#pragma GCC visibility pop

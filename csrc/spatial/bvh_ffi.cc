@@ -16,6 +16,7 @@
 #include "common/batch.h"
 #include "common/constants.h"
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/host_errors.h"
 #include "common/parallel.h"
@@ -108,11 +109,16 @@ ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
   });
 }
 
+constexpr char kTMin[] = "t_min";
+constexpr char kTMax[] = "t_max";
+
 ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
                      ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::F64> origins,
                      ffi::Buffer<ffi::F64> directions, ffi::ResultBuffer<ffi::F64> t,
                      ffi::ResultBuffer<ffi::S32> face, ffi::ResultBuffer<ffi::F64> bary,
-                     ffi::ResultBuffer<ffi::S32> sign, double t_min, double t_max) {
+                     ffi::ResultBuffer<ffi::S32> sign, ffi::Attr<double, kTMin> t_min_attr,
+                     ffi::Attr<double, kTMax> t_max_attr) {
+  const double t_min = *t_min_attr, t_max = *t_max_attr;
   return guarded("the BVH", [&]() -> ffi::Error {
     int64_t n = 0, nd = 0;
     ffi::Error err = check_rows3(origins, "ray origins", &n);
@@ -164,33 +170,8 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_closest_points, ClosestPoints)
+VOXAX_FFI_HANDLER(voxax_first_hits, FirstHits)
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_closest_points, voxax::ClosestPoints,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>());
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_first_hits, voxax::FirstHits,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Attr<double>("t_min")
-                                  .Attr<double>("t_max"));
-
-#pragma GCC visibility pop

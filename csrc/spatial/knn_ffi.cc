@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/parallel.h"
 #include "spatial/knn.h"
 #include "spatial/knn_checks.h"
@@ -56,16 +57,7 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_knn, Knn)
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_knn, voxax::Knn,
-                              xla::ffi::Ffi::Bind()
-                                  .Ctx<xla::ffi::ThreadPool>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::F64>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::F64>>());
-
-#pragma GCC visibility pop

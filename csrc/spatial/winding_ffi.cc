@@ -13,7 +13,7 @@
 
 #include "common/constants.h"
 #include "common/errors.h"
-#include "xla/ffi/api/ffi.h"
+#include "common/ffi_bind.h"
 
 namespace voxax {
 namespace {
@@ -71,15 +71,7 @@ ffi::Error WindingCheck(ffi::AnyBuffer vertices, ffi::Buffer<ffi::S32> faces, ff
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_winding_check, WindingCheck)
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_winding_check, voxax::WindingCheck,
-                              xla::ffi::Ffi::Bind()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()
-                                  .Arg<xla::ffi::AnyBuffer>()
-                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>());
-
-#pragma GCC visibility pop

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "common/batch.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/validate.h"
 #include "xla/ffi/api/ffi.h"
@@ -137,11 +138,7 @@ void with_float_type(const ffi::AnyBuffer& vertices, Fn&& fn) {
 // `kExtra` more buffers (the cotangent or the tangents), one result, the grid attributes.
 template <int kExtra>
 auto voxelize_binding() {
-  auto mesh = ffi::Ffi::Bind().Ctx<ffi::ThreadPool>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>();
-  if constexpr (kExtra == 0)
-    return with_grid_attributes(std::move(mesh).Ret<ffi::AnyBuffer>());
-  else
-    return with_grid_attributes(std::move(mesh).Arg<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>());
+  return with_grid_attributes(buffers_binding<2 + kExtra, 1>());
 }
 
 }  // namespace voxax

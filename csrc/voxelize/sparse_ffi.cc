@@ -30,6 +30,7 @@
 
 #include "common/batch.h"
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/parallel.h"
 #include "common/validate.h"
@@ -477,38 +478,10 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_sparse_forward, Forward,
+                  (with_grid_attributes(buffers_binding<2, 5>()).Attr<int64_t>("strict")))
+VOXAX_FFI_HANDLER(voxax_sparse_backward, Backward, (with_grid_attributes(buffers_binding<5, 1>())))
+VOXAX_FFI_HANDLER(voxax_sparse_tangent, Tangent, (with_grid_attributes(buffers_binding<5, 1>())))
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_sparse_forward, voxax::Forward,
-                              voxax::with_grid_attributes(voxax::ffi::Ffi::Bind()
-                                                              .Ctx<voxax::ffi::ThreadPool>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>())
-                                  .Attr<int64_t>("strict"));
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_sparse_backward, voxax::Backward,
-                              voxax::with_grid_attributes(voxax::ffi::Ffi::Bind()
-                                                              .Ctx<voxax::ffi::ThreadPool>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()));
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_sparse_tangent, voxax::Tangent,
-                              voxax::with_grid_attributes(voxax::ffi::Ffi::Bind()
-                                                              .Ctx<voxax::ffi::ThreadPool>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Arg<voxax::ffi::AnyBuffer>()
-                                                              .Ret<voxax::ffi::AnyBuffer>()));
-
-#pragma GCC visibility pop

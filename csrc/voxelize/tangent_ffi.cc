@@ -17,6 +17,7 @@
 #include "common/batch.h"
 #include "common/constants.h"
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/parallel.h"
 #include "common/validate.h"
@@ -123,10 +124,7 @@ ffi::Error Tangent(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffer
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_tangent, Tangent, voxelize_binding<1>())
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_tangent, voxax::Tangent, voxax::voxelize_binding<1>());
-
-#pragma GCC visibility pop

@@ -20,6 +20,7 @@
 
 #include "common/batch.h"
 #include "common/errors.h"
+#include "common/ffi_bind.h"
 #include "common/grid.h"
 #include "common/parallel.h"
 #include "common/validate.h"
@@ -148,11 +149,8 @@ ffi::Error Backward(ffi::ThreadPool pool, ffi::AnyBuffer vertices, ffi::AnyBuffe
 }
 
 }  // namespace
+
+VOXAX_FFI_HANDLER(voxax_forward, Forward, voxelize_binding<0>())
+VOXAX_FFI_HANDLER(voxax_backward, Backward, voxelize_binding<1>())
+
 }  // namespace voxax
-
-#pragma GCC visibility push(default)
-
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_forward, voxax::Forward, voxax::voxelize_binding<0>());
-XLA_FFI_DEFINE_HANDLER_SYMBOL(voxax_backward, voxax::Backward, voxax::voxelize_binding<1>());
-
-#pragma GCC visibility pop
