@@ -107,6 +107,7 @@ class PointGrid {
       if (tn > cap) {  // keep the last size within the bound
         for (int a = 0; a < 3; ++a) {
           h_[a] = save[a];
+          inv_h_[a] = 1.0 / h_[a];
           dim_[a] = dsave[a];
         }
         break;
@@ -186,7 +187,7 @@ class PointGrid {
     auto scan = [&](int64_t b, int64_t e) {
       for (int64_t s = b; s < e; ++s) {
         const double d2 = point_d2(&pts_[3 * static_cast<size_t>(s)], q);
-        if (best.full() && d2 > best.d2[k - 1]) continue;
+        if (d2 > best.d2[k - 1]) continue;  // +inf while the list is not full
         best.offer(d2, order_[s]);
       }
     };
@@ -221,7 +222,7 @@ class PointGrid {
       for (const auto& o : kOrder) {
         const int64_t i = c[0] + o[0], j = c[1] + o[1];
         if (i < 0 || i >= dim_[0] || j < 0 || j >= dim_[1]) continue;
-        if (best.full() && ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > best.d2[k - 1]) continue;
+        if (ax[0][o[0] + 1] + ax[1][o[1] + 1] + az > best.d2[k - 1]) continue;
         const int64_t row = (i * dim_[1] + j) * dim_[2];
         scan(start_[row + k0], start_[row + k1 + 1]);
       }
@@ -282,6 +283,7 @@ class PointGrid {
   std::vector<int32_t> order_;
   int64_t n_ = 0;
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0}, h_[3] = {1, 1, 1};
+  double inv_h_[3] = {1, 1, 1};  // 1 / h_: binning multiplies (monotone, as dividing is)
   int64_t dim_[3] = {1, 1, 1};
   bool far_index_ = false;
   double far_d2_ = 0.0;  // (kGridRings times the smallest cell side)^2
@@ -304,7 +306,7 @@ class PointGrid {
   bool beyond(const double* q) const {
     if (!far_index_) return false;
     for (int a = 0; a < 3; ++a) {
-      const double u = (q[a] - lo_[a]) / h_[a];
+      const double u = (q[a] - lo_[a]) * inv_h_[a];
       if (!(u >= -1.0) || !(u < static_cast<double>(dim_[a] + 1))) return true;
     }
     return false;
@@ -316,12 +318,13 @@ class PointGrid {
       dim_[a] = std::max<int64_t>(
           1, std::min<int64_t>(1024, static_cast<int64_t>(std::ceil(ext[a] / h))));
       h_[a] = ext[a] > 0.0 ? ext[a] / static_cast<double>(dim_[a]) : 1.0;
+      inv_h_[a] = 1.0 / h_[a];
       total *= dim_[a];
     }
     return total;
   }
   int64_t coord(const double* p, int a) const {
-    const double u = (p[a] - lo_[a]) / h_[a];
+    const double u = (p[a] - lo_[a]) * inv_h_[a];
     if (!(u > 0.0)) return 0;
     const double top = static_cast<double>(dim_[a] - 1);
     return static_cast<int64_t>(std::min(std::floor(u), top));
@@ -365,6 +368,25 @@ inline std::vector<int64_t> query_order(const double* Q, int64_t m) {
   for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
   for (int64_t i = 0; i < m; ++i) order[start[key(i)]++] = i;
   return order;
+}
+
+// Answers the queries order[b], ..., order[e - 1] of Q (m, 3) (k neighbours each, into
+// idx and dist (m, k)). The order is spatially coherent but scattered in memory: each
+// block of queries is first gathered into a local array (independent loads, which the
+// processor overlaps), so that the searches do not wait on a cache miss for every query.
+inline void query_run(const PointGrid& grid, const double* Q, const int64_t* order, int64_t b,
+                      int64_t e, int k, int32_t* idx, double* dist) {
+  constexpr int64_t kBlock = 64;
+  double q[3 * kBlock];
+  for (int64_t s0 = b; s0 < e; s0 += kBlock) {
+    const int64_t len = std::min(kBlock, e - s0);
+    for (int64_t t = 0; t < len; ++t)
+      for (int a = 0; a < 3; ++a) q[3 * t + a] = Q[3 * order[s0 + t] + a];
+    for (int64_t t = 0; t < len; ++t) {
+      const int64_t i = order[s0 + t];
+      grid.query(q + 3 * t, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
+    }
+  }
 }
 
 }  // namespace spatial

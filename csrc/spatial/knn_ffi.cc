@@ -47,10 +47,8 @@ ffi::Error Knn(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> points, ffi::Buffer<f
     const int64_t chunks = (m + kKnnChunk - 1) / kKnnChunk;
     const std::vector<int64_t> order = spatial::query_order(Q, m);
     ParallelFor::run(&pool, chunks, [&](int64_t c) {
-      for (int64_t s = c * kKnnChunk; s < std::min(m, (c + 1) * kKnnChunk); ++s) {
-        const int64_t i = order[s];
-        grid.query(Q + 3 * i, static_cast<int>(k), I + k * i, D + k * i);
-      }
+      spatial::query_run(grid, Q, order.data(), c * kKnnChunk, std::min(m, (c + 1) * kKnnChunk),
+                         static_cast<int>(k), I, D);
     });
     return ffi::Error::Success();
   });

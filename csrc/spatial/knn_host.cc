@@ -31,10 +31,7 @@ extern "C" __attribute__((visibility("default"))) int voxax_knn_host(const doubl
     grid.build(S, n, true, voxax::spatial::knn_points_per_cell(k));
     const std::vector<int64_t> order = voxax::spatial::query_order(Q, m);
     voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      for (int64_t s = b; s < e; ++s) {
-        const int64_t i = order[s];
-        grid.query(Q + 3 * i, k, idx + int64_t{k} * i, dist + int64_t{k} * i);
-      }
+      voxax::spatial::query_run(grid, Q, order.data(), b, e, k, idx, dist);
     });
     return true;
   });
