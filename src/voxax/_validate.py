@@ -37,6 +37,8 @@ __all__ = [
     "positive_int",
     "positive_float",
     "face_kind",
+    "coordinates",
+    "ray_interval",
 ]
 
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -340,6 +342,50 @@ def positive_float(where: str, name: str, value, allow_zero: bool = False) -> fl
     if not (ok and math.isfinite(out)):
         raise ValueError(f"{where}: `{name}` must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
     return out
+
+
+def coordinates(where: str, name: str, value, d: int = 3):
+    """Checks an array of points `(..., d)`: a real (float or integer) dtype, never bool,
+    complex or strings, and, when concrete, finite values of magnitude at most
+    `MAX_ABS_COORDINATE`. Array-likes become NumPy arrays; other arrays (JAX arrays,
+    tracers) are returned unchanged."""
+    if not hasattr(value, "dtype"):
+        try:
+            value = np.asarray(value)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `{name}` must be a real array of {d}D points, got {type(value).__name__}") from None
+    kind = np.dtype(value.dtype).kind
+    if kind not in "fiu":
+        raise TypeError(f"{where}: `{name}` must be a real (float or integer) array, got {value.dtype}")
+    if value.ndim < 1 or value.shape[-1] != d:
+        raise ValueError(f"{where}: `{name}` must have shape (..., {d}), got {tuple(value.shape)}")
+    if kind == "f" and is_concrete(value) and value.size:
+        a = np.asarray(value)
+        hi, lo = a.max(), a.min()  # NaN propagates through both reductions, Inf shows
+        if not (np.isfinite(hi) and np.isfinite(lo)):
+            raise ValueError(f"{where}: `{name}` contain NaN or Inf")
+        if max(float(hi), -float(lo)) > MAX_ABS_COORDINATE:
+            raise ValueError(f"{where}: `{name}` coordinates must have magnitude <= {MAX_ABS_COORDINATE:g}".replace("e+", "e"))
+    elif kind in "iu" and is_concrete(value) and value.size:
+        a = np.asarray(value)
+        if max(abs(int(a.max())), abs(int(a.min()))) > MAX_ABS_COORDINATE:
+            raise ValueError(f"{where}: `{name}` coordinates must have magnitude <= {MAX_ABS_COORDINATE:g}".replace("e+", "e"))
+    return value
+
+
+def ray_interval(where: str, t_min, t_max) -> tuple:
+    """Checks a ray interval `[t_min, t_max]` (numbers, not NaN, `t_min <= t_max`);
+    returns it as floats."""
+    out = []
+    for name, t in (("t_min", t_min), ("t_max", t_max)):
+        if isinstance(t, (str, bytes, bool)) or not isinstance(t, (int, float, np.integer, np.floating)):
+            if not (hasattr(t, "shape") and np.shape(t) == () and np.dtype(t.dtype).kind in "fiu"):
+                raise TypeError(f"{where}: `{name}` must be a number, got {type(t).__name__}")
+        out.append(float(t))
+    lo, hi = out
+    if math.isnan(lo) or math.isnan(hi) or not lo <= hi:
+        raise ValueError(f"{where}: the ray interval needs t_min <= t_max (neither NaN), got [{lo}, {hi}]")
+    return lo, hi
 
 
 def key_or_seed(where: str, key, seed=None, default=0):

@@ -28,7 +28,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _kernels, _validate
-from .._constants import MAX_ABS_COORDINATE
 from .._kernels import spatial as kernels
 from .._mesh import Mesh
 
@@ -55,21 +54,9 @@ def real_vertices(where: str, x):
     return x
 
 
-def as_coords(x, name: str) -> np.ndarray:
-    a = np.asarray(x)
-    if a.dtype.kind not in "fiu":
-        raise TypeError(f"{name} must be a real array, got dtype {a.dtype}")
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    if a.ndim < 1 or a.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (..., 3), got {a.shape}")
-    if a.size:
-        # two reductions without temporaries: NaN propagates through both, Inf shows
-        hi, lo = a.max(), a.min()
-        if not (np.isfinite(hi) and np.isfinite(lo)):
-            raise ValueError(f"{name} contain NaN or Inf")
-        if max(hi, -lo) > MAX_ABS_COORDINATE:
-            raise ValueError(f"{name} coordinate magnitude exceeds 1e75")
-    return a
+def as_coords(x, name: str, where: str) -> np.ndarray:
+    """Concrete points `(..., 3)` as contiguous float64 (checked by `_validate.coordinates`)."""
+    return np.ascontiguousarray(_validate.coordinates(where, name, x), dtype=np.float64)
 
 
 class ClosestPoints(NamedTuple):
@@ -155,7 +142,7 @@ class BVH:
             mesh = Mesh(*_validate.mesh_like(where, (real_vertices(where, v), f)))
         if mesh.dim != 3:
             raise ValueError(f"{where}: needs a 3D triangle mesh, got a 2D polyline")
-        v = as_coords(mesh.vertices, "vertices")
+        v = as_coords(mesh.vertices, "vertices", where)
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
         handle = kernels.bvh_build(v, f)
         self._handle = handle
@@ -190,12 +177,13 @@ class BVH:
 
         **Returns:** [`ClosestPoints`][voxax.ClosestPoints] with leading shape `(...)`.
         """
-        p = as_coords(points, "points")
+        return self._closest(points, threads, max_distance, "voxax.BVH.closest_points")
+
+    def _closest(self, points, threads, max_distance, where: str) -> ClosestPoints:
+        p = as_coords(points, "points", where)
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
-        cap = np.inf if max_distance is None else float(max_distance)
-        if not cap >= 0.0:
-            raise ValueError(f"closest_points: max_distance must be >= 0, got {max_distance}")
+        cap = np.inf if max_distance is None else _validate.positive_float(where, "max_distance", max_distance, True)
         dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _threads(threads))
         return ClosestPoints(
             dist.reshape(lead),
@@ -204,29 +192,20 @@ class BVH:
             point.reshape(lead + (3,)),
         )
 
-    def _rays(self, origins, directions, t_min, t_max):
-        o = as_coords(origins, "ray origins")
-        d = as_coords(directions, "ray directions")
-        try:
-            lead = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
-        except ValueError:
-            raise ValueError(
-                f"ray origins {o.shape} and directions {d.shape} must broadcast to one shape (..., 3)"
-            ) from None
+    def _rays(self, origins, directions, t_min, t_max, where):
+        o = as_coords(origins, "origins", where)
+        d = as_coords(directions, "directions", where)
+        lead = ray_shape(where, o.shape, d.shape)
         o = np.ascontiguousarray(np.broadcast_to(o, lead + (3,)).reshape(-1, 3))
         d = np.ascontiguousarray(np.broadcast_to(d, lead + (3,)).reshape(-1, 3))
         zero = (d[:, 0] == 0) & (d[:, 1] == 0) & (d[:, 2] == 0)
         if zero.any():
-            raise ValueError(f"ray direction {int(np.flatnonzero(zero)[0])} is zero")
-        t_min, t_max = float(t_min), float(t_max)
-        if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
-            raise ValueError(
-                f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
-            )
+            raise ValueError(f"{where}: `directions` must be non-zero, but direction {int(np.flatnonzero(zero)[0])} is zero")
+        t_min, t_max = _validate.ray_interval(where, t_min, t_max)
         return o, d, lead, t_min, t_max
 
-    def _first(self, origins, directions, t_min, t_max, any_hit, threads):
-        o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max)
+    def _first(self, origins, directions, t_min, t_max, any_hit, threads, where):
+        o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max, where)
         t, face, bary, sign = kernels.bvh_first_hits(self._handle, o, d, t_min, t_max, any_hit, _threads(threads))
         return RayHits(
             t.reshape(lead),
@@ -259,7 +238,7 @@ class BVH:
 
         **Returns:** [`RayHits`][voxax.RayHits].
         """
-        return self._first(origins, directions, t_min, t_max, False, threads)
+        return self._first(origins, directions, t_min, t_max, False, threads, "voxax.BVH.first_hits")
 
     def any_hits(
         self,
@@ -272,7 +251,7 @@ class BVH:
     ) -> np.ndarray:
         """Whether each ray hits the mesh within `[t_min, t_max]` (stops at the first hit
         found, so it is cheaper than `first_hits`). **Returns:** `(...)` bool."""
-        return self._first(origins, directions, t_min, t_max, True, threads).hit
+        return self._first(origins, directions, t_min, t_max, True, threads, "voxax.BVH.any_hits").hit
 
     def all_hits(
         self,
@@ -291,12 +270,25 @@ class BVH:
 
         **Returns:** [`AllHits`][voxax.AllHits] (ray indices in C order of the rays' shape).
         """
-        o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max)
+        return self._all(origins, directions, t_min, t_max, threads, "voxax.BVH.all_hits")
+
+    def _all(self, origins, directions, t_min, t_max, threads, where: str) -> AllHits:
+        o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max, where)
         n = len(o)
         counts, t, face, bary, sign = kernels.bvh_all_hits(self._handle, o, d, t_min, t_max, _threads(threads))
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         ray = np.repeat(np.arange(n, dtype=np.int64), counts)
         return AllHits(offsets, ray, t, face, bary, sign)
+
+
+def ray_shape(where: str, a: tuple, b: tuple) -> tuple:
+    """The broadcast leading shape of ray origins `a (..., 3)` and directions `b (..., 3)`."""
+    try:
+        return tuple(np.broadcast_shapes(tuple(a[:-1]), tuple(b[:-1])))
+    except ValueError:
+        raise ValueError(
+            f"{where}: `origins` {tuple(a)} and `directions` {tuple(b)} must broadcast to one shape (..., 3)"
+        ) from None
 
 
 def _as_bvh(mesh, where: str) -> BVH:
@@ -309,55 +301,31 @@ def any_traced(*xs) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
 
 
-def _mesh_arrays(mesh):
+def _mesh_arrays(mesh, where: str):
     """(vertices (V, 3) f64, faces (F, 3) int32) as JAX arrays, for the FFI path."""
     import jax.numpy as jnp
 
     if isinstance(mesh, BVH):
         mesh = mesh.mesh
     if _validate.is_mesh_object(mesh):
-        v, f = _validate.mesh_object_arrays("voxax.closest_points / first_hits", mesh)
+        v, f = _validate.mesh_object_arrays(where, mesh)
     elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         v, f = mesh
     else:
-        raise TypeError("voxax.closest_points / first_hits: `mesh` must be a Mesh, a trimesh.Trimesh, a "
-                        "(vertices, faces) pair or a BVH")
+        raise TypeError(f"{where}: `mesh` must be a Mesh, a trimesh.Trimesh, a (vertices, faces) pair or a BVH")
     if not jax.config.jax_enable_x64:
-        raise ValueError(
-            "the jit path of the BVH queries computes in float64: enable jax_enable_x64"
-        )
-    v, f = jnp.asarray(real_vertices("voxax.closest_points / first_hits", v)), jnp.asarray(f)
-    if v.ndim != 2 or v.shape[-1] != 3:
-        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[-1] != 3:
-        raise ValueError(f"faces must have shape (F, 3), got {f.shape}")
-    if not jnp.issubdtype(f.dtype, jnp.integer):
-        raise TypeError(f"faces must be an integer array, got dtype {f.dtype}")
-    if f.dtype != jnp.int32:
-        if _validate.is_concrete(f) and f.size:
-            lo, hi = int(f.min()), int(f.max())
-            if lo < 0 or hi >= v.shape[0]:
-                raise ValueError(
-                    f"face indices out of range: they must lie in [0, {v.shape[0]}), got [{lo}, {hi}]"
-                )
-        # Indices beyond int32 become -1 or 2^31 - 1 (still out of range, so the kernel
-        # refuses them) instead of wrapping into range.
-        lo = -1 if jnp.issubdtype(f.dtype, jnp.signedinteger) else 0
-        f = jnp.clip(f, lo, _validate.INT32_MAX).astype(jnp.int32)
-    return v.astype(jnp.float64), f
+        raise ValueError(f"{where}: under jax.jit the BVH queries compute in float64: enable jax_enable_x64")
+    v, f = _validate.mesh(where, real_vertices(where, v), f, dim=3, integer_vertices=True, context="triangles")
+    # traced indices beyond int32 become -1 or 2^31 - 1 (out of range, so the kernel refuses
+    # them) instead of wrapping into range
+    return jnp.asarray(v).astype(jnp.float64), _validate.int32_faces(f)
 
 
-def as_rows(x, name):
+def as_rows(x, name: str, where: str):
+    """Points `(..., 3)` (traced or not) as float64 JAX arrays (checked by `_validate.coordinates`)."""
     import jax.numpy as jnp
 
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating) and not jnp.issubdtype(
-        x.dtype, jnp.integer
-    ):
-        raise TypeError(f"{name} must be a real array, got dtype {x.dtype}")
-    if x.ndim < 1 or x.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (..., 3), got {x.shape}")
-    return x.astype(jnp.float64)
+    return jnp.asarray(_validate.coordinates(where, name, x)).astype(jnp.float64)
 
 
 def _safe_div(num, den):
@@ -431,8 +399,9 @@ def _closest_kernel_jvp(primals, tangents):
 
 
 def _closest_points_ffi(mesh, points) -> ClosestPoints:
-    v, f = _mesh_arrays(mesh)
-    p = as_rows(points, "points")
+    where = "voxax.closest_points"
+    v, f = _mesh_arrays(mesh, where)
+    p = as_rows(points, "points", where)
     lead = p.shape[:-1]
     flat = p.reshape(-1, 3)
     d, fc, b, q = _closest_kernel(v, f, flat)
@@ -447,21 +416,13 @@ def _closest_points_ffi(mesh, points) -> ClosestPoints:
 def _first_hits_ffi(mesh, origins, directions, t_min, t_max) -> RayHits:
     import jax.numpy as jnp
 
-    v, f = _mesh_arrays(mesh)
-    o, d = as_rows(origins, "ray origins"), as_rows(directions, "ray directions")
-    try:
-        lead = jnp.broadcast_shapes(o.shape[:-1], d.shape[:-1])
-    except ValueError:
-        raise ValueError(
-            f"ray origins {o.shape} and directions {d.shape} must broadcast to one shape (..., 3)"
-        ) from None
+    where = "voxax.first_hits"
+    v, f = _mesh_arrays(mesh, where)
+    o, d = as_rows(origins, "origins", where), as_rows(directions, "directions", where)
+    lead = ray_shape(where, o.shape, d.shape)
     o = jnp.broadcast_to(o, lead + (3,)).reshape(-1, 3)
     d = jnp.broadcast_to(d, lead + (3,)).reshape(-1, 3)
-    t_min, t_max = float(t_min), float(t_max)
-    if np.isnan(t_min) or np.isnan(t_max) or not t_min <= t_max:
-        raise ValueError(
-            f"the ray interval needs t_min <= t_max, got [{t_min}, {t_max}]"
-        )
+    t_min, t_max = _validate.ray_interval(where, t_min, t_max)
     t, fc, b, sg = kernels.first_hits_ffi(v, f, o, d, t_min, t_max)
     return RayHits(
         t.reshape(lead),
@@ -494,7 +455,7 @@ def closest_points(mesh, points, *, threads: int | None = None) -> ClosestPoints
     """
     if any_traced(mesh if isinstance(mesh, tuple) else (), points):
         return _closest_points_ffi(mesh, points)
-    return _as_bvh(mesh, "voxax.closest_points").closest_points(points, threads=threads)
+    return _as_bvh(mesh, "voxax.closest_points")._closest(points, threads, None, "voxax.closest_points")
 
 
 @_validate.surface_first
@@ -518,9 +479,7 @@ def first_hits(
     """
     if any_traced(mesh if isinstance(mesh, tuple) else (), origins, directions):
         return _first_hits_ffi(mesh, origins, directions, t_min, t_max)
-    return _as_bvh(mesh, "voxax.first_hits").first_hits(
-        origins, directions, t_min=t_min, t_max=t_max, threads=threads
-    )
+    return _as_bvh(mesh, "voxax.first_hits")._first(origins, directions, t_min, t_max, False, threads, "voxax.first_hits")
 
 
 @_validate.surface_first
@@ -534,9 +493,8 @@ def any_hits(
     threads: int | None = None,
 ) -> np.ndarray:
     """Whether each ray hits a triangle mesh; see [`BVH.any_hits`][voxax.BVH.any_hits]."""
-    return _as_bvh(mesh, "voxax.any_hits").any_hits(
-        origins, directions, t_min=t_min, t_max=t_max, threads=threads
-    )
+    where = "voxax.any_hits"
+    return _as_bvh(mesh, where)._first(origins, directions, t_min, t_max, True, threads, where).hit
 
 
 @_validate.surface_first
@@ -555,6 +513,4 @@ def all_hits(
     >>> all_hits(data.cube(2.0), [[0.0, 0.0, -5.0]], [[0.0, 0.0, 1.0]]).t.tolist()
     [4.0, 6.0]
     """
-    return _as_bvh(mesh, "voxax.all_hits").all_hits(
-        origins, directions, t_min=t_min, t_max=t_max, threads=threads
-    )
+    return _as_bvh(mesh, "voxax.all_hits")._all(origins, directions, t_min, t_max, threads, "voxax.all_hits")

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _kernels, _validate
-from .._constants import MAX_ABS_COORDINATE, PAIR_BUDGET
+from .._constants import PAIR_BUDGET
 from .._kernels import spatial as kernels
 
 __all__ = ["winding_number", "winding_flat"]
@@ -102,25 +102,6 @@ def winding_flat(vertices, faces, points, chunk_size: int):
 
 def _auto_chunk(n_faces: int, n_points: int) -> int:
     return int(max(1, min(max(n_points, 1), PAIR_BUDGET // max(n_faces, 1))))
-
-
-def _check_points(where: str, points, d: int):
-    """`points` as an array of shape (..., d), refused when not real or, if concrete, when
-    not finite or beyond MAX_ABS_COORDINATE."""
-    if not hasattr(points, "dtype"):
-        points = np.asarray(points)
-    kind = np.dtype(points.dtype).kind
-    if kind not in "fiu":
-        raise TypeError(f"{where}: `points` must be a real (float or integer) array, got {points.dtype}")
-    if points.ndim < 1 or points.shape[-1] != d:
-        raise ValueError(f"{where}: `points` must have shape (..., {d}), got {tuple(points.shape)}")
-    if _validate.is_concrete(points) and points.size:
-        p = np.asarray(points)
-        if not np.all(np.isfinite(p)):
-            raise ValueError(f"{where}: `points` contain NaN or Inf")
-        if float(np.max(np.abs(p))) > MAX_ABS_COORDINATE:
-            raise ValueError(f"{where}: `points` coordinates must have magnitude <= 1e75")
-    return points
 
 
 def _checked_under_jit(out, vertices, faces, points):
@@ -203,7 +184,7 @@ def winding_number(
     d = vertices.shape[-1]
     if points is None:
         raise TypeError(f"{where}: missing `points`")
-    points = _check_points(where, points, d)
+    points = _validate.coordinates(where, "points", points, d)
     nthreads = _kernels.threads(threads)
     pdtype = points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype
     dtype = jax.dtypes.canonicalize_dtype(np.result_type(vertices.dtype, pdtype))
