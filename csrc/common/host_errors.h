@@ -75,6 +75,19 @@ inline bool check_host_coordinates(const double* x, int64_t count, const char* w
   return true;
 }
 
+// Checks that the `nf` triangles' vertex indices lie in [0, nv); on failure writes the
+// message (the index and the face) into msg and returns false.
+inline bool check_host_faces(const int32_t* F, int64_t nf, int64_t nv, std::string* msg) {
+  for (int64_t i = 0; i < 3 * nf; ++i) {
+    if (F[i] < 0 || F[i] >= nv) {
+      *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
+             std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
+      return false;
+    }
+  }
+  return true;
+}
+
 // Rejects a coordinate array whose largest magnitude is non-zero and below
 // kMinLargestAbsCoordinate (the whole set is too small to compute with; see constants.h).
 inline bool check_coordinate_scale(const double* x, int64_t count, const char* what,

@@ -139,13 +139,7 @@ VOXAX_EXPORT int voxax_line_crossings(const double* V, int64_t nv, const int32_t
     }
     for (int64_t i = 0; i < 3 * nv; ++i)
       if (!check_value(V[i], "vertices", i / 3, msg)) return false;
-    for (int64_t i = 0; i < 3 * nf; ++i) {
-      if (F[i] < 0 || F[i] >= nv) {
-        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
-               std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
-        return false;
-      }
-    }
+    if (!voxax::check_host_faces(F, nf, nv, msg)) return false;
     if (n0 < 0 || n1 < 0) {
       *msg = "voxax: negative number of line coordinates";
       return false;

@@ -133,6 +133,17 @@ struct RayHit {
   int8_t sign = 0;  // -1: the ray crosses against the face normal (enters), +1: along it
 };
 
+// Writes ray i's hit into the output arrays (t, face, barycentrics, sign), or no hit
+// (t = inf, face -1, zeros) when `hit` is false.
+template <typename Sign>
+inline void store_hit(bool hit, const RayHit& h, int64_t i, double* t, int32_t* face, double* bary,
+                      Sign* sign) {
+  t[i] = hit ? h.t : std::numeric_limits<double>::infinity();
+  face[i] = hit ? h.face : -1;
+  sign[i] = static_cast<Sign>(hit ? h.sign : 0);
+  for (int a = 0; a < 3; ++a) bary[3 * i + a] = hit ? h.bary[a] : 0.0;
+}
+
 // Closest point of triangle (a, b, c) to p. Writes barycentrics (of a, b, c)
 // and the point; returns the squared distance.
 inline double closest_on_segment(const double* p, const double* a, const double* b, double* t_out,

@@ -10,6 +10,7 @@
 // validated; failures return InvalidArgument with a message.
 
 #include <cmath>
+#include <initializer_list>
 #include <limits>
 #include <string>
 
@@ -34,16 +35,9 @@ ffi::Error check_rows3(const ffi::Buffer<ffi::F64>& x, const char* what, int64_t
     return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
                                        " must have shape (N, 3), got " + dims_str(d));
   *rows = d[0];
-  const double* p = x.typed_data();
-  for (int64_t i = 0; i < 3 * d[0]; ++i) {
-    if (!std::isfinite(p[i]))
-      return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
-                                         " contain NaN or Inf (row " + std::to_string(i / 3) + ")");
-    if (std::fabs(p[i]) > kMaxAbsCoordinate)
-      return ffi::Error::InvalidArgument(std::string("voxax: ") + what +
-                                         " coordinate magnitude exceeds 1e75 (row " +
-                                         std::to_string(i / 3) + ")");
-  }
+  std::string msg;
+  if (!check_host_coordinates(x.typed_data(), 3 * d[0], what, &msg))
+    return ffi::Error::InvalidArgument(msg);
   return ffi::Error::Success();
 }
 
@@ -60,14 +54,22 @@ ffi::Error build(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S
     return ffi::Error::InvalidArgument("voxax: faces must have shape (F, 3), got " + dims_str(fd));
   if (fd[0] > (int64_t{1} << 30))
     return ffi::Error::InvalidArgument("voxax: the BVH takes at most 2^30 faces");
-  const int32_t* F = faces.typed_data();
-  for (int64_t i = 0; i < 3 * fd[0]; ++i)
-    if (F[i] < 0 || F[i] >= nv)
-      return ffi::Error::InvalidArgument("voxax: face index " + std::to_string(F[i]) +
-                                         " is out of range [0, " + std::to_string(nv) + ") (face " +
-                                         std::to_string(i / 3) + ")");
-  bvh->build(vertices.typed_data(), F, fd[0]);
+  if (!check_host_faces(faces.typed_data(), fd[0], nv, &msg))
+    return ffi::Error::InvalidArgument(msg);
+  bvh->build(vertices.typed_data(), faces.typed_data(), fd[0]);
   return ffi::Error::Success();
+}
+
+// Checks that the outputs hold `per_row` values each for each of the n rows (their
+// element counts in `counts`), then builds the BVH.
+ffi::Error build_for(const ffi::Buffer<ffi::F64>& vertices, const ffi::Buffer<ffi::S32>& faces,
+                     int64_t n, std::initializer_list<size_t> counts,
+                     std::initializer_list<int64_t> per_row, const char* what, spatial::Bvh* bvh) {
+  auto r = per_row.begin();
+  for (size_t count : counts)
+    if (count != static_cast<size_t>(*r++ * n))
+      return ffi::Error::InvalidArgument(std::string("voxax: ") + what);
+  return build(vertices, faces, bvh);
 }
 
 ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
@@ -78,13 +80,11 @@ ffi::Error ClosestPoints(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
     int64_t n = 0;
     ffi::Error err = check_rows3(points, "points", &n);
     if (err.failure()) return err;
-    if (dist->element_count() != static_cast<size_t>(n) ||
-        face->element_count() != static_cast<size_t>(n) ||
-        bary->element_count() != static_cast<size_t>(3 * n) ||
-        point->element_count() != static_cast<size_t>(3 * n))
-      return ffi::Error::InvalidArgument("voxax: closest-point outputs do not match the points");
     spatial::Bvh bvh;
-    err = build(vertices, faces, &bvh);
+    err = build_for(vertices, faces, n,
+                    {dist->element_count(), face->element_count(), bary->element_count(),
+                     point->element_count()},
+                    {1, 1, 3, 3}, "closest-point outputs do not match the points", &bvh);
     if (err.failure()) return err;
     const double* P = points.typed_data();
     double* D = dist->typed_data();
@@ -135,34 +135,19 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
       if (Dd[3 * i] == 0.0 && Dd[3 * i + 1] == 0.0 && Dd[3 * i + 2] == 0.0)
         return ffi::Error::InvalidArgument("voxax: ray direction " + std::to_string(i) +
                                            " is zero");
-    if (t->element_count() != static_cast<size_t>(n) ||
-        face->element_count() != static_cast<size_t>(n) ||
-        bary->element_count() != static_cast<size_t>(3 * n) ||
-        sign->element_count() != static_cast<size_t>(n))
-      return ffi::Error::InvalidArgument("voxax: ray-hit outputs do not match the rays");
     spatial::Bvh bvh;
-    err = build(vertices, faces, &bvh);
+    err = build_for(
+        vertices, faces, n,
+        {t->element_count(), face->element_count(), bary->element_count(), sign->element_count()},
+        {1, 1, 3, 1}, "ray-hit outputs do not match the rays", &bvh);
     if (err.failure()) return err;
-    double* T = t->typed_data();
-    int32_t* Fo = face->typed_data();
-    double* B = bary->typed_data();
-    int32_t* S = sign->typed_data();
     const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
     ParallelFor::run(&pool, chunks, [&](int64_t c) {
       for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
         const auto ray = spatial::make_ray(O + 3 * i, Dd + 3 * i, t_min, t_max);
         spatial::RayHit h;
-        if (bvh.first_hit(ray, false, &h)) {
-          T[i] = h.t;
-          Fo[i] = h.face;
-          S[i] = h.sign;
-          for (int a = 0; a < 3; ++a) B[3 * i + a] = h.bary[a];
-        } else {
-          T[i] = std::numeric_limits<double>::infinity();
-          Fo[i] = -1;
-          S[i] = 0;
-          for (int a = 0; a < 3; ++a) B[3 * i + a] = 0.0;
-        }
+        spatial::store_hit(bvh.first_hit(ray, false, &h), h, i, t->typed_data(), face->typed_data(),
+                           bary->typed_data(), sign->typed_data());
       }
     });
     return ffi::Error::Success();

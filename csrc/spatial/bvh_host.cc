@@ -122,13 +122,7 @@ VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, 
     if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg) ||
         !voxax::check_coordinate_scale(V, 3 * nv, "vertices", msg))
       return false;
-    for (int64_t i = 0; i < 3 * nf; ++i) {
-      if (F[i] < 0 || F[i] >= nv) {
-        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
-               std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
-        return false;
-      }
-    }
+    if (!voxax::check_host_faces(F, nf, nv, msg)) return false;
     Bvh* bvh = new Bvh();
     try {
       bvh->build(V, F, nf);
@@ -202,17 +196,7 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
         const int64_t i = order[j];
         const auto ray = voxax::spatial::make_ray(O + 3 * i, D + 3 * i, tmin, tmax);
         RayHit h;
-        if (bvh->first_hit(ray, any != 0, &h)) {
-          t[i] = h.t;
-          face[i] = h.face;
-          sign[i] = h.sign;
-          for (int a = 0; a < 3; ++a) bary[3 * i + a] = h.bary[a];
-        } else {
-          t[i] = std::numeric_limits<double>::infinity();
-          face[i] = -1;
-          sign[i] = 0;
-          for (int a = 0; a < 3; ++a) bary[3 * i + a] = 0.0;
-        }
+        voxax::spatial::store_hit(bvh->first_hit(ray, any != 0, &h), h, i, t, face, bary, sign);
       }
     });
     return true;

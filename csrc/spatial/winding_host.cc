@@ -48,13 +48,7 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg) ||
         !voxax::check_host_coordinates(P, 3 * n, "points", msg))
       return false;
-    for (int64_t i = 0; i < 3 * nf; ++i) {
-      if (F[i] < 0 || F[i] >= nv) {
-        *msg = "voxax: face index " + std::to_string(F[i]) + " is out of range [0, " +
-               std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")";
-        return false;
-      }
-    }
+    if (!voxax::check_host_faces(F, nf, nv, msg)) return false;
     const bool closed = voxax::spatial::faces_closed(F, nf);
     const bool rays = mode == 0 && closed && nf > 0;
     voxax::spatial::Bvh bvh;

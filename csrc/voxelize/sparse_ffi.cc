@@ -401,15 +401,8 @@ void tangent_impl(ffi::ThreadPool* pool, const Problem& pb, const SparseInputs& 
     Poly<3> P;
     for (int64_t e = bn.start[tile]; e < bn.start[tile + 1]; ++e) {
       const int64_t t = bn.items[e];
-      if (!frame.load(Vb, Fb + 3 * t)) continue;
-      const double* nh = frame.nh;
       double c[3];
-      const T* tc = Tb + 9 * t;
-      for (int m = 0; m < 3; ++m)
-        c[m] = nh[0] * static_cast<double>(tc[3 * m]) + nh[1] * static_cast<double>(tc[3 * m + 1]) +
-               nh[2] * static_cast<double>(tc[3 * m + 2]);
-      if (c[0] == 0.0 && c[1] == 0.0 && c[2] == 0.0) continue;
-      frame.to_poly(&P);
+      if (!load_moving_triangle(Vb, Fb, Tb, t, &frame, &P, c)) continue;
       int64_t ci = -1, cj = -1;
       SparseCells::Column col{&sc, 0, 0, 0, 0};
       surface_pieces_in_tile(

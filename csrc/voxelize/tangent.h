@@ -33,6 +33,24 @@ namespace voxax {
 
 // Bins every face that can have a piece inside the grid (vertical ones
 // included) to the column tiles its bounding box touches.
+// Loads triangle t (vertices V, faces F) into `frame` and its polygon `P`, with the normal
+// speed of each corner in `c`: its unit normal dotted with the corner tangents `TC`
+// (3 x 3 per triangle, corner-major). False when the triangle is degenerate or does not
+// move along its normal (it adds nothing to the tangent).
+template <typename T>
+inline bool load_moving_triangle(const T* V, const int32_t* F, const T* TC, int64_t t,
+                                 TriangleFrame* frame, Poly<3>* P, double c[3]) {
+  if (!frame->load(V, F + 3 * t)) return false;
+  const double* nh = frame->nh;
+  const T* tc = TC + 9 * t;
+  for (int m = 0; m < 3; ++m)
+    c[m] = nh[0] * static_cast<double>(tc[3 * m]) + nh[1] * static_cast<double>(tc[3 * m + 1]) +
+           nh[2] * static_cast<double>(tc[3 * m + 2]);
+  if (c[0] == 0.0 && c[1] == 0.0 && c[2] == 0.0) return false;
+  frame->to_poly(P);
+  return true;
+}
+
 template <typename T>
 void bin_tangent_faces(ffi::ThreadPool* pool, const GridSpec& g, const Tiling& tl, int dim,
                        const T* V, const int32_t* F, int64_t nf, Bins* bins) {
@@ -76,16 +94,8 @@ void tangent_tile_3d(const GridSpec& g, const Tiling& tl, int64_t tile, const T*
   TriangleFrame frame;
   for (int64_t e = bins.start[tile]; e < bins.start[tile + 1]; ++e) {
     const int64_t t = bins.items[e];
-    if (!frame.load(V, F + 3 * t)) continue;
-    const double* nh = frame.nh;
-    // Normal velocity of each corner.
-    double c[3];
-    const T* tc = TC + 9 * t;
-    for (int m = 0; m < 3; ++m)
-      c[m] = nh[0] * static_cast<double>(tc[3 * m]) + nh[1] * static_cast<double>(tc[3 * m + 1]) +
-             nh[2] * static_cast<double>(tc[3 * m + 2]);
-    if (c[0] == 0.0 && c[1] == 0.0 && c[2] == 0.0) continue;
-    frame.to_poly(&P);
+    double c[3];  // the normal speed of each corner
+    if (!load_moving_triangle(V, F, TC, t, &frame, &P, c)) continue;
     int64_t i0, i1, j0, j1, k0, k1;
     if (!g.span(0, P.min(0), P.max(0), &i0, &i1) || !g.span(1, P.min(1), P.max(1), &j0, &j1) ||
         !g.span(2, P.min(2), P.max(2), &k0, &k1))
