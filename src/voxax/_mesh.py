@@ -298,10 +298,10 @@ def fit(vertices: np.ndarray, max_abs: float, faces=None) -> tuple[np.ndarray, n
     `new = (old - centre) * scale`.
     """
     if len(vertices) == 0:
-        raise ValueError("cannot normalize a mesh without vertices")
+        raise ValueError("voxax.Mesh.normalize: cannot normalize a mesh without vertices")
     box = used_vertices(vertices, faces)
     if not np.all(np.isfinite(box)):
-        raise ValueError("cannot normalize a mesh with non-finite vertex coordinates")
+        raise ValueError("voxax.Mesh.normalize: cannot normalize a mesh with NaN or Inf vertex coordinates")
     if not max_abs > 0:
         raise ValueError(f"max_abs must be > 0, got {max_abs}")
     lo, hi = box.min(axis=0), box.max(axis=0)
@@ -309,7 +309,7 @@ def fit(vertices: np.ndarray, max_abs: float, faces=None) -> tuple[np.ndarray, n
     centred = vertices - centre
     extent = np.abs(box - centre).max()
     if not extent > 0:
-        raise ValueError("cannot normalize a mesh whose vertices all coincide")
+        raise ValueError("voxax.Mesh.normalize: cannot normalize a mesh whose vertices all coincide")
     scale = float(max_abs) / float(extent)
     return centred * scale, centre, scale
 

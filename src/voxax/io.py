@@ -265,6 +265,8 @@ def load(
     import trimesh
 
     where = "voxax.io.load"
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"{where}: `path` must be a str or os.PathLike, got {type(path).__name__}")
     name = os.fspath(path)
     if not os.path.exists(name):
         raise FileNotFoundError(f"{where}: no such file: {name!r}")
@@ -326,6 +328,8 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     >>> from voxax import data
     >>> save(data.torus(), os.path.join(tempfile.mkdtemp(), "torus.obj"))
     """
+    if _validate.is_mesh_pair(mesh):
+        _validate.mesh("voxax.io.save", *mesh, allow_empty=True, finite=False)  # no bool or complex vertices
     vertices, faces = _validate.mesh_like("voxax.io.save", mesh)
     _validate.mesh("voxax.io.save", vertices, faces, allow_empty=True)  # finite, in range: a file holds no NaN
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -346,4 +350,7 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     if ext == ".obj":
         kwargs.setdefault("include_normals", False)
     tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
-    tm.export(path, **kwargs)
+    try:
+        tm.export(path, **kwargs)
+    except ValueError as err:
+        raise ValueError(f"voxax.io.save: cannot write {ext!r} files ({err})") from None

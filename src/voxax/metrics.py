@@ -24,6 +24,7 @@ from . import _validate
 from ._grid import Grid
 from ._mesh import Mesh
 from ._spatial import BVH
+from ._spatial.bvh import real_vertices
 
 __all__ = [
     "CHAMFER_CONVENTIONS",
@@ -48,13 +49,15 @@ def _mesh(mesh, name: str = "mesh", where: str = "voxax.metrics", finite: bool =
     elif isinstance(mesh, BVH):
         m = mesh.mesh
     else:
+        if _validate.is_mesh_pair(mesh):
+            real_vertices(where, mesh[0])
         m = Mesh(*_validate.mesh_like(f"{where}: `{name}`", mesh))
     if m.dim != 3:
         raise ValueError(f"{where}: `{name}` must be a 3D triangle mesh, got a 2D polyline")
     if m.vertices.dtype.kind != "f":
         raise TypeError(f"{where}: `{name}` must have float vertices, got {m.vertices.dtype}")
-    if finite and not np.all(np.isfinite(m.vertices)):
-        raise ValueError(f"{where}: `{name}` has NaN or infinite vertices")
+    if finite and m.vertices.size:
+        _validate.coordinates(where, f"{name}.vertices", m.vertices)
     return m
 
 
@@ -625,7 +628,7 @@ def iou(a, b, grid: Grid, *, soft: bool = True, threshold: float = 0.5):
         inter, union = jnp.sum(jnp.minimum(wa, wb)), jnp.sum(jnp.maximum(wa, wb))
     else:
         if not 0 <= threshold < 1:
-            raise ValueError(f"threshold must lie in [0, 1), got {threshold}")
+            raise ValueError(f"voxax.metrics.iou: `threshold` must lie in [0, 1), got {threshold}")
         ma, mb = wa > threshold, wb > threshold
         inter, union = jnp.sum(ma & mb), jnp.sum(ma | mb)
     return jnp.where(union > 0, inter / jnp.where(union > 0, union, 1), 1.0)
