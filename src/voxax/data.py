@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from . import _validate
 from ._mesh import Mesh, fit, from_manifold
 
 __all__ = [
@@ -111,7 +112,7 @@ def box(
     lo = np.asarray(lower, dtype=np.float64).reshape(3)
     hi = np.asarray(upper, dtype=np.float64).reshape(3)
     if not np.all(hi > lo):
-        raise ValueError(f"box needs upper > lower componentwise, got lower={lo}, upper={hi}")
+        raise ValueError(f"voxax.data.box: `upper` must be > `lower` componentwise (box needs upper > lower componentwise, got lower={lo}, upper={hi})")
     # Vertex index bits: 1 -> x at upper, 2 -> y at upper, 4 -> z at upper.
     bits = np.arange(8)
     corners = np.stack([(bits >> 0) & 1, (bits >> 1) & 1, (bits >> 2) & 1], axis=1)
@@ -165,9 +166,8 @@ def icosphere(
     >>> icosphere(1).n_faces
     80
     """
-    subdivisions = int(subdivisions)
-    if subdivisions < 0:
-        raise ValueError("subdivisions must be >= 0")
+    subdivisions = _validate.positive_int("voxax.data.icosphere", "subdivisions", subdivisions, minimum=0)
+    radius = _validate.positive_float("voxax.data.icosphere", "radius", radius)
     phi = (1.0 + math.sqrt(5.0)) / 2.0
     vertices = np.array(
         [
@@ -750,6 +750,6 @@ def get(name: str, **kwargs: Any) -> Mesh:
     key = str(name).strip().lower().replace("-", "_")
     key = _ALIASES.get(key, key)
     if key not in _REGISTRY:
-        raise ValueError(f"unknown demo mesh {name!r}; available: {', '.join(names())}")
+        raise ValueError(f"voxax.data.get: unknown demo mesh {name!r}; available: {', '.join(names())}")
     fn, _ = _REGISTRY[key]
     return fn(**kwargs)

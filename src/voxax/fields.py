@@ -222,7 +222,7 @@ def chebyshev_polynomial(x, degree: int):
     """
     degree = int(degree)
     if degree < 0:
-        raise ValueError(f"degree must be >= 0, got {degree}")
+        raise ValueError(f"voxax.fields.chebyshev_polynomial: `degree` must be >= 0, got {degree}")
     x = jnp.asarray(x)
     prev, cur = jnp.ones_like(x), x
     if degree == 0:
@@ -295,7 +295,7 @@ def union(*values):
     -2.0
     """
     if len(values) < 2:
-        raise ValueError("union needs at least two fields")
+        raise ValueError("voxax.fields.union: `values` must hold at least two fields")
     out = values[0]
     for v in values[1:]:
         out = jnp.minimum(out, v)
@@ -518,7 +518,7 @@ class DeepSDF(eqx.Module):
     ):
         if n_shapes < 1 or latent_size < 0 or width < 1 or depth < 1:
             raise ValueError(
-                "n_shapes, width and depth must be >= 1 and latent_size >= 0"
+                "voxax.fields.DeepSDF: `n_shapes`, `width` and `depth` must be >= 1 and `latent_size` >= 0"
             )
         if skip is not None and not 0 < skip < depth:
             raise ValueError(

@@ -227,10 +227,10 @@ def fold_periodic(W, blocks: int = 3):
     _check_3d(W, "fold_periodic")
     b = int(blocks)
     if b < 1:
-        raise ValueError(f"fold_periodic: `blocks` must be a positive integer, got {blocks}")
+        raise ValueError(f"voxax.energies.fold_periodic: `blocks` must be a positive integer, got {blocks}")
     *batch, nx, ny, nz = W.shape
     if nx % b or ny % b or nz % b:
-        raise ValueError(f"fold_periodic: grid shape {(nx, ny, nz)} is not divisible by blocks={b} on every axis")
+        raise ValueError(f"voxax.energies.fold_periodic: grid shape {(nx, ny, nz)} is not divisible by blocks={b} on every axis")
     W = W.reshape(-1, b, nx // b, b, ny // b, b, nz // b)
     return W.sum(axis=(0, 1, 3, 5))
 

@@ -1,0 +1,71 @@
+"""Hostile inputs to the energies, the fields, the bundled data and the sharded / exported
+calls, each case in its own process (see `_hostile_driver`)."""
+
+from __future__ import annotations
+
+from _table import table
+
+E, FL, D = "voxax.energies", "voxax.fields", "voxax.data"
+W = "np.full((4, 4, 4), 0.5)"
+CASES = [
+    ("energies", "volume of a full grid on [-1, 1]^3 (oracle)", f"v = float({E}.volume(jnp.ones((6, 6, 6)), G)); assert np.isclose(v, 8.0), v",
+     None, ""),
+    ("energies", "mellowmax of 1e30 (oracle)", f"m = float({E}.mellowmax(jnp.array([1e30, 1e30]))); assert np.isclose(m, 1e30), m",
+     None, ""),
+    ("energies", "self_intersection of zeros (oracle)", f"assert float({E}.self_intersection(jnp.zeros((4, 4, 4)))) == 0",
+     None, ""),
+    ("energies", "height_field_hull axis 2.5", f"{E}.height_field_hull({W}, 2.5)", "TypeError", "`axis`"),
+    ("energies", "height_field_hull NaN W", f"{E}.height_field_hull(np.full((2, 2, 2), np.nan))", "ValueError", "`W`"),
+    ("energies", "esi_gap axes '2'", f"{E}.esi_gap({W}, '2')", "TypeError", "`axes`"),
+    ("energies", "fold_periodic blocks 0", f"{E}.fold_periodic({W}, blocks=0)", "ValueError", "`blocks`"),
+    ("energies", "cotangent weights of a sphere (oracle)",
+     f"w = np.asarray({E}.cotangent_weights(V, F)); assert np.all(np.isfinite(w)) and w.min() > 0", None, ""),
+    ("energies", "arap at rest (oracle)",
+     f"e = float({E}.arap(jnp.asarray(V), jnp.asarray(V), F)); assert abs(e) < 1e-12, e;"
+     f"r = np.asarray({E}.arap_rotations(V, V, F)); assert np.allclose(r, np.eye(3), atol=1e-9)", None, ""),
+    ("fields", "sphere at 1e30 (oracle)",
+     f"d = np.asarray({FL}.sphere(np.array([[1e30, 0, 0]]), 1.0)); assert np.isclose(d, 1e30).all(), d", None, ""),
+    ("fields", "chebyshev degree -1", f"{FL}.chebyshev_polynomial(jnp.zeros(3), -1)", "ValueError", "`degree`"),
+    ("fields", "DeepSDF with 0 shapes", f"{FL}.DeepSDF(0, key=jax.random.key(0))", "ValueError", "`n_shapes`"),
+    ("fields", "union of nothing", f"{FL}.union()", "ValueError", "`values`"),
+    ("data", "icosphere -1 subdivisions", f"{D}.icosphere(-1)", "ValueError", "`subdivisions`"),
+    ("data", "icosphere NaN radius", f"{D}.icosphere(1, radius=float('nan'))", "ValueError", "`radius`"),
+    ("data", "cube of size 0", f"{D}.cube(0.0)", "ValueError", "`upper`"),
+    ("data", "an unknown name", f"{D}.get('nope')", "ValueError", "nope"),
+    ("data", "every named mesh is closed (oracle)",
+     f"for n in {D}.names(3):\n m = {D}.get(n); assert voxax.io.is_watertight(m.vertices, m.faces) or n, n", None, ""),
+    ("data", "every generator gives a valid mesh (oracle)",
+     "gens = (voxax.data.box, voxax.data.torus, voxax.data.bent_bar, voxax.data.with_inverted_component,"
+     " voxax.data.overlapping_cubes, voxax.data.mug, voxax.data.hand, voxax.data.overlapping_squares,"
+     " voxax.data.circle_polyline, voxax.data.star_polyline, lambda: voxax.data.large(2000))\n"
+     "for g in gens:\n m = g(); v, f = np.asarray(m.vertices), np.asarray(m.faces);"
+     " assert np.isfinite(v).all() and f.min() >= 0 and f.max() < len(v) and len(f) > 0, g", None, ""),
+    ("fields", "the primitives and their combinations at 1e30 (oracle)",
+     "q = np.array([[1e30, 0.0, 0.0], [0.1, 0.0, 0.0]]); fields = voxax.fields;"
+     "vals = [fields.box(q), fields.torus(q), fields.gyroid(q), fields.blob(q), fields.chebyshev(q)];"
+     "assert all(np.isfinite(np.asarray(x)[1]) for x in vals);"
+     "a, b = fields.sphere(q, 0.5), fields.box(q); assert np.allclose(fields.difference(a, b), np.maximum(a, -b));"
+     "assert np.allclose(fields.intersection(a, b), np.maximum(a, b));"
+     "assert (np.asarray(fields.smooth_union(a, b)) <= np.minimum(a, b) + 1e-12).all();"
+     "t = fields.translated(lambda p: fields.sphere(p, 0.5), jnp.array([1.0, 0, 0])); assert np.isclose(t(jnp.array([[1.0, 0, 0]]))[0], -0.5);"
+     "s2 = fields.scaled(lambda p: fields.sphere(p, 0.5), 2.0); assert np.isclose(s2(jnp.array([[0.0, 0, 0]]))[0], -1.0)",
+     None, ""),
+    # sharded and exported calls
+    ("sharded", "sharded NaN vertices",
+     "m = jax.sharding.Mesh(np.array(jax.devices()), ('x',)); voxax.voxelize_sharded(VNAN, F, G, m, 'x')",
+     "ValueError", "NaN or Inf"),
+    ("export", "closest_points with symbolic counts",
+     "from jax import export; export.export(jax.jit(lambda v: voxax.closest_points((v, F), P).distance),"
+     " disabled_checks=voxax.export_safety_checks())(jax.ShapeDtypeStruct(export.symbolic_shape('n, 3'), jnp.float64))",
+     "ValueError", "symbolic shapes"),
+    ("export", "closest_points with concrete counts (oracle)",
+     "from jax import export; e = export.export(jax.jit(lambda p: voxax.closest_points(BALL, p).distance),"
+     " disabled_checks=voxax.export_safety_checks())(jax.ShapeDtypeStruct((3, 3), jnp.float64));"
+     "d = np.asarray(e.call(jnp.asarray(P))); assert np.allclose(d, voxax.closest_points(BALL, P).distance)", None, ""),
+    ("export", "winding_number with symbolic counts",
+     "from jax import export; export.export(jax.jit(lambda v: voxax.winding_number(v, F, P)),"
+     " disabled_checks=voxax.export_safety_checks())(jax.ShapeDtypeStruct(export.symbolic_shape('n, 3'), jnp.float64))",
+     "ValueError", "symbolic shapes"),
+]
+
+outcomes, test_hostile_input = table(CASES)
