@@ -406,13 +406,7 @@ def overlapping_cubes(
     >>> round(m.signed_volume(), 12), m.info["overlap"].tolist()
     (1.024, [[-0.2, -0.2, -0.2], [0.2, 0.2, 0.2]])
     """
-    a = box(lower_a, upper_a)
-    b = box(lower_b, upper_b)
-    lo = np.maximum(a.bounds[0], b.bounds[0])
-    hi = np.minimum(a.bounds[1], b.bounds[1])
-    overlap = np.stack([lo, hi]) if np.all(hi > lo) else None
-    m = Mesh.concatenate(a, b)
-    return Mesh(m.vertices, m.faces, {"overlap": overlap})
+    return _overlapping(box(lower_a, upper_a), box(lower_b, upper_b))
 
 
 def hand(resolution: int = 16, max_abs: float = 0.75) -> Mesh:
@@ -678,13 +672,7 @@ def overlapping_squares(
     >>> round(overlapping_squares().signed_volume(), 12)
     1.28
     """
-    a = polygon_square(lower_a, upper_a)
-    b = polygon_square(lower_b, upper_b)
-    lo = np.maximum(a.bounds[0], b.bounds[0])
-    hi = np.minimum(a.bounds[1], b.bounds[1])
-    overlap = np.stack([lo, hi]) if np.all(hi > lo) else None
-    m = Mesh.concatenate(a, b)
-    return Mesh(m.vertices, m.faces, {"overlap": overlap})
+    return _overlapping(polygon_square(lower_a, upper_a), polygon_square(lower_b, upper_b))
 
 
 # --------------------------------------------------------------------------------------
@@ -753,3 +741,12 @@ def get(name: str, **kwargs: Any) -> Mesh:
         raise ValueError(f"voxax.data.get: unknown demo mesh {name!r}; available: {', '.join(names())}")
     fn, _ = _REGISTRY[key]
     return fn(**kwargs)
+
+
+def _overlapping(a: Mesh, b: Mesh) -> Mesh:
+    """Both meshes as one, with the box where their bounds overlap (or None) in `info`."""
+    lo = np.maximum(a.bounds[0], b.bounds[0])
+    hi = np.minimum(a.bounds[1], b.bounds[1])
+    overlap = np.stack([lo, hi]) if np.all(hi > lo) else None
+    m = Mesh.concatenate(a, b)
+    return Mesh(m.vertices, m.faces, {"overlap": overlap})

@@ -33,6 +33,7 @@ from .. import _validate
 from .._grid import Grid
 from .._kernels import voxelize as kernels
 from . import primitives as _ops
+from .api import _lead
 
 __all__ = ["SparseGrid", "sparse_capacity", "voxelize_sparse"]
 
@@ -478,14 +479,6 @@ def _check(where, vertices, faces, grid):
     return vertices, _validate.int32_faces(faces)  # concrete indices: in range, checked above
 
 
-def _lead(vertices, faces):
-    nb = max(vertices.ndim, faces.ndim) - 2
-    v = vertices.reshape((1,) * (nb - (vertices.ndim - 2)) + vertices.shape)
-    f = faces.reshape((1,) * (nb - (faces.ndim - 2)) + faces.shape)
-    batch = tuple(np.broadcast_shapes(v.shape[:-2], f.shape[:-2]))
-    return v, f, batch
-
-
 def _raise_if_over(where, counts, cap):
     need = np.asarray(counts).reshape(-1, 2)
     over = np.nonzero((need[:, 0] > cap[0]) | (need[:, 1] > cap[1]))[0]
@@ -605,24 +598,19 @@ def _forward_jvp(primals, tangents, *, grid, capacity, strict):
     return out, zeros
 
 
-def _tangent_jvp(primals, tangents, *, grid):
-    vertices, faces, tc, cells, counts = primals
-    if type(tangents[0]) is not ad.Zero:
-        raise NotImplementedError(_ops.SECOND_DERIVATIVE_MESSAGE)
-    out = tangent(vertices, faces, tc, cells, counts, grid)
-    if type(tangents[2]) is ad.Zero:
-        return out, _zero(out)
-    return out, tangent(vertices, faces, tangents[2], cells, counts, grid)
+def _linear_jvp(op, index):
+    """The JVP rule of a kernel linear in its argument `index` (the corner tangents or the
+    cotangent) for fixed vertices; derivatives in the vertices are not defined."""
 
+    def jvp(primals, tangents, *, grid):
+        if type(tangents[0]) is not ad.Zero:
+            raise NotImplementedError(_ops.SECOND_DERIVATIVE_MESSAGE)
+        out = op(*primals, grid)
+        if type(tangents[index]) is ad.Zero:
+            return out, _zero(out)
+        return out, op(*primals[:index], tangents[index], *primals[index + 1 :], grid)
 
-def _backward_jvp(primals, tangents, *, grid):
-    vertices, faces, cells, ct, counts = primals
-    if type(tangents[0]) is not ad.Zero:
-        raise NotImplementedError(_ops.SECOND_DERIVATIVE_MESSAGE)
-    out = backward(vertices, faces, cells, ct, counts, grid)
-    if type(tangents[3]) is ad.Zero:
-        return out, _zero(out)
-    return out, backward(vertices, faces, cells, tangents[3], counts, grid)
+    return jvp
 
 
 def _defined(*xs):
@@ -647,8 +635,8 @@ def _backward_transpose(ct, vertices, faces, cells, cot, counts, *, grid):
 
 
 ad.primitive_jvps[forward_p] = _forward_jvp
-ad.primitive_jvps[tangent_p] = _tangent_jvp
-ad.primitive_jvps[backward_p] = _backward_jvp
+ad.primitive_jvps[tangent_p] = _linear_jvp(tangent, 2)
+ad.primitive_jvps[backward_p] = _linear_jvp(backward, 3)
 ad.primitive_transposes[tangent_p] = _tangent_transpose
 ad.primitive_transposes[backward_p] = _backward_transpose
 

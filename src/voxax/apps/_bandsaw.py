@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate, energies
-from .._grid import Grid
 from .._mesh import Mesh
 from .._voxelize import voxelize
 from . import _common
@@ -130,13 +129,8 @@ def optimize_for_bandsaw(
     _common.warn_if_open(source, "voxax.apps.optimize_for_bandsaw")
     resolution = _common.check_resolution("voxax.apps.optimize_for_bandsaw", resolution)
     w = _common.check_positive("voxax.apps.optimize_for_bandsaw", w, "w")
-    alpha = _common.check_positive("voxax.apps.optimize_for_bandsaw", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("voxax.apps.optimize_for_bandsaw", learning_rate, "learning_rate")
-    if min_step is not None:
-        min_step = _common.check_positive("voxax.apps.optimize_for_bandsaw", min_step, "min_step")
-    grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "voxax.apps.optimize_for_bandsaw")
-    dt = _common.float_dtype("voxax.apps.optimize_for_bandsaw", dtype)
+    alpha, learning_rate, min_step = _common.check_steps("voxax.apps.optimize_for_bandsaw", arap_weight, learning_rate, min_step)
+    grid, work, centre, scale, dt = _common.working_mesh("voxax.apps.optimize_for_bandsaw", source, resolution, normalize, max_abs, dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
 

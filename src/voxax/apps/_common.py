@@ -66,7 +66,24 @@ def check_positive(where: str, value: float, name: str, allow_zero: bool = False
     return _validate.positive_float(where, name, value, allow_zero=allow_zero)
 
 
-def prepare(mesh: Mesh, normalize: bool, max_abs: float, grid: Grid, where: str):
+def check_steps(where: str, arap_weight: float, learning_rate: float, min_step: float | None = None):
+    """The settings every deformation shares, checked: `(alpha, learning_rate, min_step)`."""
+    alpha = check_positive(where, arap_weight, "arap_weight", allow_zero=True)
+    learning_rate = check_positive(where, learning_rate, "learning_rate")
+    if min_step is not None:
+        min_step = check_positive(where, min_step, "min_step")
+    return alpha, learning_rate, min_step
+
+
+def working_mesh(where: str, source: Mesh, resolution: int, normalize: bool, max_abs: float, dtype):
+    """The `[-1, 1]^3` grid of `resolution` cells, the mesh in its working frame (see
+    `prepare`) and the working float dtype: `(grid, work, centre, scale, dtype)`."""
+    grid = Grid.cube(resolution)
+    work, centre, scale = prepare(source, normalize, max_abs, grid, where, stacklevel=4)
+    return grid, work, centre, scale, float_dtype(where, dtype)
+
+
+def prepare(mesh: Mesh, normalize: bool, max_abs: float, grid: Grid, where: str, stacklevel: int = 3):
     """Normalizes (or checks) a mesh for optimization on `grid`.
 
     Returns `(working mesh, centre, scale)` with `working = (mesh - centre) * scale`.
@@ -81,7 +98,7 @@ def prepare(mesh: Mesh, normalize: bool, max_abs: float, grid: Grid, where: str)
                 f"{where}: parts of the mesh lie outside the grid {lo.tolist()}..{hi.tolist()}; "
                 "they are not penalised. Pass normalize=True to fit the mesh in the grid.",
                 RuntimeWarning,
-                stacklevel=3,
+                stacklevel=stacklevel,
             )
     return work, np.asarray(centre, dtype=np.float64), float(scale)
 

@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate, energies, esi
-from .._grid import Grid
 from .._mesh import Mesh
 from .._voxelize import voxelize
 from . import _common
@@ -101,13 +100,8 @@ def optimize_for_molding(
     axis = int(axis)
     resolution = _common.check_resolution(where, resolution)
     w = _common.check_positive(where, w, "w")
-    alpha = _common.check_positive(where, arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive(where, learning_rate, "learning_rate")
-    if min_step is not None:
-        min_step = _common.check_positive(where, min_step, "min_step")
-    grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, where)
-    dt = _common.float_dtype(where, dtype)
+    alpha, learning_rate, min_step = _common.check_steps(where, arap_weight, learning_rate, min_step)
+    grid, work, centre, scale, dt = _common.working_mesh(where, source, resolution, normalize, max_abs, dtype)
     faces = jnp.asarray(work.faces)
     rest = _common.to_jax(work.vertices, dt)
 

@@ -227,8 +227,7 @@ def resolve_self_intersections(
     _common.warn_if_open(source, "voxax.apps.resolve_self_intersections")
     resolution = _common.check_resolution("voxax.apps.resolve_self_intersections", resolution)
     eps = _common.check_positive("voxax.apps.resolve_self_intersections", eps, "eps", allow_zero=True)
-    alpha = _common.check_positive("voxax.apps.resolve_self_intersections", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("voxax.apps.resolve_self_intersections", learning_rate, "learning_rate")
+    alpha, learning_rate, _ = _common.check_steps("voxax.apps.resolve_self_intersections", arap_weight, learning_rate)
     beta = _common.check_positive("voxax.apps.resolve_self_intersections", volume_weight, "volume_weight", allow_zero=True) if keep_volume else 0.0
     max_rounds = int(max_rounds)
     round_steps = int(round_steps)
@@ -239,9 +238,7 @@ def resolve_self_intersections(
         time_budget = _common.check_positive("voxax.apps.resolve_self_intersections", time_budget, "time_budget")
     if volume_tolerance is not None:
         volume_tolerance = _common.check_positive("voxax.apps.resolve_self_intersections", volume_tolerance, "volume_tolerance")
-    grid = Grid.cube(resolution)
-    work, centre, scale = _common.prepare(source, normalize, max_abs, grid, "voxax.apps.resolve_self_intersections")
-    dt = _common.float_dtype("voxax.apps.resolve_self_intersections", dtype)
+    grid, work, centre, scale, dt = _common.working_mesh("voxax.apps.resolve_self_intersections", source, resolution, normalize, max_abs, dtype)
     faces_np = np.asarray(work.faces)
     faces = jnp.asarray(faces_np)
     rest = _common.to_jax(work.vertices, dt)

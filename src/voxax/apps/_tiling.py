@@ -356,10 +356,7 @@ def optimize_tiling(
     blocks = int(blocks)
     key = _validate.key_or_seed("voxax.apps.optimize_tiling", key, seed)
     resolution = _common.check_resolution("voxax.apps.optimize_tiling", resolution, blocks)
-    alpha = _common.check_positive("voxax.apps.optimize_tiling", arap_weight, "arap_weight", allow_zero=True)
-    learning_rate = _common.check_positive("voxax.apps.optimize_tiling", learning_rate, "learning_rate")
-    if min_step is not None:
-        min_step = _common.check_positive("voxax.apps.optimize_tiling", min_step, "min_step")
+    alpha, learning_rate, min_step = _common.check_steps("voxax.apps.optimize_tiling", arap_weight, learning_rate, min_step)
     if init not in ("random", "lattice"):
         raise ValueError(f"init must be 'random' or 'lattice', got {init!r}")
     counts = _counts(instances, len(sources))

@@ -8,19 +8,6 @@ import math
 import jax
 import jax.numpy as jnp
 
-__all__ = [
-    "mellowmax",
-    "silhouettes",
-    "cut_shape",
-    "bandsaw_cut",
-    "bandsaw",
-    "self_intersection",
-    "fold_periodic",
-    "tiling",
-    "volume",
-    "interpenetration",
-]
-
 
 def _check_3d(W, name: str):
     if jnp.ndim(W) < 3:
