@@ -283,6 +283,16 @@ def blob(points):
 # -- CSG -----------------------------------------------------------------------------------
 
 
+def _fold(name: str, op, values):
+    """Combines two or more fields' values pointwise with `op`, left to right."""
+    if len(values) < 2:
+        raise ValueError(f"voxax.fields.{name}: `values` must hold at least two fields")
+    out = values[0]
+    for v in values[1:]:
+        out = op(out, v)
+    return out
+
+
 def union(*values):
     """Union of solids given by field values: the pointwise minimum.
 
@@ -294,12 +304,7 @@ def union(*values):
     >>> union(jnp.array(1.0), jnp.array(-2.0)).item()
     -2.0
     """
-    if len(values) < 2:
-        raise ValueError("voxax.fields.union: `values` must hold at least two fields")
-    out = values[0]
-    for v in values[1:]:
-        out = jnp.minimum(out, v)
-    return out
+    return _fold("union", jnp.minimum, values)
 
 
 def intersection(*values):
@@ -309,12 +314,7 @@ def intersection(*values):
     >>> intersection(jnp.array(1.0), jnp.array(-2.0)).item()
     1.0
     """
-    if len(values) < 2:
-        raise ValueError("intersection needs at least two fields")
-    out = values[0]
-    for v in values[1:]:
-        out = jnp.maximum(out, v)
-    return out
+    return _fold("intersection", jnp.maximum, values)
 
 
 def difference(a, b):
