@@ -36,6 +36,7 @@ __all__ = [
     "float_dtype",
     "positive_int",
     "positive_float",
+    "finite_number",
     "face_kind",
     "coordinates",
     "ray_interval",
@@ -334,6 +335,8 @@ def positive_int(where: str, name: str, value, minimum: int = 1, multiple: int =
 
 def positive_float(where: str, name: str, value, allow_zero: bool = False) -> float:
     """Checks a finite number `> 0` (or `>= 0`); returns it as float."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise TypeError(f"{where}: `{name}` must be a number, got {type(value).__name__}")
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -386,6 +389,19 @@ def ray_interval(where: str, t_min, t_max) -> tuple:
     if math.isnan(lo) or math.isnan(hi) or not lo <= hi:
         raise ValueError(f"{where}: the ray interval needs t_min <= t_max (neither NaN), got [{lo}, {hi}]")
     return lo, hi
+
+
+def finite_number(where: str, name: str, value, note: str = "") -> float:
+    """Checks a real, finite Python number (not a bool, string or array); returns it as float."""
+    if isinstance(value, (bool, np.bool_, str, bytes, complex, np.complexfloating)):
+        raise TypeError(f"{where}: `{name}` must be a real number{note}, got {type(value).__name__}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError, AttributeError):  # a tracer, an array of several values, ...
+        raise TypeError(f"{where}: `{name}` must be a real number{note}, got {type(value).__name__}") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{where}: `{name}` must be finite, got {value}")
+    return out
 
 
 def key_or_seed(where: str, key, seed=None, default=0):

@@ -177,8 +177,11 @@ def test_bad_input():
         voxax.isosurface_fn(sphere, 0.5, grid, lipschitz=-1.0)
     with pytest.raises(ValueError, match="band"):
         voxax.isosurface_fn(sphere, 0.5, grid, band=np.zeros((4, 4, 4)))
-    for chunk in (-1, 0, 2.5, True):
-        with pytest.raises(ValueError, match="`chunk` must be an int >= 1"):
+    for chunk in (-1, 0):
+        with pytest.raises(ValueError, match="`chunk` must be at least 1"):
+            voxax.isosurface_fn(sphere, 0.5, grid, chunk=chunk)
+    for chunk in (2.5, True):
+        with pytest.raises(TypeError, match="`chunk` must be an int"):
             voxax.isosurface_fn(sphere, 0.5, grid, chunk=chunk)
     with pytest.raises(ValueError, match="`lipschitz` must be"):
         voxax.isosurface_fn(sphere, 0.5, grid, lipschitz="1")

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _kernels
+from .. import _kernels, _validate
 from .._grid import Grid
 
 _INT32_MAX = np.iinfo(np.int32).max
@@ -68,35 +68,25 @@ def _check_values(values, grid: Grid, name: str):
 
 
 def _check_level(level, name):
-    try:
-        level = float(level)
-    except (TypeError, jax.errors.ConcretizationTypeError):
-        raise TypeError(
-            f"voxax.{name}: `level` must be a Python number (it is static under jit), got {level!r}"
-        ) from None
-    if not np.isfinite(level):
-        raise ValueError(f"voxax.{name}: `level` must be finite, got {level}")
-    return level
+    return _validate.finite_number(f"voxax.{name}", "level", level, note=" (it is static under jit)")
 
 
 def _check_inside(inside, name):
     if inside not in ("below", "above"):
-        raise ValueError(f'{name}: `inside` must be "below" or "above", got {inside!r}')
+        raise ValueError(f'voxax.{name}: `inside` must be "below" or "above", got {inside!r}')
     return inside
 
 
 def _capacities(capacity, name):
     if capacity is None:
         return None
-    if isinstance(capacity, (int, np.integer)):
+    where = f"voxax.{name}"
+    if isinstance(capacity, (tuple, list)) and len(capacity) == 2:
+        vcap, fcap = (_validate.positive_int(where, "capacity", c) for c in capacity)
+    elif isinstance(capacity, (int, np.integer)) and not isinstance(capacity, bool):
         vcap = fcap = int(capacity)
     else:
-        try:
-            vcap, fcap = (int(c) for c in capacity)
-        except (TypeError, ValueError):
-            raise TypeError(
-                f"voxax.{name}: `capacity` must be an int or a (vertices, faces) pair, got {capacity!r}"
-            ) from None
+        raise TypeError(f"{where}: `capacity` must be an int or a (vertices, faces) pair of ints, got {capacity!r}")
     if not (1 <= vcap <= _INT32_MAX and 1 <= fcap <= _INT32_MAX):
         raise ValueError(
             f"voxax.{name}: capacities must lie in [1, 2^31 - 1], got {(vcap, fcap)}"

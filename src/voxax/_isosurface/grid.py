@@ -48,6 +48,9 @@ def isosurface_vertices(
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     values = _check_values(values, grid, name)
+    concrete = _concrete(values)
+    if concrete is not None and not np.all(np.isfinite(concrete)):
+        raise ValueError(f"voxax.{name}: `values` must be finite (they contain NaN or Inf)")
     values, _ = _rescaled(values, level)
     if close is not False:
         values, grid = _pad(values, grid, level, inside, close)
@@ -283,10 +286,14 @@ def _check_topology(topology, grid: Grid, name: str):
         )
     shape = grid.shape
     strides = [int(np.prod(shape[a + 1 :], dtype=np.int64)) for a in range(d)]
+    concrete, counts = _concrete(topology.edges), _concrete(topology.n_vertices)
+    xp = np if concrete is not None and counts is not None else jnp  # a concrete topology is checked now
+    if xp is np:
+        edges = concrete.astype(np.int64)
     ia, ib = edges[..., 0], edges[..., 1]
-    valid = jnp.arange(edges.shape[-2]) < jnp.asarray(topology.n_vertices)[..., None]
+    valid = xp.arange(edges.shape[-2]) < xp.asarray(topology.n_vertices)[..., None]
     step = ib - ia
-    along = jnp.zeros(step.shape, bool)
+    along = xp.zeros(step.shape, bool)
     for s in strides:
         along = along | (step == s)
     bad = valid & ((ia < 0) | (ib >= grid.size) | ~along)
@@ -294,4 +301,8 @@ def _check_topology(topology, grid: Grid, name: str):
         f"voxax.{name}: `topology` must be made on this grid {shape} with the same `close` "
         "setting: its edges are not edges of this grid"
     )
+    if xp is np:
+        if np.any(bad):
+            raise ValueError(msg)
+        return jnp.asarray(topology.edges)
     return _refuse(edges, bad, msg)

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _validate
 from .._grid import Grid
 from .checks import _check_inside, _check_level, _concrete_tree, _float, _padded
 from .grid import isosurface
@@ -126,9 +127,9 @@ def isosurface_fn(
         raise ValueError(
             f"voxax.{name}: `lipschitz` must be a positive finite number, got {lipschitz!r}"
         )
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ValueError(f"voxax.{name}: `chunk` must be an int >= 1 (points per evaluation), got {chunk!r}")
-    chunk = int(chunk)
+    chunk = _validate.positive_int(f"voxax.{name}", "chunk", chunk)
+    # the samples and the cell centres they are evaluated at, before any is allocated
+    _validate.check_allocation(f"voxax.{name}", 8.0 * grid.size * (grid.dim + 2), f"sampling the field on {grid}")
     outward = 1.0 if inside == "below" else -1.0
     pad = None
     if close is True:

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from .. import _kernels
+from .. import _validate
 from .._constants import MAX_ABS_COORDINATE
 from .._kernels import intersect as kernels
-from .._mesh import Mesh
 
 __all__ = ["Intersections", "intersections", "MIN_ABS_COORDINATE"]
 
@@ -38,53 +38,36 @@ class Intersections(NamedTuple):
 
 
 def _arrays(mesh: Any, faces: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The checked `(vertices, faces)` of one mesh argument (the shared checks of
+    `voxax._validate.mesh`, then the exact test's range of magnitudes)."""
     if faces is None:
-        if isinstance(mesh, Mesh):
-            vertices, faces = mesh.vertices, mesh.faces
-        elif hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
-            vertices, faces = mesh.vertices, mesh.faces
-        elif isinstance(mesh, (tuple, list)) and len(mesh) == 2:
-            vertices, faces = mesh
-        else:
-            raise TypeError(
-                f"{name}: expected a voxax Mesh, a trimesh.Trimesh, a (vertices, faces) pair or "
-                f"vertices and faces, got {type(mesh).__name__}"
-            )
+        if isinstance(mesh, (str, os.PathLike)) or not (
+            _validate.is_mesh_object(mesh) or isinstance(mesh, (tuple, list)) and len(mesh) == 2
+        ):
+            _validate.unpack_mesh(name, mesh, None)  # says what to pass instead
+        vertices, faces = _validate.mesh_object_arrays(name, mesh) if _validate.is_mesh_object(mesh) else mesh
     else:
         vertices = mesh
     try:
-        vertices = np.asarray(vertices)
-        faces = np.asarray(faces)
-    except Exception as exc:  # ragged lists and the like
-        raise TypeError(f"{name}: vertices and faces must be arrays ({exc})") from None
-    if vertices.dtype == bool or not (
-        np.issubdtype(vertices.dtype, np.floating) or np.issubdtype(vertices.dtype, np.integer)
-    ):
-        raise TypeError(f"{name}: vertices must be a float or integer array, got dtype {vertices.dtype}")
-    if faces.size == 0 and faces.ndim <= 2:
-        faces = faces.reshape(0, 3).astype(np.int32)
-    if faces.dtype == bool or not np.issubdtype(faces.dtype, np.integer):
-        raise TypeError(f"{name}: faces must be an integer array, got dtype {faces.dtype}")
-    if vertices.ndim != 2 or vertices.shape[1] != 3:
-        raise ValueError(f"{name}: vertices must have shape (V, 3), got {vertices.shape}")
-    if faces.ndim != 2 or faces.shape[1] != 3:
-        raise ValueError(f"{name}: faces must have shape (F, 3), got {faces.shape}")
-    nv = vertices.shape[0]
-    if nv >= 2**31 or faces.shape[0] >= 2**31:
-        raise ValueError(f"{name}: at most 2^31 - 1 vertices and faces are supported")
+        vertices = vertices if hasattr(vertices, "dtype") else np.asarray(vertices)
+        faces = faces if hasattr(faces, "dtype") else np.asarray(faces)
+    except ValueError as exc:  # ragged lists and the like
+        raise TypeError(f"{name}: `vertices` and `faces` must be arrays ({exc})") from None
+    if not (_validate.is_concrete(vertices) and _validate.is_concrete(faces)):
+        raise TypeError(f"{name}: the test is eager (NumPy in, NumPy out); call it outside jax.jit")
+    if np.dtype(vertices.dtype).kind in "iu":
+        vertices = np.asarray(vertices, dtype=np.float64)
+    if np.size(faces) == 0 and np.ndim(faces) <= 2:
+        faces = np.zeros((0, 3), np.int32)
+    vertices, faces = _validate.mesh(name, np.asarray(vertices), np.asarray(faces), dim=3,
+                                     allow_empty=True, context="the triangle test is 3D")
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-    if not np.all(np.isfinite(vertices)):
-        raise ValueError(f"{name}: vertices contain NaN or Inf")
     mags = np.abs(vertices)
-    if np.any((mags != 0) & ((mags < MIN_ABS_COORDINATE) | (mags > MAX_ABS_COORDINATE))):
+    if np.any((mags != 0) & (mags < MIN_ABS_COORDINATE)):
         raise ValueError(
-            f"{name}: a vertex coordinate has magnitude outside [{MIN_ABS_COORDINATE:g}, "
-            f"{MAX_ABS_COORDINATE:g}] (other than 0); the exact test needs coordinates in that "
-            "range (rescale the mesh)"
+            f"{name}: `vertices` coordinates must have magnitude in [{MIN_ABS_COORDINATE:g}, "
+            f"{MAX_ABS_COORDINATE:g}] or be 0 (the exact test needs that range; rescale the mesh)"
         )
-    if faces.size and (faces.min() < 0 or faces.max() >= nv):
-        bad = int(faces.min()) if faces.min() < 0 else int(faces.max())
-        raise ValueError(f"{name}: faces refer to vertex {bad}, outside [0, {nv})")
     return vertices, np.ascontiguousarray(faces, dtype=np.int32)
 
 
@@ -171,5 +154,5 @@ def intersections(
     elif weld:
         va, fa = _weld(va, fa)
     other_arrays = (vb, fb) if other is not None else None
-    pairs = kernels.intersections(va, fa, other_arrays, _kernels.threads(threads))
+    pairs = kernels.intersections(va, fa, other_arrays, _validate.host_threads("voxax.intersections", threads))
     return Intersections(pairs, len(pairs))
