@@ -9,7 +9,7 @@ stated words, or, for a case whose expected exception is `None`, returned (such 
 code checks its own result against an oracle with `assert`): never a silent result, never
 a raw message from deep inside.
 
-The tables live in `tests/hostile/test_<system>.py`, as tuples
+The tables live in `tests/hostile/test_hostile_<system>.py`, as tuples
 `(system, label, code, exception type or None, words its message contains)`.
 """
 

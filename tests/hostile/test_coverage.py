@@ -14,7 +14,7 @@ HERE = Path(__file__).resolve().parent
 
 def _module(path: Path, name: str):
     """The module at `path`, loaded under `name` (tests/test_io.py and
-    tests/hostile/test_io.py share a stem)."""
+    tests/hostile/test_hostile_io.py share a stem)."""
     if name in sys.modules:
         return sys.modules[name]
     spec = importlib.util.spec_from_file_location(name, path)

@@ -1,4 +1,4 @@
-"""Hostile inputs to voxax.metrics beyond the core's table (tests/hostile/test_core.py),
+"""Hostile inputs to voxax.metrics beyond the core's table (tests/hostile/test_hostile_core.py),
 each case in its own process (see `_hostile_driver`)."""
 
 from __future__ import annotations
