@@ -183,7 +183,8 @@ class BVH:
         p = as_coords(points, "points", where)
         lead = p.shape[:-1]
         p = p.reshape(-1, 3)
-        cap = np.inf if max_distance is None else _validate.positive_float(where, "max_distance", max_distance, True)
+        cap = (np.inf if max_distance is None or (isinstance(max_distance, (int, float)) and max_distance == np.inf)
+               else _validate.positive_float(where, "max_distance", max_distance, True))  # inf: no limit
         dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _threads(threads))
         return ClosestPoints(
             dist.reshape(lead),
