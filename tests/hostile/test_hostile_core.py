@@ -3,10 +3,7 @@ metrics, the applications), each case in its own process (see `_hostile_driver`)
 
 from __future__ import annotations
 
-import os
-
-import pytest
-from _hostile_driver import check, ids, run_cases
+from _table import table
 
 # (system, label, code, exception type, words its message contains). `jit` in the label:
 # the error comes from the kernel, through XLA.
@@ -72,13 +69,4 @@ CASES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def outcomes(tmp_path_factory):
-    if not hasattr(os, "fork"):
-        pytest.skip("needs os.fork")
-    return run_cases(CASES, tmp_path_factory.mktemp("hostile"))
-
-
-@pytest.mark.parametrize("case", range(len(CASES)), ids=ids(CASES))
-def test_hostile_input_gets_a_clear_error(outcomes, case):
-    check(CASES[case], outcomes[case])
+outcomes, test_hostile_input = table(CASES)

@@ -5,10 +5,8 @@ hold the finer cases of hand-made `Fragments`."""
 
 from __future__ import annotations
 
-import os
-
-import pytest
-from _hostile_driver import SETUP, check, ids, run_cases
+from _hostile_driver import SETUP
+from _table import table
 
 # FR the fragments of the ball on G8; SD ten seeds on them; fr(**fields) FR with fields replaced.
 SETUP_X = SETUP + """
@@ -97,13 +95,4 @@ CASES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def outcomes(tmp_path_factory):
-    if not hasattr(os, "fork"):
-        pytest.skip("needs os.fork")
-    return run_cases(CASES, tmp_path_factory.mktemp("hostile"), setup=SETUP_X)
-
-
-@pytest.mark.parametrize("case", range(len(CASES)), ids=ids(CASES))
-def test_hostile_input_gets_a_clear_error(outcomes, case):
-    check(CASES[case], outcomes[case])
+outcomes, test_hostile_input = table(CASES, SETUP_X)

@@ -3,10 +3,8 @@
 
 from __future__ import annotations
 
-import os
-
-import pytest
-from _hostile_driver import SETUP, check, ids, run_cases
+from _hostile_driver import SETUP
+from _table import table
 
 # CUBE a unit cube [-0.5, 0.5]^3; G8 the grid [-1, 1]^3 of 8^3 cells.
 SETUP_X = SETUP + """
@@ -55,13 +53,4 @@ CASES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def outcomes(tmp_path_factory):
-    if not hasattr(os, "fork"):
-        pytest.skip("needs os.fork")
-    return run_cases(CASES, tmp_path_factory.mktemp("hostile"), setup=SETUP_X)
-
-
-@pytest.mark.parametrize("case", range(len(CASES)), ids=ids(CASES))
-def test_hostile_input_gets_a_clear_error(outcomes, case):
-    check(CASES[case], outcomes[case])
+outcomes, test_hostile_input = table(CASES, SETUP_X)
