@@ -1784,7 +1784,7 @@ def run_intersections(rng, rounds=60):
         fail("intersections: large soup differs across thread counts or found nothing")
     for case, match in (
         ((np.full((3, 3), np.nan), [[0, 1, 2]]), "NaN"),
-        ((np.eye(3), [[0, 1, 7]]), "outside"),
+        ((np.eye(3), [[0, 1, 7]]), "out of range"),
         ((np.eye(3) * 1e76, [[0, 1, 2]]), "magnitude"),
     ):
         try:
