@@ -1,0 +1,535 @@
+// A bounding volume hierarchy over triangles, in float64: the tree (class Bvh), its
+// build and its traversal layout. The queries are defined in bvh_closest.h and
+// bvh_rays.h; include bvh.h for all of it.
+//
+// Build: binned surface-area heuristic over triangle centroids (kBins bins per
+// axis, leaves of at most kMaxLeaf triangles unless the centroids coincide),
+// single-threaded and deterministic. The triangles are stored in tree order as
+// nine doubles each, next to their original face indices.
+//
+// Traversal layout: one 128-byte record per inner node holds both children's
+// boxes in float (rounded outwards, so they contain the float64 boxes) and a flat
+// cylinder per child (disk around the area-weighted mean normal of its
+// triangles, thickened to contain their vertices). Closest-point searches prune
+// with the larger of the box and cylinder distances; the cylinder's distance is
+// shrunk by a margin far above its rounding and that of the point-triangle
+// distance, so no node holding the answer (or a tie) is ever pruned. On a smooth
+// surface the cylinder sticks out towards a far point only by the patch's
+// thickness where the box sticks out by its own size, which is what keeps the
+// search for points far from the surface to a few nodes per level.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "spatial/bvh_triangle.h"
+
+namespace voxax {
+namespace spatial {
+
+// Two doubles processed together (SSE2 on x86-64; plain code elsewhere): the traversals
+// evaluate both children of a record at once.
+typedef double V2d __attribute__((vector_size(16)));
+typedef long long V2l __attribute__((vector_size(16)));
+inline V2d v2_load(const float* f) {
+  return V2d{static_cast<double>(f[0]), static_cast<double>(f[1])};
+}
+inline V2d v2_splat(double x) { return V2d{x, x}; }
+inline V2d v2_select(V2l m, V2d a, V2d b) {  // m ? a : b, lane by lane
+#if defined(__GNUC__) && !defined(__clang__)
+  return m ? a : b;
+#else
+  return (V2d)(((V2l)a & m) | ((V2l)b & ~m));
+#endif
+}
+inline V2d v2_max(V2d a, V2d b) { return v2_select(a > b, a, b); }  // a > b ? a : b
+inline V2d v2_min(V2d a, V2d b) { return v2_select(a < b, a, b); }  // a < b ? a : b
+inline V2d v2_sqrt(V2d x) {
+#if defined(__SSE2__) && defined(__GNUC__) && !defined(__clang__)
+  return __builtin_ia32_sqrtpd(x);
+#else
+  return V2d{std::sqrt(x[0]), std::sqrt(x[1])};
+#endif
+}
+
+struct Node {
+  Box3 box;
+  int32_t first = 0;  // leaf: first triangle; inner: index of the left child
+  int32_t count = 0;  // leaf: number of triangles (> 0); inner: 0 (right child = left + 1)
+};
+
+class Bvh {
+ public:
+  static constexpr int kBins = 16;
+  static constexpr int kMaxLeaf = 4;
+
+  // V: (nv, 3), F: (nf, 3), both validated by the caller.
+  void build(const double* V, const int32_t* F, int64_t nf) {
+    const int32_t n = static_cast<int32_t>(nf);
+    tris_.assign(static_cast<size_t>(n) * 9, 0.0);
+    ids_.resize(n);
+    degenerate_.assign(n, 0);
+    tri_boxes_.assign(n, Box3());
+    nodes_.clear();
+    std::vector<Box3> boxes(n);
+    std::vector<std::array<double, 3>> cent(n);
+    std::vector<int32_t> order(n);
+    for (int32_t f = 0; f < n; ++f) {
+      order[f] = f;
+      for (int k = 0; k < 3; ++k)
+        boxes[f].grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
+      for (int a = 0; a < 3; ++a) cent[f][a] = 0.5 * (boxes[f].lo[a] + boxes[f].hi[a]);
+    }
+    if (n == 0) return;
+    nodes_.reserve(2 * static_cast<size_t>(n / kMaxLeaf + 1));
+    ranges_.assign(2 * static_cast<size_t>(n) + 1, {0, 0});
+    nodes_.emplace_back();
+    struct Task {
+      int32_t node, begin, end;
+    };
+    std::vector<Task> stack{{0, 0, n}};
+    while (!stack.empty()) {
+      const Task task = stack.back();
+      stack.pop_back();
+      Node& node = nodes_[task.node];
+      Box3 cb;
+      for (int32_t i = task.begin; i < task.end; ++i) {
+        node.box.grow(boxes[order[i]]);
+        cb.grow(cent[order[i]].data());
+      }
+      const int32_t count = task.end - task.begin;
+      int32_t mid = -1;
+      if (count > kMaxLeaf) mid = split(boxes, cent, order, task.begin, task.end, node.box, cb);
+      ranges_[task.node] = {task.begin, task.end};
+      if (mid < 0) {
+        nodes_[task.node].first = task.begin;
+        nodes_[task.node].count = count;
+        continue;
+      }
+      const int32_t left = static_cast<int32_t>(nodes_.size());
+      nodes_[task.node].first = left;
+      nodes_[task.node].count = 0;
+      nodes_.emplace_back();
+      nodes_.emplace_back();
+      stack.push_back({left + 1, mid, task.end});
+      stack.push_back({left, task.begin, mid});
+    }
+    for (int32_t i = 0; i < n; ++i) {
+      const int32_t f = order[i];
+      ids_[i] = f;
+      for (int k = 0; k < 3; ++k)
+        for (int a = 0; a < 3; ++a)
+          tris_[9 * static_cast<size_t>(i) + 3 * k + a] =
+              V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
+      tri_boxes_[i] = boxes[f];
+    }
+    build_pairs();
+  }
+
+  int64_t node_count() const { return static_cast<int64_t>(nodes_.size()); }
+  int64_t face_count() const { return static_cast<int64_t>(ids_.size()); }
+
+  // The closest point to p. `hint` (a slot from an earlier result, or -1) seeds the
+  // search with that triangle's distance; the answer does not depend on it: it is
+  // always the smallest (distance, face index). With `cap2` finite, only triangles at
+  // squared distance <= cap2 count: where there is none the result is the default one
+  // (face -1, infinite distance), found after a search pruned at that distance.
+  ClosestResult closest(const double* p, int32_t hint = -1,
+                        double cap2 = std::numeric_limits<double>::infinity()) const;
+
+  // mode 0: first hit (smallest t, ties to the lowest face index); mode 1: any hit.
+  bool first_hit(const Ray& ray, bool any, RayHit* out) const;
+
+  // Every hit within [tmin, tmax], appended to *out sorted by (t, face).
+  void all_hits(const Ray& ray, std::vector<RayHit>* out) const;
+
+  // The sum of ray_crossing over every triangle whose box the ray (from r.tmin, which
+  // should be -margin) meets, through the float records (their boxes contain the double
+  // ones). Returns false (and leaves *sum) where a crossing is unclear.
+  bool crossings(const Ray& ray, double margin, int64_t* sum) const;
+
+  // The largest |coordinate| of the root box (0 for an empty tree).
+  double extent() const {
+    if (nodes_.empty()) return 0.0;
+    double m = 0.0;
+    for (int a = 0; a < 3; ++a)
+      m = std::max(m, std::max(std::fabs(root_box_.lo[a]), std::fabs(root_box_.hi[a])));
+    return m;
+  }
+
+ private:
+  std::vector<Node> nodes_;
+  std::vector<double> tris_;
+  std::vector<int32_t> ids_;
+  std::vector<uint8_t> degenerate_;
+  std::vector<Box3> tri_boxes_;
+  std::vector<std::array<int32_t, 2>>
+      ranges_;  // per node: its triangles in tree order (build only)
+
+  // The traversal layout: one 128-byte record per inner node with the bounds of
+  // both children in float, rounded outwards (a float box contains the double
+  // one, so it never prunes what the double box keeps). The boxes and the child
+  // references fill the first cache line, which is all a ray reads; closest-point
+  // searches read the slabs in the second line too.
+  struct alignas(64) Pair {
+    float lo[3][2], hi[3][2];  // [axis][child]
+    int32_t ref[2];            // inner child: its Pair index; leaf: its first triangle
+    int32_t count[2];          // leaf: number of triangles; inner: 0
+    float c[3][2], n[3][2];    // slab centre and axis per child
+    float r[2], h[2];          // slab radius and half-thickness per child
+  };
+  static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
+  static_assert(offsetof(Pair, count) + sizeof(Pair::count) <= 64,
+                "a ray reads one cache line per record");
+  struct FSlab {
+    float c[3] = {0, 0, 0}, n[3] = {0, 0, 1};
+    float r = std::numeric_limits<float>::infinity(), h = std::numeric_limits<float>::infinity();
+  };
+  std::vector<Pair> pairs_;
+  std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
+  Box3 root_box_;
+  double cmax_ = 0.0;  // the largest |coordinate| of a finite slab's centre
+  FSlab root_slab_;
+  int32_t root_ref_ = 0, root_count_ = 0;
+
+  // Outward float roundings, defined for every double (beyond the float range they
+  // saturate to the largest float or to infinity on the safe side). They never return a
+  // subnormal float: XLA's threads run with flush-to-zero and denormals-are-zero, so a
+  // subnormal bound would read as 0 there and no longer bound anything. Below the normal
+  // range they round outwards to 0 or to the smallest normal float instead.
+  static float round_down(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    constexpr float kMin = std::numeric_limits<float>::min();
+    if (x > kMax) return std::numeric_limits<float>::max();
+    if (!(x >= -kMax)) return -std::numeric_limits<float>::infinity();
+    if (std::fabs(x) < kMin) return x >= 0.0 ? 0.0f : -kMin;
+    float f = static_cast<float>(x);
+    if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+    if (std::fabs(f) < kMin) f = f >= 0.0f ? 0.0f : -kMin;
+    return f;
+  }
+  static float round_up(double x) {
+    constexpr double kMax = std::numeric_limits<float>::max();
+    constexpr float kMin = std::numeric_limits<float>::min();
+    if (x < -kMax) return -std::numeric_limits<float>::max();
+    if (!(x <= kMax)) return std::numeric_limits<float>::infinity();
+    if (std::fabs(x) < kMin) return x <= 0.0 ? 0.0f : kMin;
+    float f = static_cast<float>(x);
+    if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+    if (std::fabs(f) < kMin) f = f <= 0.0f ? 0.0f : kMin;
+    return f;
+  }
+  // The nearest float, or 0 below the normal range (see above): a value stored once and
+  // then used exactly, as float and as double, by every thread.
+  static float to_normal_float(double x) {
+    const float f = static_cast<float>(x);
+    return std::fabs(f) < std::numeric_limits<float>::min() ? 0.0f : f;
+  }
+
+  // The slab of node k: axis along the area-weighted mean normal of its
+  // triangles, centre at the box centre (both rounded to float and then used
+  // exactly), radius and half-thickness the largest radial and axial offsets of
+  // its vertices from them, rounded up. Nodes without a dominant normal get an
+  // infinite slab (it prunes nothing).
+  FSlab make_slab(int32_t k) const {
+    return make_slab_range(ranges_[k][0], ranges_[k][1], nodes_[k].box);
+  }
+  FSlab make_slab_range(int32_t b, int32_t e, const Box3& box) const {
+    FSlab sl;
+    double m[3] = {0, 0, 0}, area = 0.0;
+    for (int32_t i = b; i < e; ++i) {
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      double ab[3], ac[3];
+      for (int a = 0; a < 3; ++a) {
+        ab[a] = t[3 + a] - t[a];
+        ac[a] = t[6 + a] - t[a];
+      }
+      const double cr[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2],
+                            ab[0] * ac[1] - ab[1] * ac[0]};
+      for (int a = 0; a < 3; ++a) m[a] += cr[a];
+      area += std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
+    }
+    const double len = std::sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    if (!(len > 0.25 * area) || !std::isfinite(len)) return sl;
+    double c[3], n[3];
+    for (int a = 0; a < 3; ++a)  // far from the float range: no slab (the box still prunes)
+      if (!(std::fabs(0.5 * (box.lo[a] + box.hi[a])) < 1e30)) return sl;
+    for (int a = 0; a < 3; ++a) {
+      sl.n[a] = to_normal_float(m[a] / len);
+      sl.c[a] = to_normal_float(0.5 * (box.lo[a] + box.hi[a]));
+      n[a] = sl.n[a];
+      c[a] = sl.c[a];
+    }
+    double hmax = 0.0, rmax2 = 0.0;
+    for (int32_t i = b; i < e; ++i) {
+      const double* t = &tris_[9 * static_cast<size_t>(i)];
+      for (int v = 0; v < 3; ++v) {
+        const double w[3] = {t[3 * v] - c[0], t[3 * v + 1] - c[1], t[3 * v + 2] - c[2]};
+        const double a = n[0] * w[0] + n[1] * w[1] + n[2] * w[2];
+        const double u[3] = {w[0] - a * n[0], w[1] - a * n[1], w[2] - a * n[2]};
+        hmax = std::max(hmax, std::fabs(a));
+        rmax2 = std::max(rmax2, u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      }
+    }
+    const double cm = std::max(std::fabs(c[0]), std::max(std::fabs(c[1]), std::fabs(c[2])));
+    const double rr = std::sqrt(rmax2);
+    // The offsets above carry rounding errors of a few ulps of this scale.
+    const double margin = 1e-12 * (cm + rr + hmax);
+    const FSlab none;
+    if (!std::isfinite(cm + rr + hmax) || !(cm < 1e30)) return none;
+    sl.r = round_up(rr + margin);
+    sl.h = round_up(hmax + margin);
+    return sl;
+  }
+
+  void build_pairs() {
+    pairs_.clear();
+    if (nodes_.empty()) return;
+    const size_t nn = nodes_.size();
+    std::vector<int32_t> pair_of(nn, -1);
+    int32_t np = 0;
+    for (size_t k = 0; k < nn; ++k)
+      if (nodes_[k].count == 0) pair_of[k] = np++;
+    pairs_.assign(np, Pair());
+    auto ref = [&](int32_t k, int32_t* r, int32_t* c) {
+      if (nodes_[k].count > 0) {
+        *r = nodes_[k].first;
+        *c = nodes_[k].count;
+      } else {
+        *r = pair_of[k];
+        *c = 0;
+      }
+    };
+    tri_slabs_.resize(ids_.size());
+    for (size_t i = 0; i < ids_.size(); ++i)
+      tri_slabs_[i] =
+          make_slab_range(static_cast<int32_t>(i), static_cast<int32_t>(i) + 1, tri_boxes_[i]);
+    root_box_ = nodes_[0].box;
+    root_slab_ = make_slab(0);
+    ref(0, &root_ref_, &root_count_);
+    for (size_t k = 0; k < nn; ++k) {
+      if (nodes_[k].count != 0) continue;
+      Pair& pr = pairs_[pair_of[k]];
+      for (int j = 0; j < 2; ++j) {
+        const int32_t ch = nodes_[k].first + j;
+        const Box3& bx = nodes_[ch].box;
+        for (int a = 0; a < 3; ++a) {
+          pr.lo[a][j] = round_down(bx.lo[a]);
+          pr.hi[a][j] = round_up(bx.hi[a]);
+        }
+        const FSlab sl = make_slab(ch);
+        for (int a = 0; a < 3; ++a) {
+          pr.c[a][j] = sl.c[a];
+          pr.n[a][j] = sl.n[a];
+        }
+        pr.r[j] = sl.r;
+        pr.h[j] = sl.h;
+        ref(ch, &pr.ref[j], &pr.count[j]);
+      }
+    }
+    cmax_ = 0.0;
+    auto grow_cmax = [&](const float* c, int stride, float r, float h) {
+      if (!(r < std::numeric_limits<float>::infinity()) ||
+          !(h < std::numeric_limits<float>::infinity()))
+        return;
+      for (int a = 0; a < 3; ++a)
+        cmax_ = std::max(cmax_, static_cast<double>(std::fabs(c[a * stride])));
+    };
+    grow_cmax(root_slab_.c, 1, root_slab_.r, root_slab_.h);
+    for (const Pair& pr : pairs_)
+      for (int j = 0; j < 2; ++j) grow_cmax(&pr.c[0][j], 2, pr.r[j], pr.h[j]);
+    for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
+    ranges_.clear();
+    ranges_.shrink_to_fit();
+  }
+
+  // Squared distance from p to child j's box (the Box3::dist2 formula on the float box).
+  static double pair_box_dist2(const Pair& pr, int j, const double* p) {
+    double s = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      const double d = std::max(std::max(static_cast<double>(pr.lo[a][j]) - p[a],
+                                         p[a] - static_cast<double>(pr.hi[a][j])),
+                                0.0);
+      s += d * d;
+    }
+    return s;
+  }
+
+  // The part of the slab margin that depends only on the point: 1e-11 (max |p| + the
+  // largest |centre| of any finite slab). The margin of a slab is this plus 1e-11 (r + h),
+  // at least the 1e-11 (|p| + |c| + r + h) that bounds the rounding of slab_dist2 and of
+  // the point-triangle distance, so hoisting it out of the traversal only lowers bounds.
+  double slab_margin(const double* p) const {
+    return 1e-11 * (std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2]))) + cmax_);
+  }
+
+  // A lower bound of the squared distance from p to a slab: the squared
+  // distance to the cylinder, with both of its components shrunk by the absolute
+  // margin mq + 1e-11 (r + h) (see slab_margin), and the sum shrunk by 4e-6 relatively
+  // (the float axis is unit only to 1e-7). One square root, and none when p is within
+  // the disk's radius. An infinite slab gives 0.
+  static double slab_dist2(const float* c, const float* n, double r, double h, const double* p,
+                           int stride, double mq) {
+    const double c0 = c[0], c1 = c[stride], c2 = c[2 * stride];
+    const double n0 = n[0], n1 = n[stride], n2 = n[2 * stride];
+    const double w0 = p[0] - c0, w1 = p[1] - c1, w2 = p[2] - c2;
+    const double a = n0 * w0 + n1 * w1 + n2 * w2;
+    const double u0 = w0 - a * n0, u1 = w1 - a * n1, u2 = w2 - a * n2;
+    const double rho2 = u0 * u0 + u1 * u1 + u2 * u2;
+    const double m = mq + 1e-11 * (r + h);
+    const double dn = std::max(std::fabs(a) - h - m, 0.0);
+    double dr = 0.0;
+    if (rho2 > r * r) dr = std::max(std::sqrt(rho2) - r - m, 0.0);
+    return (dn * dn + dr * dr) * (1.0 - 4e-6);
+  }
+
+  // ray_box on child j's float box (converted exactly to double).
+  static double pair_ray_box(const Ray& r, const Pair& pr, int j, double tfar) {
+    Box3 b;
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = pr.lo[a][j];
+      b.hi[a] = pr.hi[a][j];
+    }
+    return ray_box(r, b, tfar);
+  }
+
+  // A ray without a zero direction component, for the slab test of both children of a
+  // record at once: per axis the near plane is lo for a positive direction and hi for a
+  // negative one, which is the order ray_box's swap gives, so the entry distances equal
+  // ray_box's bit for bit (the same operations in the same order).
+  struct RayPair {
+    V2d org[3], inv[3];
+    double tmin;
+    bool neg[3];
+  };
+  static RayPair ray_pair(const Ray& r) {
+    RayPair s;
+    for (int a = 0; a < 3; ++a) {
+      s.org[a] = v2_splat(r.org[a]);
+      s.inv[a] = v2_splat(r.inv[a]);
+      s.neg[a] = r.inv[a] < 0.0;
+    }
+    s.tmin = r.tmin;
+    return s;
+  }
+  static V2d pair_ray_boxes(const RayPair& s, const Pair& pr, double tfar) {
+    constexpr double kGrow =
+        1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
+    V2d t0 = v2_splat(s.tmin), t1 = v2_splat(tfar);
+    for (int a = 0; a < 3; ++a) {
+      const V2d lo = v2_load(pr.lo[a]), hi = v2_load(pr.hi[a]);
+      const V2d tn = ((s.neg[a] ? hi : lo) - s.org[a]) * s.inv[a];
+      const V2d tf = ((s.neg[a] ? lo : hi) - s.org[a]) * s.inv[a] * kGrow;
+      t0 = v2_max(tn, t0);
+      t1 = v2_min(tf, t1);
+    }
+    return v2_select(t0 > t1, v2_splat(std::numeric_limits<double>::infinity()), t0);
+  }
+
+  // Both children's lower bounds of the squared distance from p, at once: the larger of
+  // the distance to the float box and slab_dist2 (the same formulas, evaluated lane by
+  // lane; an infinite slab gives 0). mq: slab_margin(p).
+  static V2d pair_lower(const Pair& pr, V2d p0, V2d p1, V2d p2, V2d mq) {
+    const V2d z = v2_splat(0.0);
+    const V2d b0 = v2_max(v2_max(v2_load(pr.lo[0]) - p0, p0 - v2_load(pr.hi[0])), z);
+    const V2d b1 = v2_max(v2_max(v2_load(pr.lo[1]) - p1, p1 - v2_load(pr.hi[1])), z);
+    const V2d b2 = v2_max(v2_max(v2_load(pr.lo[2]) - p2, p2 - v2_load(pr.hi[2])), z);
+    const V2d box = b0 * b0 + b1 * b1 + b2 * b2;
+    const V2d n0 = v2_load(pr.n[0]), n1 = v2_load(pr.n[1]), n2 = v2_load(pr.n[2]);
+    const V2d w0 = p0 - v2_load(pr.c[0]), w1 = p1 - v2_load(pr.c[1]), w2 = p2 - v2_load(pr.c[2]);
+    const V2d a = n0 * w0 + n1 * w1 + n2 * w2;
+    const V2d u0 = w0 - a * n0, u1 = w1 - a * n1, u2 = w2 - a * n2;
+    const V2d rho2 = u0 * u0 + u1 * u1 + u2 * u2;
+    const V2d r = v2_load(pr.r), h = v2_load(pr.h);
+    const V2d m = mq + 1e-11 * (r + h);
+    const V2d dn = v2_max(v2_select(a < 0.0, -a, a) - h - m, z);
+    const V2d dr = v2_max(v2_sqrt(rho2) - r - m, z);
+    return v2_max(box, (dn * dn + dr * dr) * (1.0 - 4e-6));
+  }
+
+  double root_lower(const double* p, double mq) const {
+    const double d = root_box_.dist2(p);
+    return std::max(d,
+                    slab_dist2(root_slab_.c, root_slab_.n, root_slab_.r, root_slab_.h, p, 1, mq));
+  }
+
+  ClosestResult brute_closest(const double* p) const;
+
+  bool brute_first(const Ray& ray, bool any, RayHit* out) const;
+
+  // Binned SAH split of order[begin, end). Returns the split position, or -1 for a leaf.
+  int32_t split(const std::vector<Box3>& boxes, const std::vector<std::array<double, 3>>& cent,
+                std::vector<int32_t>& order, int32_t begin, int32_t end, const Box3& nb,
+                const Box3& cb) {
+    const int32_t count = end - begin;
+    double best_cost = std::numeric_limits<double>::infinity();
+    int best_axis = -1, best_bin = -1;
+    for (int a = 0; a < 3; ++a) {
+      const double extent = cb.hi[a] - cb.lo[a];
+      if (!(extent > 0.0)) continue;
+      const double scale = kBins / extent;
+      Box3 bb[kBins];
+      int32_t bn[kBins] = {0};
+      for (int32_t i = begin; i < end; ++i) {
+        const int32_t f = order[i];
+        int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
+        k = std::min(kBins - 1, std::max(0, k));
+        bn[k]++;
+        bb[k].grow(boxes[f]);
+      }
+      double right_area[kBins];
+      int32_t right_n[kBins];
+      Box3 acc;
+      int32_t accn = 0;
+      for (int k = kBins - 1; k > 0; --k) {
+        acc.grow(bb[k]);
+        accn += bn[k];
+        right_area[k] = acc.half_area();
+        right_n[k] = accn;
+      }
+      Box3 left;
+      int32_t ln = 0;
+      for (int k = 1; k < kBins; ++k) {
+        left.grow(bb[k - 1]);
+        ln += bn[k - 1];
+        if (ln == 0 || right_n[k] == 0) continue;
+        const double cost = left.half_area() * ln + right_area[k] * right_n[k];
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_bin = k;
+        }
+      }
+    }
+    const double parent = nb.half_area();
+    if (best_axis < 0) {
+      // All centroids coincide: split by position so leaves stay small.
+      if (count <= 4 * kMaxLeaf) return -1;
+      return begin + count / 2;
+    }
+    // SAH: traversal cost 1, intersection cost 1 per triangle.
+    const double split_cost = 1.0 + (parent > 0.0 ? best_cost / parent : 0.5 * count);
+    if (split_cost >= count && count <= 4 * kMaxLeaf) return -1;
+    const int a = best_axis;
+    const double extent = cb.hi[a] - cb.lo[a];
+    const double scale = kBins / extent;
+    auto mid_it = std::partition(order.begin() + begin, order.begin() + end, [&](int32_t f) {
+      int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
+      k = std::min(kBins - 1, std::max(0, k));
+      return k < best_bin;
+    });
+    const int32_t mid = static_cast<int32_t>(mid_it - order.begin());
+    if (mid == begin || mid == end) return begin + count / 2;
+    return mid;
+  }
+};
+
+}  // namespace spatial
+}  // namespace voxax
