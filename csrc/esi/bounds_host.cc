@@ -112,63 +112,25 @@ bool indices_within(const int64_t* idx, int64_t n, int64_t hi, const char* what,
     }
   return true;
 }
-}  // namespace
 
-VOXAX_EXPORT int voxax_bound_samples(const int64_t* rr, int64_t n, int64_t rows, int64_t nh,
-                                     const double* cur, const double* Dr, const double* suf,
-                                     const uint8_t* Vr, const uint8_t* sufv, int64_t c0, int64_t nc,
-                                     int32_t with_suf, double* C, uint8_t* Vn, double* cd,
-                                     int64_t* vn, int64_t* vmax, char* err, int64_t errlen) {
-  return voxax::host_guarded("the bounds' sample sums", err, errlen, [&](std::string* msg) {
-    if (n < 0 || rows < 0 || nh < 0 || nc < 0 || c0 < 0 || c0 + nc > nh) {
-      *msg =
-          "voxax: the bounds' sample sums need n, rows, nh, nc >= 0 and 0 <= c0 <= c0 + nc <= nh";
-      return false;
-    }
-    if (!indices_within(rr, n, rows, "the bounds' sample row", msg)) return false;
-    if (n >= (int64_t{1} << 31)) {
-      *msg = "voxax: the bounds' sample sums take fewer than 2^31 samples";
-      return false;
-    }
-    std::fill(cd, cd + nc, 0.0);
-    // the counts in 32 bits, which vectorise with the byte flags
-    std::vector<int32_t> cv(static_cast<size_t>(nc), 0), cm(static_cast<size_t>(nc), 0);
-    for (int64_t i = 0; i < n; ++i) {
-      const int64_t q = rr[i];
-      const double* d = Dr + q * nh + c0;
-      const double* s = suf + q * (nh + 1) + c0 + 1;
-      const uint8_t* v = Vr + q * nh + c0;
-      const uint8_t* sv = sufv + q * (nh + 1) + c0 + 1;
-      double* ci = C + i * nc;
-      uint8_t* vi = Vn + i * nc;
-      const double x = cur[i];
-      for (int64_t c = 0; c < nc; ++c) ci[c] = std::min(x, d[c]);
-      if (with_suf) {
-        for (int64_t c = 0; c < nc; ++c) cd[c] += std::min(ci[c], s[c]);
-      } else {
-        for (int64_t c = 0; c < nc; ++c) cd[c] += ci[c];
-      }
-      for (int64_t c = 0; c < nc; ++c) {
-        const uint8_t b = v[c] != 0;
-        vi[c] = b;
-        cv[c] += b;
-        cm[c] += b | (sv[c] != 0);
-      }
-    }
-    for (int64_t c = 0; c < nc; ++c) {
-      vn[c] = cv[c];
-      vmax[c] = cm[c];
-    }
-    return true;
-  });
-}
+// The arguments of voxax_bound_removals (see the top of this file) and its stages.
+struct Removals {
+  const uint8_t* IN;
+  int64_t nh, R;
+  const int64_t* rows;
+  int64_t n;
+  const int64_t* cols;
+  int64_t nc;
+  const int64_t* col_of;
+  int64_t s3;
+  const double* wd;
+  const double* wt;
+  double* sums;
+  double* Md;
+  double* Mt;
 
-VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, const int64_t* rows,
-                                      int64_t n, const int64_t* cols, int64_t nc,
-                                      const int64_t* col_of, int64_t s3, const double* wd,
-                                      const double* wt, int32_t threads, double* sums, double* Md,
-                                      double* Mt, char* err, int64_t errlen) {
-  return voxax::host_guarded("the bounds' removal sums", err, errlen, [&](std::string* msg) {
+  // The checks of the arguments; false with *msg set on bad input.
+  bool valid(std::string* msg) const {
     if (nh < 0 || R < 0 || n < 0 || nc < 0 || s3 < 0 || s3 > nh) {
       *msg = "voxax: the bounds' removal sums need nh, R, n, nc >= 0 and 0 <= s3 <= nh";
       return false;
@@ -190,49 +152,51 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
                ")";
         return false;
       }
+    return true;
+  }
+
+  // With col_of: the sums and the removals of each row's one column (use: the threads).
+  bool by_column(int use, std::string* msg) const {
     const int64_t nr3 = nh - s3;
-    std::fill(sums, sums + 3 * nc, 0.0);
-    std::fill(Md, Md + nr3 * nc, 0.0);
-    std::fill(Mt, Mt + nr3 * nc, 0.0);
-    if (nc == 0 || n == 0) return true;
-    const int use = n * nc * std::max<int64_t>(nr3, 1) < kThreadWork
-                        ? 1
-                        : voxax::spatial::resolve_threads(threads);
-    if (col_of) {
-      // one column per row (col_of ascending: each column's rows in one run): the sums,
-      // then per column the removals along each h, in four interleaved partial sums
-      for (int64_t i = 1; i < n; ++i)
-        if (col_of[i] < col_of[i - 1]) {
-          *msg = "voxax: the bounds' removal columns of the rows must be ascending";
-          return false;
-        }
-      std::vector<int64_t> first(static_cast<size_t>(nc + 1), 0);
-      for (int64_t i = 0; i < n; ++i) {
-        const int64_t c = col_of[i];
-        sums[c] += wd[rows[i]];
-        sums[nc + c] += wt[rows[i]];
-        sums[2 * nc + c] += 1.0;
-        first[c + 1] = i + 1;
+    // one column per row (col_of ascending: each column's rows in one run): the sums,
+    // then per column the removals along each h, in four interleaved partial sums
+    for (int64_t i = 1; i < n; ++i)
+      if (col_of[i] < col_of[i - 1]) {
+        *msg = "voxax: the bounds' removal columns of the rows must be ascending";
+        return false;
       }
-      for (int64_t c = 1; c <= nc; ++c) first[c] = std::max(first[c], first[c - 1]);
-      if (nr3 == 0) return true;
-      voxax::spatial::parallel_chunks(nc, 1, use, [&](int64_t, int64_t c0, int64_t c1) {
-        for (int64_t c = c0; c < c1; ++c)
-          for (int64_t h = std::max(s3, cols[c] + 1); h < nh; ++h) {
-            const uint8_t* in = IN + h * R;
-            double x[4] = {0.0, 0.0, 0.0, 0.0}, y[4] = {0.0, 0.0, 0.0, 0.0};
-            for (int64_t i = first[c]; i < first[c + 1]; ++i) {
-              const int64_t row = rows[i];
-              const double out = one_if(in[row] == 0);
-              x[i & 3] += out * wd[row];
-              y[i & 3] += out * wt[row];
-            }
-            Md[(h - s3) * nc + c] = (x[0] + x[1]) + (x[2] + x[3]);
-            Mt[(h - s3) * nc + c] = (y[0] + y[1]) + (y[2] + y[3]);
-          }
-      });
-      return true;
+    std::vector<int64_t> first(static_cast<size_t>(nc + 1), 0);
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t c = col_of[i];
+      sums[c] += wd[rows[i]];
+      sums[nc + c] += wt[rows[i]];
+      sums[2 * nc + c] += 1.0;
+      first[c + 1] = i + 1;
     }
+    for (int64_t c = 1; c <= nc; ++c) first[c] = std::max(first[c], first[c - 1]);
+    if (nr3 == 0) return true;
+    voxax::spatial::parallel_chunks(nc, 1, use, [&](int64_t, int64_t c0, int64_t c1) {
+      for (int64_t c = c0; c < c1; ++c)
+        for (int64_t h = std::max(s3, cols[c] + 1); h < nh; ++h) {
+          const uint8_t* in = IN + h * R;
+          double x[4] = {0.0, 0.0, 0.0, 0.0}, y[4] = {0.0, 0.0, 0.0, 0.0};
+          for (int64_t i = first[c]; i < first[c + 1]; ++i) {
+            const int64_t row = rows[i];
+            const double out = one_if(in[row] == 0);
+            x[i & 3] += out * wd[row];
+            y[i & 3] += out * wt[row];
+          }
+          Md[(h - s3) * nc + c] = (x[0] + x[1]) + (x[2] + x[3]);
+          Mt[(h - s3) * nc + c] = (y[0] + y[1]) + (y[2] + y[3]);
+        }
+    });
+    return true;
+  }
+
+  // Without col_of: the memberships gathered from IN, summed a chunk of rows at a time
+  // (use: the threads).
+  bool gathered(int use) const {
+    const int64_t nr3 = nh - s3;
     // G[h - h0, i] = IN[h, rows[i]] for h0 = cols[0] <= h < nh, gathered one row of IN at a
     // time (an ascending sweep through it)
     const int64_t h0 = cols[0], ng = nh - h0;
@@ -326,6 +290,78 @@ VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, 
         Mt[j * nc + c] = MP[(nr3 + j) * ncp + c];
       }
     return true;
+  }
+};
+
+}  // namespace
+
+VOXAX_EXPORT int voxax_bound_samples(const int64_t* rr, int64_t n, int64_t rows, int64_t nh,
+                                     const double* cur, const double* Dr, const double* suf,
+                                     const uint8_t* Vr, const uint8_t* sufv, int64_t c0, int64_t nc,
+                                     int32_t with_suf, double* C, uint8_t* Vn, double* cd,
+                                     int64_t* vn, int64_t* vmax, char* err, int64_t errlen) {
+  return voxax::host_guarded("the bounds' sample sums", err, errlen, [&](std::string* msg) {
+    if (n < 0 || rows < 0 || nh < 0 || nc < 0 || c0 < 0 || c0 + nc > nh) {
+      *msg =
+          "voxax: the bounds' sample sums need n, rows, nh, nc >= 0 and 0 <= c0 <= c0 + nc <= nh";
+      return false;
+    }
+    if (!indices_within(rr, n, rows, "the bounds' sample row", msg)) return false;
+    if (n >= (int64_t{1} << 31)) {
+      *msg = "voxax: the bounds' sample sums take fewer than 2^31 samples";
+      return false;
+    }
+    std::fill(cd, cd + nc, 0.0);
+    // the counts in 32 bits, which vectorise with the byte flags
+    std::vector<int32_t> cv(static_cast<size_t>(nc), 0), cm(static_cast<size_t>(nc), 0);
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t q = rr[i];
+      const double* d = Dr + q * nh + c0;
+      const double* s = suf + q * (nh + 1) + c0 + 1;
+      const uint8_t* v = Vr + q * nh + c0;
+      const uint8_t* sv = sufv + q * (nh + 1) + c0 + 1;
+      double* ci = C + i * nc;
+      uint8_t* vi = Vn + i * nc;
+      const double x = cur[i];
+      for (int64_t c = 0; c < nc; ++c) ci[c] = std::min(x, d[c]);
+      if (with_suf) {
+        for (int64_t c = 0; c < nc; ++c) cd[c] += std::min(ci[c], s[c]);
+      } else {
+        for (int64_t c = 0; c < nc; ++c) cd[c] += ci[c];
+      }
+      for (int64_t c = 0; c < nc; ++c) {
+        const uint8_t b = v[c] != 0;
+        vi[c] = b;
+        cv[c] += b;
+        cm[c] += b | (sv[c] != 0);
+      }
+    }
+    for (int64_t c = 0; c < nc; ++c) {
+      vn[c] = cv[c];
+      vmax[c] = cm[c];
+    }
+    return true;
+  });
+}
+
+VOXAX_EXPORT int voxax_bound_removals(const uint8_t* IN, int64_t nh, int64_t R, const int64_t* rows,
+                                      int64_t n, const int64_t* cols, int64_t nc,
+                                      const int64_t* col_of, int64_t s3, const double* wd,
+                                      const double* wt, int32_t threads, double* sums, double* Md,
+                                      double* Mt, char* err, int64_t errlen) {
+  return voxax::host_guarded("the bounds' removal sums", err, errlen, [&](std::string* msg) {
+    const Removals r{IN, nh, R, rows, n, cols, nc, col_of, s3, wd, wt, sums, Md, Mt};
+    if (!r.valid(msg)) return false;
+    const int64_t nr3 = nh - s3;
+    std::fill(sums, sums + 3 * nc, 0.0);
+    std::fill(Md, Md + nr3 * nc, 0.0);
+    std::fill(Mt, Mt + nr3 * nc, 0.0);
+    if (nc == 0 || n == 0) return true;
+    const int use = n * nc * std::max<int64_t>(nr3, 1) < kThreadWork
+                        ? 1
+                        : voxax::spatial::resolve_threads(threads);
+    if (col_of) return r.by_column(use, msg);
+    return r.gathered(use);
   });
 }
 

@@ -64,6 +64,42 @@ struct Reject {
   }
 };
 
+// The checks of the mesh: sizes, finite vertices, face indices in range.
+bool check_mesh(const double* V, int64_t nv, const int32_t* F, int64_t nf, const Reject& fail) {
+  if (nv < 0 || nf < 0 || nv > INT32_MAX || nf > INT32_MAX)
+    return fail("voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
+  if ((nv > 0 && !V) || (nf > 0 && !F)) return fail("voxax: fc.encode got a null mesh array");
+  for (int64_t i = 0; i < 3 * nv; ++i)
+    if (!std::isfinite(V[i]) || std::fabs(V[i]) > voxax::kMaxAbsCoordinate)
+      return fail(
+          "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
+          "(row " +
+          std::to_string(i / 3) + ")");
+  for (int64_t i = 0; i < 3 * nf; ++i)
+    if (F[i] < 0 || F[i] >= nv)
+      return fail("voxax: fc.encode: face index " + std::to_string(F[i]) + " is out of range [0, " +
+                  std::to_string(nv) + ") (face " + std::to_string(i / 3) + ")");
+  return true;
+}
+
+// Reads params (lambda_n, lambda_d, weight_power) and the flags 1, 2, 4 into *prm.
+bool read_params(const double* params, int32_t flags, voxax::fc::Params* prm, const Reject& fail) {
+  prm->lambda_n = params[0];
+  prm->lambda_d = params[1];
+  prm->power = params[2];
+  if (!(prm->lambda_n >= 0) || !std::isfinite(prm->lambda_n))
+    return fail("voxax: fc.encode: lambda_n must be >= 0 and finite");
+  if (!(prm->lambda_d > 0) || !std::isfinite(prm->lambda_d))
+    return fail("voxax: fc.encode: lambda_d must be > 0 and finite");
+  if (!(prm->power >= 0) || !(prm->power <= 16))
+    return fail("voxax: fc.encode: weight_power must lie in [0, 16]");
+  if (flags < 0 || flags > 31) return fail("voxax: fc.encode: bad flags");
+  prm->clamp = (flags & 1) != 0;
+  prm->components = (flags & 2) != 0;
+  prm->faces = (flags & 4) != 0;
+  return true;
+}
+
 }  // namespace
 
 VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, int64_t nf,
@@ -79,38 +115,13 @@ VOXAX_EXPORT int voxax_fc_encode(const double* V, int64_t nv, const int32_t* F, 
     const Reject fail{msg};
     if (!handle || !sizes || !box || !shape || !params)
       return fail("voxax: fc.encode got a null argument");
-    if (nv < 0 || nf < 0 || nv > INT32_MAX || nf > INT32_MAX)
-      return fail("voxax: fc.encode takes at most 2^31 - 1 vertices and faces");
-    if ((nv > 0 && !V) || (nf > 0 && !F)) return fail("voxax: fc.encode got a null mesh array");
-    for (int64_t i = 0; i < 3 * nv; ++i)
-      if (!std::isfinite(V[i]) || std::fabs(V[i]) > voxax::kMaxAbsCoordinate)
-        return fail(
-            "voxax: fc.encode: vertices contain NaN, Inf or a coordinate beyond 1e75 "
-            "(row " +
-            std::to_string(i / 3) + ")");
-    for (int64_t i = 0; i < 3 * nf; ++i)
-      if (F[i] < 0 || F[i] >= nv)
-        return fail("voxax: fc.encode: face index " + std::to_string(F[i]) +
-                    " is out of range [0, " + std::to_string(nv) + ") (face " +
-                    std::to_string(i / 3) + ")");
+    if (!check_mesh(V, nv, F, nf, fail)) return false;
     voxax::GridSpec g;
     const voxax::ffi::Error ge = voxax::check_grid(3, box[0], box[3], shape[0], box[1], box[4],
                                                    shape[1], box[2], box[5], shape[2], 0, 0, &g);
     if (ge.failure()) return fail(ge.message());
     voxax::fc::Params prm;
-    prm.lambda_n = params[0];
-    prm.lambda_d = params[1];
-    prm.power = params[2];
-    if (!(prm.lambda_n >= 0) || !std::isfinite(prm.lambda_n))
-      return fail("voxax: fc.encode: lambda_n must be >= 0 and finite");
-    if (!(prm.lambda_d > 0) || !std::isfinite(prm.lambda_d))
-      return fail("voxax: fc.encode: lambda_d must be > 0 and finite");
-    if (!(prm.power >= 0) || !(prm.power <= 16))
-      return fail("voxax: fc.encode: weight_power must lie in [0, 16]");
-    if (flags < 0 || flags > 31) return fail("voxax: fc.encode: bad flags");
-    prm.clamp = (flags & 1) != 0;
-    prm.components = (flags & 2) != 0;
-    prm.faces = (flags & 4) != 0;
+    if (!read_params(params, flags, &prm, fail)) return false;
     const double t_checked = since();
     std::vector<uint8_t> open_bits;
     if (flags & 16) {

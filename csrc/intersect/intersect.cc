@@ -181,6 +181,74 @@ void radix_sort(std::vector<std::pair<int64_t, int32_t>>* entries, int64_t limit
   }
 }
 
+// A sparse grid over the union of the boxes, cell size twice the mean box size: the
+// (cell, face) entries sorted by cell; only occupied cells exist.
+struct Cells {
+  int64_t dims[3];
+  std::vector<int64_t> cmin, cmax;  // per face and axis, the first and last cell of its box
+  std::vector<std::pair<int64_t, int32_t>> entries;
+  std::vector<int64_t> start;  // first entry of every occupied cell, then the end
+
+  void build(const std::vector<Box>& boxes) {
+    const int64_t n = static_cast<int64_t>(boxes.size());
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = INFINITY;
+      hi[k] = -INFINITY;
+    }
+    double mean_extent = 0.0;
+    for (const Box& b : boxes)
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = std::min(lo[k], b.lo[k]);
+        hi[k] = std::max(hi[k], b.hi[k]);
+      }
+    for (const Box& b : boxes)
+      mean_extent += std::max({b.hi[0] - b.lo[0], b.hi[1] - b.lo[1], b.hi[2] - b.lo[2]}) / n;
+    const double span = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+    double h = std::max(2.0 * mean_extent, span / 1048576.0);  // fastest in tests: 2x
+    if (!(h > 0.0)) h = 1.0;                                   // every face is one point
+    double inv[3];
+    cmin.assign(3 * n, 0);
+    cmax.assign(3 * n, 0);
+    for (;;) {
+      for (int k = 0; k < 3; ++k) {
+        dims[k] = std::max<int64_t>(
+            1, static_cast<int64_t>(std::min((hi[k] - lo[k]) / h, 1048575.0)) + 1);
+        inv[k] = hi[k] > lo[k] ? dims[k] / (hi[k] - lo[k]) : 0.0;
+      }
+      auto cell = [&](double x, int k) {
+        double c = std::floor((x - lo[k]) * inv[k]);
+        if (!(c >= 0.0)) c = 0.0;
+        if (c > static_cast<double>(dims[k] - 1)) c = static_cast<double>(dims[k] - 1);
+        return static_cast<int64_t>(c);
+      };
+      double total = 0.0;
+      for (int64_t i = 0; i < n; ++i) {
+        double count = 1.0;
+        for (int k = 0; k < 3; ++k) {
+          cmin[3 * i + k] = cell(boxes[i].lo[k], k);
+          cmax[3 * i + k] = cell(boxes[i].hi[k], k);
+          count *= static_cast<double>(cmax[3 * i + k] - cmin[3 * i + k] + 1);
+        }
+        total += count;
+      }
+      if (total <= 32.0 * static_cast<double>(n) + 1024.0) break;
+      h *= 2.0;  // a few huge faces: coarser cells
+    }
+    entries.reserve(static_cast<size_t>(n) * 4);
+    for (int64_t i = 0; i < n; ++i)
+      for (int64_t x = cmin[3 * i]; x <= cmax[3 * i]; ++x)
+        for (int64_t y = cmin[3 * i + 1]; y <= cmax[3 * i + 1]; ++y)
+          for (int64_t z = cmin[3 * i + 2]; z <= cmax[3 * i + 2]; ++z)
+            entries.emplace_back((x * dims[1] + y) * dims[2] + z, static_cast<int32_t>(i));
+    radix_sort(&entries, dims[0] * dims[1] * dims[2]);
+    for (size_t e = 0; e < entries.size(); ++e)
+      if (e == 0 || entries[e].first != entries[e - 1].first)
+        start.push_back(static_cast<int64_t>(e));
+    start.push_back(static_cast<int64_t>(entries.size()));
+  }
+};
+
 void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
   const bool self = B == nullptr;
   const int64_t na = A.nf, nb = self ? 0 : B->nf;
@@ -195,66 +263,13 @@ void run(const Mesh& A, const Mesh* B, int threads, Result* out) {
       boxes[i] = box_of(faces[i]);
     }
   });
-  // A sparse grid over the union of the boxes, cell size twice the mean box size: the
-  // (cell, face) entries sorted by cell; only occupied cells exist.
-  double lo[3], hi[3];
-  for (int k = 0; k < 3; ++k) {
-    lo[k] = INFINITY;
-    hi[k] = -INFINITY;
-  }
-  double mean_extent = 0.0;
-  for (const Box& b : boxes)
-    for (int k = 0; k < 3; ++k) {
-      lo[k] = std::min(lo[k], b.lo[k]);
-      hi[k] = std::max(hi[k], b.hi[k]);
-    }
-  for (const Box& b : boxes)
-    mean_extent += std::max({b.hi[0] - b.lo[0], b.hi[1] - b.lo[1], b.hi[2] - b.lo[2]}) / n;
-  const double span = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
-  double h = std::max(2.0 * mean_extent, span / 1048576.0);  // fastest in tests: 2x
-  if (!(h > 0.0)) h = 1.0;                                   // every face is one point
-  int64_t dims[3];
-  double inv[3];
-  std::vector<int64_t> cmin(3 * n), cmax(3 * n);
-  std::vector<std::pair<int64_t, int32_t>> entries;
-  for (;;) {
-    for (int k = 0; k < 3; ++k) {
-      dims[k] =
-          std::max<int64_t>(1, static_cast<int64_t>(std::min((hi[k] - lo[k]) / h, 1048575.0)) + 1);
-      inv[k] = hi[k] > lo[k] ? dims[k] / (hi[k] - lo[k]) : 0.0;
-    }
-    auto cell = [&](double x, int k) {
-      double c = std::floor((x - lo[k]) * inv[k]);
-      if (!(c >= 0.0)) c = 0.0;
-      if (c > static_cast<double>(dims[k] - 1)) c = static_cast<double>(dims[k] - 1);
-      return static_cast<int64_t>(c);
-    };
-    double total = 0.0;
-    for (int64_t i = 0; i < n; ++i) {
-      double count = 1.0;
-      for (int k = 0; k < 3; ++k) {
-        cmin[3 * i + k] = cell(boxes[i].lo[k], k);
-        cmax[3 * i + k] = cell(boxes[i].hi[k], k);
-        count *= static_cast<double>(cmax[3 * i + k] - cmin[3 * i + k] + 1);
-      }
-      total += count;
-    }
-    if (total <= 32.0 * static_cast<double>(n) + 1024.0) break;
-    h *= 2.0;  // a few huge faces: coarser cells
-  }
-  entries.reserve(static_cast<size_t>(n) * 4);
-  for (int64_t i = 0; i < n; ++i)
-    for (int64_t x = cmin[3 * i]; x <= cmax[3 * i]; ++x)
-      for (int64_t y = cmin[3 * i + 1]; y <= cmax[3 * i + 1]; ++y)
-        for (int64_t z = cmin[3 * i + 2]; z <= cmax[3 * i + 2]; ++z)
-          entries.emplace_back((x * dims[1] + y) * dims[2] + z, static_cast<int32_t>(i));
-  radix_sort(&entries, dims[0] * dims[1] * dims[2]);
-  std::vector<int64_t> start;  // first entry of every occupied cell, then the end
-  for (size_t e = 0; e < entries.size(); ++e)
-    if (e == 0 || entries[e].first != entries[e - 1].first)
-      start.push_back(static_cast<int64_t>(e));
-  const int64_t ncells = static_cast<int64_t>(start.size());
-  start.push_back(static_cast<int64_t>(entries.size()));
+  Cells cells;
+  cells.build(boxes);
+  const int64_t* dims = cells.dims;
+  const std::vector<int64_t>& cmin = cells.cmin;
+  const std::vector<std::pair<int64_t, int32_t>>& entries = cells.entries;
+  const std::vector<int64_t>& start = cells.start;
+  const int64_t ncells = static_cast<int64_t>(start.size()) - 1;
 
   // Each cell's candidate pairs; a pair is examined only in the first cell both cover.
   auto examine_cell = [&](int64_t c, std::vector<int64_t>* found) {
