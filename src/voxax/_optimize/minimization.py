@@ -425,6 +425,46 @@ def _steppers(kind, solver, fn_aux, bounds, lower, upper, rtol, atol, step_size_
     return _init, _step, failure
 
 
+def _checked_fn(fn_aux, y0, args, stop: StopRules):
+    """The shapes of `fn`'s value and aux at `y0`, checked (a floating-point scalar, and a
+    scalar aux['max_w'] where the stopping rules need it), and the names of aux's scalar
+    entries."""
+    f_struct, aux_struct = eqx.filter_eval_shape(fn_aux, y0, args)
+    if not (f_struct.shape == () and jnp.issubdtype(f_struct.dtype, jnp.floating)):
+        raise ValueError(f"minimize: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
+                         f"and dtype {f_struct.dtype}")
+    aux_names = sorted(_scalar_aux(aux_struct)) if aux_struct is not None else []
+    if stop.max_w_threshold is not None and "max_w" not in aux_names:
+        raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
+                         "aux['max_w'] (e.g. W.max()) from `fn`")
+    return f_struct, aux_struct, aux_names
+
+
+def _box_bounds(bounds, kind: str, y0):
+    """`y0` projected into the box `bounds`, and the box's `(lower, upper)` pytrees: None
+    without bounds, unbounded for `"lbfgsb"`."""
+    lower = upper = None
+    if bounds is not None:
+        if kind in ("quasi_newton", "optimistix"):
+            raise ValueError("minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
+                             "GradientTransformation) or solver='lbfgsb'; optimistix minimizers are unconstrained")
+        lower, upper = _box(bounds, y0)
+        y0 = optax.projections.projection_box(y0, lower, upper)
+    elif kind == "lbfgsb":
+        lower = jtu.tree_map(lambda x: jnp.full(x.shape, -jnp.inf, x.dtype), y0)
+        upper = jtu.tree_map(lambda x: jnp.full(x.shape, jnp.inf, x.dtype), y0)
+    return y0, lower, upper
+
+
+def _bar_postfix(energy: float, step_size: float, aux_vals: dict) -> dict:
+    """The progress bar's postfix of a step: energy, max W (when recorded), step size."""
+    post = {"E": f"{energy:.4g}"}
+    if "max_w" in aux_vals:
+        post["max_w"] = f"{aux_vals['max_w']:.4f}"
+    post["step"] = f"{step_size:.2e}"
+    return post
+
+
 def minimize(
     fn: Callable,
     y0,
@@ -525,25 +565,9 @@ def minimize(
     fn_aux = _WithAux(fn, has_aux)
     step_size_fn = _default_step_size if step_size_fn is None else step_size_fn
 
-    f_struct, aux_struct = eqx.filter_eval_shape(fn_aux, y0, args)
-    if not (f_struct.shape == () and jnp.issubdtype(f_struct.dtype, jnp.floating)):
-        raise ValueError(f"minimize: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
-                         f"and dtype {f_struct.dtype}")
-    aux_names = sorted(_scalar_aux(aux_struct)) if aux_struct is not None else []
-    if stop.max_w_threshold is not None and "max_w" not in aux_names:
-        raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
-                         "aux['max_w'] (e.g. W.max()) from `fn`")
+    f_struct, aux_struct, aux_names = _checked_fn(fn_aux, y0, args, stop)
 
-    lower = upper = None
-    if bounds is not None:
-        if kind in ("quasi_newton", "optimistix"):
-            raise ValueError("minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
-                             "GradientTransformation) or solver='lbfgsb'; optimistix minimizers are unconstrained")
-        lower, upper = _box(bounds, y0)
-        y0 = optax.projections.projection_box(y0, lower, upper)
-    elif kind == "lbfgsb":
-        lower = jtu.tree_map(lambda x: jnp.full(x.shape, -jnp.inf, x.dtype), y0)
-        upper = jtu.tree_map(lambda x: jnp.full(x.shape, jnp.inf, x.dtype), y0)
+    y0, lower, upper = _box_bounds(bounds, kind, y0)
 
     _init, _step, failure = _steppers(kind, solver, fn_aux, bounds, lower, upper, rtol, atol, step_size_fn, f_struct,
                                       aux_struct, options, stop, jit)
@@ -586,11 +610,7 @@ def minimize(
                 records[_record_name(k)].append(v)
             point = y if kind == "optax" else y_new  # the point `energy` belongs to
             if bar is not None:
-                post = {"E": f"{energy:.4g}"}
-                if "max_w" in aux_vals:
-                    post["max_w"] = f"{aux_vals['max_w']:.4f}"
-                post["step"] = f"{step_size:.2e}"
-                bar.update(post)
+                bar.update(_bar_postfix(energy, step_size, aux_vals))
             if callback is not None:
                 cb_info = {"energy": energy, "step_size": step_size, **aux_vals}
                 stop_by_callback = bool(callback(steps, y_new, cb_info))

@@ -4,6 +4,7 @@ candidate axes (surface samples, height-field boundary samples, the column ray c
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 import math
 import os
 
@@ -16,6 +17,20 @@ from .._mesh import Mesh, face_normals
 from .._spatial import BVH
 from ._depth import _BOTTOM, ON_SURFACE_PIXELS, _depth_map, height_field_solid
 from ._frames import _canonical, _used, bounding_sphere, exact_scale, frame_for
+
+
+def _area(mesh: Mesh) -> float:
+    """The area of a triangle mesh."""
+    return (
+        0.5
+        * np.linalg.norm(
+            np.cross(
+                mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]],
+                mesh.vertices[mesh.faces[:, 2]] - mesh.vertices[mesh.faces[:, 0]],
+            ),
+            axis=1,
+        ).sum()
+    )
 
 
 class _Problem:
@@ -43,37 +58,12 @@ class _Problem:
         self.sphere = (c, rad)
         self.eps = 1e-9 * rad
         normals = face_normals(self.mesh.vertices, self.mesh.faces)
-        area_s = (
-            0.5
-            * np.linalg.norm(
-                np.cross(
-                    self.mesh.vertices[self.mesh.faces[:, 1]] - self.mesh.vertices[self.mesh.faces[:, 0]],
-                    self.mesh.vertices[self.mesh.faces[:, 2]] - self.mesh.vertices[self.mesh.faces[:, 0]],
-                ),
-                axis=1,
-            ).sum()
-        )
+        area_s = _area(self.mesh)
         S = sample_surface(self.mesh, n_samples, seed)
         self.P = S.points
         self.Pn = S.normals
         self.n_samples = n_samples
-        # signed directions, grouped by line so that one depth map serves both signs
-        lines: dict = {}
-        self.dirs = []  # (line, sign) per signed direction
-        keys: dict = {}
-        for d in dirs:
-            lk, s = _canonical(d)
-            if lk not in lines:
-                lines[lk] = len(lines)
-            kk = (lines[lk], s)
-            if kk not in keys:
-                keys[kk] = len(keys)
-                self.dirs.append(kk)
-        self.key = keys
-        self._lines = lines
-        line_dirs = [None] * len(lines)
-        for lk, li in lines.items():
-            line_dirs[li] = np.asarray(lk)
+        line_dirs = self._signed_directions(dirs)
         self.vec = np.array([s * line_dirs[li] for li, s in self.dirs])
         K = len(self.dirs)
         self.D = np.zeros((n_samples, K))
@@ -92,42 +82,11 @@ class _Problem:
         rng = np.random.default_rng(seed + 7)
         seeds = [int(rng.integers(2**31)) for _ in self.dirs]
 
-        def terms(k):
-            li, s = self.dirs[k]
-            solid, n_tw = height_field_solid(self.maps[li], s)
-            hit = (_kesi.column_hits(self.P, np.full(n_samples, k), self._casts, inner) & 1) == 1
-            # distances to the height field's boundary, needed only where S is hidden: to its
-            # top and walls, or straight down to its bottom (a point of S projects inside it)
-            tw = Mesh(solid.vertices, solid.faces[:n_tw])
-            dist = np.zeros(n_samples)
-            if hit.any():
-                fr = self.maps[li].frame
-                below = (self.P[hit] - fr.center) @ fr.d * s + _BOTTOM * fr.radius
-                dist[hit] = np.minimum(BVH(tw).closest_points(self.P[hit], threads=inner).distance, below)
-            a_tw = (
-                0.5
-                * np.linalg.norm(
-                    np.cross(
-                        tw.vertices[tw.faces[:, 1]] - tw.vertices[tw.faces[:, 0]],
-                        tw.vertices[tw.faces[:, 2]] - tw.vertices[tw.faces[:, 0]],
-                    ),
-                    axis=1,
-                ).sum()
-            )
-            nb = int(round(n_samples * a_tw / area_s))
-            bs = sample_surface(tw, nb, seeds[k])
-            inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
-            pts, nrm = bs.points[inside], bs.normals[inside]
-            # which samples lie off S: a search pruned just beyond the on-surface distance
-            # (most samples lie farther: their distances are taken when needed, `distances`)
-            bd = self.bvh.closest_points(pts, threads=inner, max_distance=self.on_surface * (1 + 1e-9)).distance
-            off = bd > self.on_surface
-            return dist, hit, pts[off], nrm[off], np.full(int(off.sum()), np.nan)
-
         with concurrent.futures.ThreadPoolExecutor(workers) as pool, _blas.single_threaded():
             self.maps = dict(enumerate(pool.map(lambda fr: _depth_map(self.bvh, fr, normals, inner), frames)))
             self._casts = self._column_casts()
             step = progress(K) if progress is not None else None
+            terms = functools.partial(self._boundary_terms, inner=inner, seeds=seeds, area_s=area_s)
             for k, (dist, hit, b, bn, bd) in enumerate(pool.map(terms, range(K))):
                 if step is not None:
                     step()
@@ -145,6 +104,57 @@ class _Problem:
         self._samples = None  # see `samples`
         self.n_full = 0
         self.n_rays = 0
+
+    def _signed_directions(self, dirs) -> list:
+        """Sets `dirs` (the signed directions, grouped by line so that one depth map serves
+        both signs: `(line, sign)` each), `key` and `_lines`; returns each line's direction."""
+        lines: dict = {}
+        self.dirs = []  # (line, sign) per signed direction
+        keys: dict = {}
+        for d in dirs:
+            lk, s = _canonical(d)
+            if lk not in lines:
+                lines[lk] = len(lines)
+            kk = (lines[lk], s)
+            if kk not in keys:
+                keys[kk] = len(keys)
+                self.dirs.append(kk)
+        self.key = keys
+        self._lines = lines
+        line_dirs = [None] * len(lines)
+        for lk, li in lines.items():
+            line_dirs[li] = np.asarray(lk)
+        return line_dirs
+
+    def _boundary_terms(self, k, *, inner, seeds, area_s):
+        """Signed direction `k`'s terms: the distances of the hidden surface samples to its
+        height field's boundary, which of them it hides, and the samples of that boundary
+        off S (points, normals, their distances to S not yet taken)."""
+        from ..metrics import sample_surface
+
+        c, rad = self.sphere
+        n_samples = self.n_samples
+        li, s = self.dirs[k]
+        solid, n_tw = height_field_solid(self.maps[li], s)
+        hit = (_kesi.column_hits(self.P, np.full(n_samples, k), self._casts, inner) & 1) == 1
+        # distances to the height field's boundary, needed only where S is hidden: to its
+        # top and walls, or straight down to its bottom (a point of S projects inside it)
+        tw = Mesh(solid.vertices, solid.faces[:n_tw])
+        dist = np.zeros(n_samples)
+        if hit.any():
+            fr = self.maps[li].frame
+            below = (self.P[hit] - fr.center) @ fr.d * s + _BOTTOM * fr.radius
+            dist[hit] = np.minimum(BVH(tw).closest_points(self.P[hit], threads=inner).distance, below)
+        a_tw = _area(tw)
+        nb = int(round(n_samples * a_tw / area_s))
+        bs = sample_surface(tw, nb, seeds[k])
+        inside = ((bs.points - c) ** 2).sum(1) <= (rad * (1 + 1e-9)) ** 2
+        pts, nrm = bs.points[inside], bs.normals[inside]
+        # which samples lie off S: a search pruned just beyond the on-surface distance
+        # (most samples lie farther: their distances are taken when needed, `distances`)
+        bd = self.bvh.closest_points(pts, threads=inner, max_distance=self.on_surface * (1 + 1e-9)).distance
+        off = bd > self.on_surface
+        return dist, hit, pts[off], nrm[off], np.full(int(off.sum()), np.nan)
 
     def registry(self, hk) -> np.ndarray:
         """`(len(hk), n)` int8: whether the ray of boundary sample `g` (of `samples()`)
