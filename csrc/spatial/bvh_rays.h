@@ -57,7 +57,7 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       continue;
     }
     if (sp + 2 > 128) return brute_first(ray, any, out);
-    const Pair& pr = pairs_[e.ref];
+    const RayRec& pr = rays_[e.ref];
     double tl, tr;
     if (pairwise) {
       const V2d tt = pair_ray_boxes(rp, pr, cull);
@@ -68,6 +68,9 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       tr = pair_ray_box(ray, pr, 1, cull);
     }
     const Entry el{pr.ref[0], pr.count[0], tl}, er{pr.ref[1], pr.count[1], tr};
+    // the children's records or triangles start loading now (a hint: no effect on results)
+    if (tl != inf) prefetch_ref(el.ref, el.count);
+    if (tr != inf) prefetch_ref(er.ref, er.count);
     if (tl <= tr) {
       if (tr != inf) stack[sp++] = er;
       if (tl != inf) stack[sp++] = el;
@@ -142,7 +145,7 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
       continue;
     }
     if (sp + 2 > 128) return false;
-    const Pair& pr = pairs_[e.ref];
+    const RayRec& pr = rays_[e.ref];
     double tl, tr;
     if (pairwise) {
       const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);

@@ -24,6 +24,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <vector>
 
@@ -188,11 +189,20 @@ class Bvh {
   static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
   static_assert(offsetof(Pair, count) + sizeof(Pair::count) <= 64,
                 "a ray reads one cache line per record");
+  // The first cache line of every Pair again, packed: the ray traversals read these (a
+  // Pair's second line, the slabs, would come along with the first into the cache, and
+  // rays never use it).
+  struct alignas(64) RayRec {
+    float lo[3][2], hi[3][2];
+    int32_t ref[2], count[2];
+  };
+  static_assert(sizeof(RayRec) == 64, "RayRec must fill one cache line");
   struct FSlab {
     float c[3] = {0, 0, 0}, n[3] = {0, 0, 1};
     float r = std::numeric_limits<float>::infinity(), h = std::numeric_limits<float>::infinity();
   };
   std::vector<Pair> pairs_;
+  std::vector<RayRec> rays_;      // per Pair: its boxes and child references
   std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
   Box3 root_box_;
   double cmax_ = 0.0;  // the largest |coordinate| of a finite slab's centre
@@ -346,6 +356,15 @@ class Bvh {
     for (const Pair& pr : pairs_)
       for (int j = 0; j < 2; ++j) grow_cmax(&pr.c[0][j], 2, pr.r[j], pr.h[j]);
     for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
+    rays_.resize(pairs_.size());
+    for (size_t i = 0; i < pairs_.size(); ++i) {
+      std::memcpy(rays_[i].lo, pairs_[i].lo, sizeof(rays_[i].lo));
+      std::memcpy(rays_[i].hi, pairs_[i].hi, sizeof(rays_[i].hi));
+      for (int j = 0; j < 2; ++j) {
+        rays_[i].ref[j] = pairs_[i].ref[j];
+        rays_[i].count[j] = pairs_[i].count[j];
+      }
+    }
     ranges_.clear();
     ranges_.shrink_to_fit();
   }
@@ -391,7 +410,20 @@ class Bvh {
   }
 
   // ray_box on child j's float box (converted exactly to double).
-  static double pair_ray_box(const Ray& r, const Pair& pr, int j, double tfar) {
+  // Starts loading what a ray visits next at a reference: a Pair's ray record, or a
+  // leaf's first triangles.
+  void prefetch_ref(int32_t ref, int32_t count) const {
+    if (count > 0) {
+      const double* t = &tris_[9 * static_cast<size_t>(ref)];
+      __builtin_prefetch(t);
+      __builtin_prefetch(t + 8);
+    } else {
+      __builtin_prefetch(&rays_[static_cast<size_t>(ref)]);
+    }
+  }
+
+  template <typename Rec>
+  static double pair_ray_box(const Ray& r, const Rec& pr, int j, double tfar) {
     Box3 b;
     for (int a = 0; a < 3; ++a) {
       b.lo[a] = pr.lo[a][j];
@@ -419,7 +451,8 @@ class Bvh {
     s.tmin = r.tmin;
     return s;
   }
-  static V2d pair_ray_boxes(const RayPair& s, const Pair& pr, double tfar) {
+  template <typename Rec>
+  static V2d pair_ray_boxes(const RayPair& s, const Rec& pr, double tfar) {
     constexpr double kGrow =
         1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
     V2d t0 = v2_splat(s.tmin), t1 = v2_splat(tfar);
