@@ -192,9 +192,18 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
     if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
     const std::vector<int64_t> order = spatial_order(O, n);
     voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      // The chunk's rays are scattered in memory: gathered first (independent loads, which
+      // the processor overlaps) rather than one cache miss per ray inside the traversal.
+      double od[6 * kChunk];
+      for (int64_t j = b; j < e; ++j)
+        for (int a = 0; a < 3; ++a) {
+          od[6 * (j - b) + a] = O[3 * order[j] + a];
+          od[6 * (j - b) + 3 + a] = D[3 * order[j] + a];
+        }
       for (int64_t j = b; j < e; ++j) {
         const int64_t i = order[j];
-        const auto ray = voxax::spatial::make_ray(O + 3 * i, D + 3 * i, tmin, tmax);
+        const double* r = od + 6 * (j - b);
+        const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
         RayHit h;
         voxax::spatial::store_hit(bvh->first_hit(ray, any != 0, &h), h, i, t, face, bary, sign);
       }

@@ -25,13 +25,15 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
     int32_t ref, count;
     double t;
   };
-  Entry stack[128];
+  constexpr int kStack = 192;
+  Entry stack[kStack];
   int sp = 0;
   const double t_root = ray_box(ray, root_box_, ray.tmax);
   if (t_root == inf) return false;
   const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
   const RayPair rp = ray_pair(ray);
-  stack[sp++] = {root_ref_, root_count_, t_root};
+  // the root: a leaf, or Quad 0
+  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_, t_root};
   RayHit h;
   while (sp > 0) {
     const Entry e = stack[--sp];
@@ -56,28 +58,35 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       }
       continue;
     }
-    if (sp + 2 > 128) return brute_first(ray, any, out);
-    const RayRec& pr = rays_[e.ref];
-    double tl, tr;
-    if (pairwise) {
-      const V2d tt = pair_ray_boxes(rp, pr, cull);
-      tl = tt[0];
-      tr = tt[1];
-    } else {
-      tl = pair_ray_box(ray, pr, 0, cull);
-      tr = pair_ray_box(ray, pr, 1, cull);
+    if (sp + 4 > kStack) return brute_first(ray, any, out);
+    const Quad& qd = quads_[e.ref];
+    Entry kid[4];
+    int nk = 0;
+    for (int half = 0; half < 2; ++half) {
+      const RayRec& pr = qd.half[half];
+      double t2[2];
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, cull);
+        t2[0] = tt[0];
+        t2[1] = tt[1];
+      } else {
+        for (int j = 0; j < 2; ++j) t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, cull);
+      }
+      for (int j = 0; j < 2; ++j)
+        if (pr.count[j] >= 0 && t2[j] != inf) {
+          // the records or triangles start loading now (a hint: no effect on results)
+          prefetch_ref(pr.ref[j], pr.count[j]);
+          // insertion by t (ties keep the slot order)
+          int at = nk++;
+          while (at > 0 && kid[at - 1].t > t2[j]) {
+            kid[at] = kid[at - 1];
+            --at;
+          }
+          kid[at] = {pr.ref[j], pr.count[j], t2[j]};
+        }
     }
-    const Entry el{pr.ref[0], pr.count[0], tl}, er{pr.ref[1], pr.count[1], tr};
-    // the children's records or triangles start loading now (a hint: no effect on results)
-    if (tl != inf) prefetch_ref(el.ref, el.count);
-    if (tr != inf) prefetch_ref(er.ref, er.count);
-    if (tl <= tr) {
-      if (tr != inf) stack[sp++] = er;
-      if (tl != inf) stack[sp++] = el;
-    } else {
-      if (tl != inf) stack[sp++] = el;
-      if (tr != inf) stack[sp++] = er;
-    }
+    // the nearest is visited first
+    while (nk > 0) stack[sp++] = kid[--nk];
   }
   if (found) *out = best;
   return found;
@@ -129,11 +138,13 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
   struct Entry {
     int32_t ref, count;
   };
-  Entry stack[128];
+  constexpr int kStack = 192;
+  Entry stack[kStack];
   int sp = 0;
   const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
   const RayPair rp = ray_pair(ray);
-  stack[sp++] = {root_ref_, root_count_};
+  // the root: a leaf, or Quad 0
+  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_};
   while (sp > 0) {
     const Entry e = stack[--sp];
     if (e.count > 0) {
@@ -144,19 +155,22 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
       }
       continue;
     }
-    if (sp + 2 > 128) return false;
-    const RayRec& pr = rays_[e.ref];
-    double tl, tr;
-    if (pairwise) {
-      const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
-      tl = tt[0];
-      tr = tt[1];
-    } else {
-      tl = pair_ray_box(ray, pr, 0, ray.tmax);
-      tr = pair_ray_box(ray, pr, 1, ray.tmax);
+    if (sp + 4 > kStack) return false;
+    const Quad& qd = quads_[e.ref];
+    for (int half = 1; half >= 0; --half) {
+      const RayRec& pr = qd.half[half];
+      double t2[2];
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
+        t2[0] = tt[0];
+        t2[1] = tt[1];
+      } else {
+        for (int j = 0; j < 2; ++j)
+          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
+      }
+      for (int j = 1; j >= 0; --j)
+        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
     }
-    if (tr != inf) stack[sp++] = {pr.ref[1], pr.count[1]};
-    if (tl != inf) stack[sp++] = {pr.ref[0], pr.count[0]};
   }
   *sum = s;
   return true;

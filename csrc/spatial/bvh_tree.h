@@ -177,8 +177,8 @@ class Bvh {
   // The traversal layout: one 128-byte record per inner node with the bounds of
   // both children in float, rounded outwards (a float box contains the double
   // one, so it never prunes what the double box keeps). The boxes and the child
-  // references fill the first cache line, which is all a ray reads; closest-point
-  // searches read the slabs in the second line too.
+  // references fill the first cache line, the slabs of closest-point searches the
+  // second. Rays read Quads instead (below).
   struct alignas(64) Pair {
     float lo[3][2], hi[3][2];  // [axis][child]
     int32_t ref[2];            // inner child: its Pair index; leaf: its first triangle
@@ -189,9 +189,7 @@ class Bvh {
   static_assert(sizeof(Pair) == 128, "Pair must fill two cache lines");
   static_assert(offsetof(Pair, count) + sizeof(Pair::count) <= 64,
                 "a ray reads one cache line per record");
-  // The first cache line of every Pair again, packed: the ray traversals read these (a
-  // Pair's second line, the slabs, would come along with the first into the cache, and
-  // rays never use it).
+  // Two children's boxes and references (as in a Pair's first line): half of a Quad.
   struct alignas(64) RayRec {
     float lo[3][2], hi[3][2];
     int32_t ref[2], count[2];
@@ -202,7 +200,14 @@ class Bvh {
     float r = std::numeric_limits<float>::infinity(), h = std::numeric_limits<float>::infinity();
   };
   std::vector<Pair> pairs_;
-  std::vector<RayRec> rays_;      // per Pair: its boxes and child references
+  // The ray traversals' four-wide tree (first and any hits, crossings): a Pair with its
+  // children's Pairs collapsed into one record of up to four children (two RayRecs: two
+  // adjacent cache lines, and half the levels of the Pairs); an inner child refers to a
+  // Quad, an unused slot has count -1 and an empty box.
+  struct alignas(64) Quad {
+    RayRec half[2];
+  };
+  std::vector<Quad> quads_;
   std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
   Box3 root_box_;
   double cmax_ = 0.0;  // the largest |coordinate| of a finite slab's centre
@@ -356,17 +361,57 @@ class Bvh {
     for (const Pair& pr : pairs_)
       for (int j = 0; j < 2; ++j) grow_cmax(&pr.c[0][j], 2, pr.r[j], pr.h[j]);
     for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
-    rays_.resize(pairs_.size());
-    for (size_t i = 0; i < pairs_.size(); ++i) {
-      std::memcpy(rays_[i].lo, pairs_[i].lo, sizeof(rays_[i].lo));
-      std::memcpy(rays_[i].hi, pairs_[i].hi, sizeof(rays_[i].hi));
-      for (int j = 0; j < 2; ++j) {
-        rays_[i].ref[j] = pairs_[i].ref[j];
-        rays_[i].count[j] = pairs_[i].count[j];
-      }
-    }
+    quads_.clear();
+    if (root_count_ == 0) make_quad(root_ref_);
     ranges_.clear();
     ranges_.shrink_to_fit();
+  }
+
+  // Appends the Quad of Pair p (and those below it, depth first); returns its index.
+  int32_t make_quad(int32_t p) {
+    const int32_t q = static_cast<int32_t>(quads_.size());
+    quads_.emplace_back();
+    int slot = 0;
+    struct Child {
+      int32_t pair, j;
+    } kids[4];
+    for (int j = 0; j < 2; ++j) {
+      if (pairs_[p].count[j] > 0) {
+        kids[slot++] = {p, j};
+      } else {
+        const int32_t c = pairs_[p].ref[j];
+        kids[slot++] = {c, 0};
+        kids[slot++] = {c, 1};
+      }
+    }
+    for (int k = 0; k < 4; ++k) {
+      RayRec& h = quads_[q].half[k / 2];
+      const int lane = k % 2;
+      if (k >= slot) {
+        for (int a = 0; a < 3; ++a) {
+          h.lo[a][lane] = std::numeric_limits<float>::infinity();
+          h.hi[a][lane] = -std::numeric_limits<float>::infinity();
+        }
+        h.ref[lane] = 0;
+        h.count[lane] = -1;
+        continue;
+      }
+      const Pair& src = pairs_[kids[k].pair];
+      const int j = kids[k].j;
+      for (int a = 0; a < 3; ++a) {
+        h.lo[a][lane] = src.lo[a][j];
+        h.hi[a][lane] = src.hi[a][j];
+      }
+      h.count[lane] = src.count[j];
+      h.ref[lane] = src.ref[j];
+    }
+    // inner children: their own Quads (after this one's slots are set: quads_ may move)
+    for (int k = 0; k < slot; ++k) {
+      if (quads_[q].half[k / 2].count[k % 2] != 0) continue;
+      const int32_t child = make_quad(quads_[q].half[k / 2].ref[k % 2]);
+      quads_[q].half[k / 2].ref[k % 2] = child;
+    }
+    return q;
   }
 
   // Squared distance from p to child j's box (the Box3::dist2 formula on the float box).
@@ -410,15 +455,17 @@ class Bvh {
   }
 
   // ray_box on child j's float box (converted exactly to double).
-  // Starts loading what a ray visits next at a reference: a Pair's ray record, or a
-  // leaf's first triangles.
+  // Starts loading what a ray visits next at a Quad's slot: the Quad of an inner child,
+  // or a leaf's first triangles (a hint: no effect on results).
   void prefetch_ref(int32_t ref, int32_t count) const {
     if (count > 0) {
       const double* t = &tris_[9 * static_cast<size_t>(ref)];
       __builtin_prefetch(t);
       __builtin_prefetch(t + 8);
     } else {
-      __builtin_prefetch(&rays_[static_cast<size_t>(ref)]);
+      const char* q = reinterpret_cast<const char*>(&quads_[static_cast<size_t>(ref)]);
+      __builtin_prefetch(q);
+      __builtin_prefetch(q + 64);
     }
   }
 

@@ -192,6 +192,31 @@ def test_rays_random_soup_vs_brute_force():
     np.testing.assert_array_equal(allh.sign, np.sign(np.sum(n * d[allh.ray], 1)))
 
 
+@pytest.mark.parametrize("nf", [1, 3, 5, 9, 17, 40])
+def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
+    # small soups give four-wide records with two, three and four children (and a leaf as
+    # the root); rays with one or two zero direction components take the scalar box test
+    rng = np.random.default_rng(nf)
+    V, F = random_soup(rng, nf=nf, degenerate=0)
+    o = rng.uniform(-1.5, 1.5, (240, 3))
+    d = rng.normal(size=(240, 3))
+    d[np.arange(80, 160), rng.integers(0, 3, 80)] = 0.0
+    for i in range(160, 240):
+        keep = rng.integers(0, 3)
+        d[i] = 0.0
+        d[i, keep] = rng.choice([-1.0, 1.0])
+    bvh = voxax.BVH(V, F)
+    first = bvh.first_hits(o, d)
+    anyh = bvh.any_hits(o, d)
+    for i, (t, f) in enumerate(brute_hits(o, d, V, F)):
+        assert anyh[i] == (len(t) > 0)
+        if len(t):
+            assert first.face[i] == f[0]
+            np.testing.assert_allclose(first.t[i], t[0], rtol=1e-10)
+        else:
+            assert first.face[i] == -1 and np.isinf(first.t[i])
+
+
 def test_watertight_rays_through_edges_and_vertices():
     # axis-aligned rays through a cube's edges, its face diagonals and its centre: every ray
     # strictly inside the footprint crosses exactly twice, entering then exiting
