@@ -58,11 +58,11 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       }
       continue;
     }
-    if (sp + 4 > kStack) return brute_first(ray, any, out);
+    if (sp + kQuadWidth > kStack) return brute_first(ray, any, out);
     const Quad& qd = quads_[e.ref];
-    Entry kid[4];
+    Entry kid[kQuadWidth];
     int nk = 0;
-    for (int half = 0; half < 2; ++half) {
+    for (int half = 0; half < kQuadWidth / 2; ++half) {
       const RayRec& pr = qd.half[half];
       double t2[2];
       if (pairwise) {
@@ -155,9 +155,9 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
       }
       continue;
     }
-    if (sp + 4 > kStack) return false;
+    if (sp + kQuadWidth > kStack) return false;
     const Quad& qd = quads_[e.ref];
-    for (int half = 1; half >= 0; --half) {
+    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
       const RayRec& pr = qd.half[half];
       double t2[2];
       if (pairwise) {

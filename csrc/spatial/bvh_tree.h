@@ -204,8 +204,9 @@ class Bvh {
   // children's Pairs collapsed into one record of up to four children (two RayRecs: two
   // adjacent cache lines, and half the levels of the Pairs); an inner child refers to a
   // Quad, an unused slot has count -1 and an empty box.
+  static constexpr int kQuadWidth = 4;  // children per Quad (even: RayRecs hold two)
   struct alignas(64) Quad {
-    RayRec half[2];
+    RayRec half[kQuadWidth / 2];
   };
   std::vector<Quad> quads_;
   std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
@@ -367,24 +368,40 @@ class Bvh {
     ranges_.shrink_to_fit();
   }
 
-  // Appends the Quad of Pair p (and those below it, depth first); returns its index.
+  // Appends the Quad of Pair p (and those below it, depth first); returns its index. Its
+  // children: p's two, then repeatedly the inner child of largest box area replaced by its
+  // own two, while slots are left.
   int32_t make_quad(int32_t p) {
     const int32_t q = static_cast<int32_t>(quads_.size());
     quads_.emplace_back();
-    int slot = 0;
     struct Child {
-      int32_t pair, j;
-    } kids[4];
-    for (int j = 0; j < 2; ++j) {
-      if (pairs_[p].count[j] > 0) {
-        kids[slot++] = {p, j};
-      } else {
-        const int32_t c = pairs_[p].ref[j];
-        kids[slot++] = {c, 0};
-        kids[slot++] = {c, 1};
+      int32_t pair, j;  // child j of Pair `pair`
+    } kids[kQuadWidth];
+    int slot = 0;
+    kids[slot++] = {p, 0};
+    kids[slot++] = {p, 1};
+    while (slot < kQuadWidth) {
+      int pick = -1;
+      double area = -1.0;
+      for (int k = 0; k < slot; ++k) {
+        const Pair& src = pairs_[kids[k].pair];
+        const int j = kids[k].j;
+        if (src.count[j] != 0) continue;
+        double e[3];
+        for (int a = 0; a < 3; ++a)
+          e[a] = static_cast<double>(src.hi[a][j]) - static_cast<double>(src.lo[a][j]);
+        const double ar = e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+        if (ar > area) {
+          area = ar;
+          pick = k;
+        }
       }
+      if (pick < 0) break;
+      const int32_t c = pairs_[kids[pick].pair].ref[kids[pick].j];
+      kids[pick] = {c, 0};
+      kids[slot++] = {c, 1};
     }
-    for (int k = 0; k < 4; ++k) {
+    for (int k = 0; k < kQuadWidth; ++k) {
       RayRec& h = quads_[q].half[k / 2];
       const int lane = k % 2;
       if (k >= slot) {
