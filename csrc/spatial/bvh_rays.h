@@ -93,17 +93,24 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
 }
 
 inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
+  constexpr double inf = std::numeric_limits<double>::infinity();
   const size_t start = out->size();
-  if (nodes_.empty()) return;
-  int32_t stack[128];
+  if (nodes_.empty() || ray_box(ray, root_box_, ray.tmax) == inf) return;
+  struct Entry {
+    int32_t ref, count;
+  };
+  constexpr int kStack = 192;
+  Entry stack[kStack];
   int sp = 0;
-  stack[sp++] = 0;
+  const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
+  const RayPair rp = ray_pair(ray);
+  // the root: a leaf, or Quad 0
+  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_};
   RayHit h;
   while (sp > 0) {
-    const Node& node = nodes_[stack[--sp]];
-    if (ray_box(ray, node.box, ray.tmax) == std::numeric_limits<double>::infinity()) continue;
-    if (node.count > 0) {
-      for (int32_t i = node.first; i < node.first + node.count; ++i) {
+    const Entry e = stack[--sp];
+    if (e.count > 0) {
+      for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
           h.face = ids_[i];
           out->push_back(h);
@@ -111,7 +118,7 @@ inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
       }
       continue;
     }
-    if (sp + 2 > 128) {
+    if (sp + kQuadWidth > kStack) {  // every triangle instead
       out->resize(start);
       for (int32_t i = 0; i < static_cast<int32_t>(ids_.size()); ++i)
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
@@ -120,8 +127,21 @@ inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
         }
       break;
     }
-    stack[sp++] = node.first + 1;
-    stack[sp++] = node.first;
+    const Quad& qd = quads_[e.ref];
+    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
+      const RayRec& pr = qd.half[half];
+      double t2[2];
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
+        t2[0] = tt[0];
+        t2[1] = tt[1];
+      } else {
+        for (int j = 0; j < 2; ++j)
+          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
+      }
+      for (int j = 1; j >= 0; --j)
+        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
+    }
   }
   std::sort(out->begin() + start, out->end(), [](const RayHit& x, const RayHit& y) {
     return x.t < y.t || (x.t == y.t && x.face < y.face);
