@@ -618,3 +618,25 @@ def test_tokens_and_reports_are_values():
     for obj in (tok, rep, rep.manifold):
         for other in (pickle.loads(pickle.dumps(obj)), copy.deepcopy(obj)):
             assert type(other) is type(obj) and other == obj
+
+
+def test_rows_record_their_faces_without_components():
+    # the kernel's flags as csrc/fc/fc_host.cc reads them: faces recorded per row on their
+    # own, checked against the pieces of the faces clipped into the cells
+    from voxax._kernels import fc as kernel
+
+    mesh = voxax.data.icosphere(2, radius=0.6)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    grid = voxax.Grid.cube(7)
+    args = ("test", V, F, grid.lower, grid.upper, grid.shape)
+    index, _, _, _, _, fcount, rfaces = kernel.encode_rows(
+        *args, (1.0, 1e-3, 1.0), kernel.CLAMP | kernel.RECORD_FACES
+    )
+    assert len(np.unique(index)) == len(index)  # no components: one row per cell
+    assert fcount.sum() == len(rfaces) and fcount.min() >= 1
+    cell, face, area, _ = kernel.encode_pieces(*args)
+    starts = np.concatenate([[0], np.cumsum(fcount)])
+    for r, c in enumerate(index):
+        want = np.unique(face[(cell == c) & (area > 0)])
+        got = np.unique(rfaces[starts[r] : starts[r + 1]])
+        assert np.array_equal(got, want), c

@@ -42,7 +42,7 @@ SIGNATURES = {
 _CTYPES = {np.dtype(np.float64): D, np.dtype(np.int32): I32, np.dtype(np.int64): I64}
 
 # Flags of voxax_fc_encode.
-CLAMP, RECORD_FACES, COMPONENTS, PIECES, OPEN_BOUNDARIES = 1, 2, 4, 8, 16
+CLAMP, COMPONENTS, RECORD_FACES, PIECES, OPEN_BOUNDARIES = 1, 2, 4, 8, 16  # as csrc/fc/fc_host.cc reads them
 
 
 def _lib():
