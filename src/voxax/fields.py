@@ -581,7 +581,26 @@ class DeepSDF(eqx.Module):
 
     def __call__(self, points, index=0):
         """The field of training shape(s) `index` at `points (..., dim)` -> `(...)`."""
+        _shape_index("voxax.fields.DeepSDF", index, self.codes.shape[0])
         return self.decode(self.codes[jnp.asarray(index)], points)
+
+
+def _shape_index(where: str, index, n: int) -> None:
+    """Checks the shape indices `index` (an int or an int array) of a DeepSDF with `n`
+    codes: integers, and in `[0, n)` when concrete (JAX would clamp them silently)."""
+    if isinstance(index, (bool, np.bool_)) or (hasattr(index, "dtype") and np.dtype(index.dtype).kind not in "iu"):
+        raise TypeError(f"{where}: `index` must be an int or an int array, got {getattr(index, 'dtype', 'bool')}")
+    if not hasattr(index, "dtype") and not isinstance(index, (int, np.integer)):
+        try:
+            index = np.asarray(index)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `index` must be an int or an int array, got {type(index).__name__}") from None
+        if index.dtype.kind not in "iu":
+            raise TypeError(f"{where}: `index` must be an int or an int array, got {index.dtype}")
+    if _validate.is_concrete(index) and np.size(index):
+        a = np.asarray(index)
+        if a.min() < 0 or a.max() >= n:
+            raise ValueError(f"{where}: `index` must lie in [0, {n}) (the model's shapes), got [{a.min()}, {a.max()}]")
 
 
 def deepsdf_loss(
@@ -609,7 +628,23 @@ def deepsdf_loss(
 
     **Returns:** scalar loss.
     """
-    pred = model(points, index)
+    where = "voxax.fields.deepsdf_loss"
+    if not isinstance(model, DeepSDF):
+        raise TypeError(f"{where}: `model` must be a voxax.fields.DeepSDF, got {type(model).__name__}")
+    p = _points(where, _validate.coordinates(where, "points", points, model.dim), model.dim)
+    if not hasattr(sdf, "dtype"):
+        sdf = np.asarray(sdf)
+    if np.dtype(sdf.dtype).kind not in "fiu":
+        raise TypeError(f"{where}: `sdf` must be a real array, got {sdf.dtype}")
+    if tuple(sdf.shape) != tuple(p.shape[:-1]):
+        raise ValueError(f"{where}: `sdf` must have one value per point, shape {tuple(p.shape[:-1])}, got "
+                         f"{tuple(sdf.shape)}")
+    if _validate.is_concrete(sdf) and np.size(sdf) and not np.all(np.isfinite(np.asarray(sdf))):
+        raise ValueError(f"{where}: `sdf` must be finite (it contains NaN or Inf)")
+    _shape_index(where, index, model.codes.shape[0])
+    clamp = _validate.positive_float(where, "clamp", clamp)
+    code_sigma = _validate.positive_float(where, "code_sigma", code_sigma)
+    pred = model(p, index)
     s = jnp.asarray(sdf, dtype=pred.dtype)
     data = jnp.mean(jnp.abs(jnp.clip(pred, -clamp, clamp) - jnp.clip(s, -clamp, clamp)))
     codes = model.codes[jnp.asarray(index)]

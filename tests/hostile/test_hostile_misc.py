@@ -31,6 +31,21 @@ CASES = [
      "ValueError", "weights"),
     ("energies", "objective with a term that is not a function", f"{E}.objective({{'a': 1.0}})", "TypeError",
      "`terms`"),
+    ("energies", "silhouettes of a NaN grid", f"np.asarray({E}.silhouettes(np.where(np.eye(4)[:, :, None] > 0, np.nan, 0.5))[0])",
+     "JaxRuntimeError", "`W` must be finite"),
+    ("energies", "bandsaw_cut of an Inf grid", f"float({E}.bandsaw_cut(np.full((3, 3, 3), np.inf)))", "JaxRuntimeError",
+     "`W` must be finite"),
+    ("energies", "cut_shape of a complex grid", f"{E}.cut_shape(np.zeros((3, 3, 3)) + 0j)", "TypeError", "`W`"),
+    ("energies", "interpenetration of grids of two shapes",
+     f"{E}.interpenetration(np.zeros((3, 3, 3)), np.zeros((4, 4, 4)))", "ValueError", "`W_a` and `W_b`"),
+    ("energies", "tiling with blocks that do not divide", f"{E}.tiling(np.zeros((1, 4, 4, 4)))", "ValueError",
+     "voxax.energies.tiling: `W_instances`"),
+    ("energies", "the bandsaw, cut shape, overlap and tiling energies of a box (oracle)",
+     f"B = np.zeros((6, 6, 6)); B[1:5, 2:4, 1:3] = 1.0; S = np.asarray({E}.cut_shape(B, 1e4));"
+     f"assert np.allclose(S, B, atol=1e-3) and float({E}.bandsaw_cut(B, 1e4)) < 1e-6;"
+     f"sx, sy, sz = {E}.silhouettes(B, 1e4); assert np.allclose(sz, B.max(2), atol=1e-3);"
+     f"assert np.isclose({E}.interpenetration(B, B), B.sum() / B.size);"
+     f"assert float({E}.tiling(np.full((1, 3, 3, 3), 1 / 27), blocks=3)) < 1e-20", None, ""),
     ("energies", "esi_gap axes '2'", f"{E}.esi_gap({W}, '2')", "TypeError", "`axes`"),
     ("energies", "fold_periodic blocks 0", f"{E}.fold_periodic({W}, blocks=0)", "ValueError", "`blocks`"),
     ("energies", "cotangent weights of a sphere (oracle)",
@@ -45,6 +60,16 @@ CASES = [
     ("fields", "torus of string points", f"{FL}.torus(np.zeros((2, 3)).astype(str))", "TypeError", "`points`"),
     ("fields", "Siren with a float key", f"{FL}.Siren(key=0.5)", "TypeError", "`key`"),
     ("fields", "Siren of depth 0", f"{FL}.Siren(depth=0, key=jax.random.key(0))", "ValueError", "`depth`"),
+    ("fields", "deepsdf_loss with a shape index beyond the codes",
+     f"m = {FL}.DeepSDF(2, 4, 8, 3, key=jax.random.key(0)); {FL}.deepsdf_loss(m, np.zeros((3, 3)), np.zeros(3), index=7)",
+     "ValueError", "`index`"),
+    ("fields", "deepsdf_loss with one target short",
+     f"m = {FL}.DeepSDF(2, 4, 8, 3, key=jax.random.key(0)); {FL}.deepsdf_loss(m, np.zeros((3, 3)), np.zeros(2))",
+     "ValueError", "`sdf`"),
+    ("fields", "deepsdf_loss of zero codes on their own targets (oracle)",
+     f"m = {FL}.DeepSDF(2, 4, 8, 3, key=jax.random.key(0), code_std=0.0); p = np.zeros((5, 3));"
+     f"l = float({FL}.deepsdf_loss(m, p, np.clip(np.asarray(m(p, 1)), -0.1, 0.1), index=1)); assert abs(l) < 1e-12, l",
+     None, ""),
     ("fields", "chebyshev degree -1", f"{FL}.chebyshev_polynomial(jnp.zeros(3), -1)", "ValueError", "`degree`"),
     ("fields", "DeepSDF with 0 shapes", f"{FL}.DeepSDF(0, key=jax.random.key(0))", "ValueError", "`n_shapes`"),
     ("fields", "union of nothing", f"{FL}.union()", "ValueError", "`values`"),
