@@ -117,7 +117,12 @@ def _instance_intersections(meshes: list, period: float) -> int:
 
 
 def rotation_matrices(angles):
-    """Rotation matrices `Rz(yaw) @ Ry(pitch) @ Rx(roll)` from `(..., 3)` yaw, pitch, roll."""
+    """Rotation matrices `Rz(yaw) @ Ry(pitch) @ Rx(roll)` from `(..., 3)` yaw, pitch, roll
+    (real, finite when concrete)."""
+    where = "voxax.apps.rotation_matrices"
+    angles = jnp.asarray(_validate.coordinates(where, "angles", angles, 3))
+    if not jnp.issubdtype(angles.dtype, jnp.floating):
+        angles = angles.astype(jnp.result_type(float))
     yaw, pitch, roll = angles[..., 0], angles[..., 1], angles[..., 2]
     cy, sy = jnp.cos(yaw), jnp.sin(yaw)
     cp, sp = jnp.cos(pitch), jnp.sin(pitch)
