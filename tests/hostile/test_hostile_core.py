@@ -117,6 +117,8 @@ CASES = [
      "resolution"),
     ("apps", "2D mesh", "voxax.apps.optimize_for_bandsaw(voxax.data.polygon_square(), progress=False)",
      "ValueError", "3D"),
+    ("apps", "tiling with 3 counts for 2 meshes", "voxax.apps.optimize_tiling([BALL, BALL], instances=[1, 2, 3])",
+     "ValueError", "voxax.apps.optimize_tiling: `instances`"),
     ("apps", "tiling with a float key", "voxax.apps.optimize_tiling(BALL, instances=2, resolution=6, key=0.5)",
      "TypeError", "`key`"),
     ("apps", "rotation_matrices of 2 angles", "voxax.apps.rotation_matrices(jnp.zeros(2))", "ValueError", "`angles`"),

@@ -46,6 +46,8 @@ CASES = [
      f"sx, sy, sz = {E}.silhouettes(B, 1e4); assert np.allclose(sz, B.max(2), atol=1e-3);"
      f"assert np.isclose({E}.interpenetration(B, B), B.sum() / B.size);"
      f"assert float({E}.tiling(np.full((1, 3, 3, 3), 1 / 27), blocks=3)) < 1e-20", None, ""),
+    ("energies", "arap with rest vertices of another shape", f"{E}.arap(V, V[:-1], F)", "ValueError",
+     "voxax.energies.arap: `rest_vertices`"),
     ("energies", "esi_gap axes '2'", f"{E}.esi_gap({W}, '2')", "TypeError", "`axes`"),
     ("energies", "fold_periodic blocks 0", f"{E}.fold_periodic({W}, blocks=0)", "ValueError", "`blocks`"),
     ("energies", "cotangent weights of a sphere (oracle)",
@@ -76,6 +78,8 @@ CASES = [
     ("data", "icosphere -1 subdivisions", f"{D}.icosphere(-1)", "ValueError", "`subdivisions`"),
     ("data", "icosphere NaN radius", f"{D}.icosphere(1, radius=float('nan'))", "ValueError", "`radius`"),
     ("data", "cube of size 0", f"{D}.cube(0.0)", "ValueError", "`upper`"),
+    ("data", "a torus thicker than its ring", f"{D}.torus(major=0.5, minor=0.6)", "ValueError", "`minor`"),
+    ("data", "concatenating no meshes", "voxax.Mesh.concatenate()", "ValueError", "voxax.Mesh.concatenate: `meshes`"),
     ("data", "an unknown name", f"{D}.get('nope')", "ValueError", "nope"),
     ("data", "every named mesh is closed (oracle)",
      f"for n in {D}.names(3):\n m = {D}.get(n); assert voxax.io.is_watertight(m.vertices, m.faces) or n, n", None, ""),
