@@ -5,7 +5,8 @@ that the same mistake gives the same message everywhere: `"<function>: `<argumen
 ..."`. Checks that need values (NaN, index ranges) run only on concrete arrays; under
 `jax.jit` the C++ kernels (or the pure-JAX code) see the traced values instead.
 
-Nothing here builds JAX arrays: callers convert after checking.
+Nothing here builds JAX arrays (callers convert after checking), except `finite_values`,
+which ties a traced array to the kernels' value check.
 """
 
 from __future__ import annotations
