@@ -186,7 +186,7 @@ def test_mesh_displacement_vectors_face_values_and_plain():
     fig = plot.mesh(m.vertices, m.faces, color="red", shade=False)
     assert len(fig.axes) == 1
     np.testing.assert_allclose(fig.axes[0].collections[0].get_facecolor(), [[1, 0, 0, 1]] * m.n_faces)
-    with pytest.raises(ValueError, match="values must have shape"):
+    with pytest.raises(ValueError, match="`values` must have shape"):
         plot.mesh(m.vertices, m.faces, values=np.zeros(7))
     with pytest.raises(ValueError, match="face indices"):
         plot.mesh(m.vertices, m.faces + m.n_vertices)
@@ -223,7 +223,7 @@ def test_gradient_field_3d_and_bad_shapes():
     g = np.ones_like(m.vertices)
     fig = plot.gradient_field(m.vertices, m.faces, g, normalize=True)
     assert fig.axes[0].name == "3d"
-    with pytest.raises(ValueError, match="gradient must have"):
+    with pytest.raises(ValueError, match="`gradient` must have"):
         plot.gradient_field(m.vertices, m.faces, g[:-1])
 
 

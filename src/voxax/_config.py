@@ -98,4 +98,7 @@ def show_config(file=None) -> None:
       kernels      ...libvoxax_kernels...
     ```
     """
+    if file is not None and not callable(getattr(file, "write", None)):
+        raise TypeError(f"voxax.show_config: `file` must be a text stream (with .write) or None, got "
+                        f"{type(file).__name__}")
     print(describe(), file=sys.stdout if file is None else file)

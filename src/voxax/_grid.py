@@ -249,6 +249,12 @@ class Grid:
         array([ 0.5, -0.5])
         ```
         """
+        from . import _validate
+
+        dtype = np.dtype(dtype)
+        # the meshgrid's float64 axes and the stacked result (before the cast)
+        _validate.check_allocation("voxax.Grid.centers", self.size * self.dim * (16 + dtype.itemsize),
+                                   f"the array of cell centres of a {self.shape} grid")
         axes = [
             self.lower[a] + (np.arange(self.shape[a], dtype=np.float64) + 0.5) * self.spacing[a]
             for a in range(self.dim)

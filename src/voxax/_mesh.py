@@ -192,7 +192,7 @@ class Mesh:
         True
         """
         if self.dim != 3:
-            raise ValueError("to_trimesh() needs a 3D triangle mesh; this is a 2D polyline")
+            raise ValueError("voxax.Mesh.to_trimesh: needs a 3D triangle mesh; this is a 2D polyline")
         import trimesh
 
         return trimesh.Trimesh(
@@ -210,7 +210,7 @@ class Mesh:
         vertices = getattr(mesh, "vertices", None)
         faces = getattr(mesh, "faces", None)
         if vertices is None or faces is None:
-            raise TypeError(f"Mesh.from_trimesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+            raise TypeError(f"voxax.Mesh.from_trimesh: `mesh` must be a trimesh.Trimesh, got {type(mesh).__name__}")
         return cls(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
 
     @staticmethod
@@ -224,10 +224,10 @@ class Mesh:
         24
         """
         if not meshes:
-            raise ValueError("concatenate() needs at least one mesh")
+            raise ValueError("voxax.Mesh.concatenate: `meshes` must hold at least one mesh")
         dims = {m.dim for m in meshes}
         if len(dims) != 1:
-            raise ValueError(f"cannot concatenate meshes of different dimensions {sorted(dims)}")
+            raise ValueError(f"voxax.Mesh.concatenate: `meshes` must share one dimension, got {sorted(dims)}")
         offsets = np.cumsum([0] + [m.n_vertices for m in meshes[:-1]])
         return Mesh(
             np.concatenate([m.vertices for m in meshes]),
@@ -303,7 +303,7 @@ def fit(vertices: np.ndarray, max_abs: float, faces=None) -> tuple[np.ndarray, n
     if not np.all(np.isfinite(box)):
         raise ValueError("voxax.Mesh.normalize: cannot normalize a mesh with NaN or Inf vertex coordinates")
     if not max_abs > 0:
-        raise ValueError(f"max_abs must be > 0, got {max_abs}")
+        raise ValueError(f"voxax.Mesh.normalize: `max_abs` must be > 0, got {max_abs}")
     lo, hi = box.min(axis=0), box.max(axis=0)
     centre = (lo + hi) / 2.0
     centred = vertices - centre

@@ -5,7 +5,8 @@ that the same mistake gives the same message everywhere: `"<function>: `<argumen
 ..."`. Checks that need values (NaN, index ranges) run only on concrete arrays; under
 `jax.jit` the C++ kernels (or the pure-JAX code) see the traced values instead.
 
-Nothing here builds JAX arrays: callers convert after checking.
+Nothing here builds JAX arrays (callers convert after checking), except `finite_values`,
+which ties a traced array to the kernels' value check.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ __all__ = [
     "face_kind",
     "coordinates",
     "ray_interval",
+    "finite_values",
 ]
 
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -347,21 +349,24 @@ def positive_float(where: str, name: str, value, allow_zero: bool = False) -> fl
     return out
 
 
-def coordinates(where: str, name: str, value, d: int = 3):
-    """Checks an array of points `(..., d)`: a real (float or integer) dtype, never bool,
-    complex or strings, and, when concrete, finite values of magnitude at most
-    `MAX_ABS_COORDINATE`. Array-likes become NumPy arrays; other arrays (JAX arrays,
-    tracers) are returned unchanged."""
+def coordinates(where: str, name: str, value, d: int | None = 3, *, finite: bool = True):
+    """Checks an array of points `(..., d)` (any `d >= 1` for `d=None`): a real (float or
+    integer) dtype, never bool, complex or strings, and, when concrete and `finite`, finite
+    values of magnitude at most `MAX_ABS_COORDINATE`. Array-likes become NumPy arrays;
+    other arrays (JAX arrays, tracers) are returned unchanged."""
     if not hasattr(value, "dtype"):
         try:
             value = np.asarray(value)
         except (TypeError, ValueError):
-            raise TypeError(f"{where}: `{name}` must be a real array of {d}D points, got {type(value).__name__}") from None
+            what = "points" if d is None else f"{d}D points"
+            raise TypeError(f"{where}: `{name}` must be a real array of {what}, got {type(value).__name__}") from None
     kind = np.dtype(value.dtype).kind
     if kind not in "fiu":
         raise TypeError(f"{where}: `{name}` must be a real (float or integer) array, got {value.dtype}")
-    if value.ndim < 1 or value.shape[-1] != d:
-        raise ValueError(f"{where}: `{name}` must have shape (..., {d}), got {tuple(value.shape)}")
+    if value.ndim < 1 or (d is not None and value.shape[-1] != d) or value.shape[-1] < 1:
+        raise ValueError(f"{where}: `{name}` must have shape (..., {'d' if d is None else d}), got {tuple(value.shape)}")
+    if not finite:
+        return value
     if kind == "f" and is_concrete(value) and value.size:
         a = np.asarray(value)
         hi, lo = a.max(), a.min()  # NaN propagates through both reductions, Inf shows
@@ -374,6 +379,35 @@ def coordinates(where: str, name: str, value, d: int = 3):
         if max(abs(int(a.max())), abs(int(a.min()))) > MAX_ABS_COORDINATE:
             raise ValueError(f"{where}: `{name}` coordinates must have magnitude <= {MAX_ABS_COORDINATE:g}".replace("e+", "e"))
     return value
+
+
+def finite_values(where: str, name: str, value, max_abs: float | None = None):
+    """Checks that a float array holds finite values (of magnitude at most `max_abs` when
+    given), eagerly and under `jax.jit`: a concrete array is checked here (`ValueError`);
+    a traced one is returned tied to the value check of the kernels
+    (`voxax._kernels.checks`), which fails the computation with the same message (a
+    `jax.errors.JaxRuntimeError`). Returns `value` (a traced value as the checked copy,
+    which is what the caller must use)."""
+    if is_concrete(value):
+        a = np.asarray(value)
+        if a.size:
+            hi, lo = a.max(), a.min()  # NaN propagates through both reductions, Inf shows
+            if not (np.isfinite(hi) and np.isfinite(lo)):
+                raise ValueError(f"{where}: `{name}` must be finite (it contains NaN or Inf)")
+            if max_abs is not None and max(float(hi), -float(lo)) > max_abs:
+                raise ValueError(f"{where}: `{name}` must have magnitude <= {max_abs:g}".replace("e+", "e"))
+        return value
+    import jax
+    import jax.numpy as jnp
+
+    from ._kernels.checks import finite_check_ffi
+
+    limit = float("inf") if max_abs is None else float(max_abs)
+    checked = jax.lax.stop_gradient(value)
+    if checked.dtype not in (jnp.float32, jnp.float64):  # float16, bfloat16: widened for the check
+        checked = checked.astype(jnp.float32)
+    flag = finite_check_ffi(checked, where, name, limit)
+    return jnp.where(flag == 0, value, jnp.nan)
 
 
 def ray_interval(where: str, t_min, t_max) -> tuple:

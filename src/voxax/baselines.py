@@ -39,8 +39,16 @@ def interpolate(W, grid: Grid, points) -> jax.Array:
 
     **Returns:** `points.shape[:-1]` array.
     """
+    where = "voxax.baselines.interpolate"
+    _validate.grid(where, grid)
+    if not hasattr(W, "dtype"):
+        W = np.asarray(W)
+    if np.dtype(W.dtype).kind not in "fiub":
+        raise TypeError(f"{where}: `W` must be a real array, got {W.dtype}")
     W = jnp.asarray(W)
-    points = jnp.asarray(points, W.dtype)
+    if not jnp.issubdtype(W.dtype, jnp.floating):
+        W = W.astype(jnp.result_type(float))
+    points = jnp.asarray(_validate.coordinates(where, "points", points, grid.dim), W.dtype)
     d = grid.dim
     if W.shape != grid.shape or points.shape[-1] != d:
         raise ValueError(f"voxax.baselines.interpolate: need W of shape {grid.shape} and points (..., {d})")

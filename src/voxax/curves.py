@@ -64,9 +64,25 @@ def _ring(n: int) -> np.ndarray:
     return np.stack([i, (i + 1) % n], axis=1)
 
 
-def _float(x):
-    x = jnp.asarray(x)
+def _float(where: str, name: str, x, d: int | None = None):
+    """`x (..., d)` as a float JAX array: a real dtype (never bool, complex or strings) and,
+    when concrete, finite values of magnitude <= 1e75 (`_validate.coordinates`)."""
+    x = jnp.asarray(_validate.coordinates(where, name, x, d))
     return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.result_type(float))
+
+
+def _parameters(where: str, t, dtype):
+    """The curve parameters `t`: real (never bool, complex or strings), finite when concrete."""
+    if not hasattr(t, "dtype"):
+        try:
+            t = np.asarray(t)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `t` must be real numbers, got {type(t).__name__}") from None
+    if np.dtype(t.dtype).kind not in "fiu":
+        raise TypeError(f"{where}: `t` must be real numbers, got {t.dtype}")
+    if _validate.is_concrete(t) and np.size(t) and not np.all(np.isfinite(np.asarray(t))):
+        raise ValueError(f"{where}: `t` must be finite (it contains NaN or Inf)")
+    return jnp.asarray(t, dtype)
 
 
 # -- point evaluators: curve(params, t), t in [0, 1) ------------------------------------------
@@ -77,8 +93,11 @@ def circle_point(params, t):
 
     **Returns:** `t.shape + (2,)`.
     """
-    params = _float(params)
-    t = jnp.asarray(t, params.dtype)
+    where = "voxax.curves.circle_point"
+    params = _float(where, "params", params)
+    if params.shape != (3,):
+        raise ValueError(f"{where}: `params` must be (cx, cy, r), shape (3,), got {tuple(params.shape)}")
+    t = _parameters(where, t, params.dtype)
     a = 2 * jnp.pi * t
     return params[:2] + params[2] * jnp.stack([jnp.cos(a), jnp.sin(a)], axis=-1)
 
@@ -93,12 +112,13 @@ def bezier_point(control_points, t):
 
     **Returns:** `t.shape + (2,)`.
     """
-    P = _float(control_points)
+    where = "voxax.curves.bezier_point"
+    P = _float(where, "control_points", control_points, 2)
     n = P.shape[0]
-    if P.ndim != 2 or P.shape[1] != 2 or n % 3 != 0 or n == 0:
-        raise ValueError(f"bezier: control_points must have shape (3K, 2), got {tuple(P.shape)}")
+    if P.ndim != 2 or n % 3 != 0 or n == 0:
+        raise ValueError(f"{where}: `control_points` must have shape (3K, 2), got {tuple(P.shape)}")
     K = n // 3
-    t = jnp.asarray(t, P.dtype)
+    t = _parameters(where, t, P.dtype)
     s = jnp.mod(t, 1.0) * K
     k = jnp.clip(jnp.floor(s), 0, K - 1).astype(jnp.int32)
     u = (s - k)[..., None]
@@ -108,9 +128,13 @@ def bezier_point(control_points, t):
 
 def polyline(curve: Callable, params, n: int) -> Curve:
     """The closed polyline through `curve(params, j / n)`, j = 0 .. n-1."""
-    n = int(n)
-    if n < 3:
-        raise ValueError(f"polyline: need at least 3 segments, got {n}")
+    return _polyline("voxax.curves.polyline", curve, params, n)
+
+
+def _polyline(where: str, curve: Callable, params, n) -> Curve:
+    if not callable(curve):
+        raise TypeError(f"{where}: `curve` must be a function curve(params, t), got {type(curve).__name__}")
+    n = _validate.positive_int(where, "n", n, minimum=3)
     t = jnp.arange(n) / n
     return Curve(curve(params, t), _ring(n))
 
@@ -127,11 +151,16 @@ def circle(center, radius, n: int = 64) -> Curve:
 
     **Returns:** [`Curve`][voxax.curves.Curve] with `vertices (n, 2)`, `faces (n, 2)`.
     """
-    c = _float(center)
-    r = jnp.asarray(radius, c.dtype)
+    where = "voxax.curves.circle"
+    c = _float(where, "center", center, 2)
     if c.shape != (2,):
-        raise ValueError(f"circle: center must have shape (2,), got {tuple(c.shape)}")
-    return polyline(circle_point, jnp.concatenate([c, r[None]]), n)
+        raise ValueError(f"{where}: `center` must have shape (2,), got {tuple(c.shape)}")
+    if _validate.is_concrete(radius):
+        if isinstance(radius, (bool, np.bool_, str, bytes, complex)) or np.ndim(radius) != 0:
+            raise TypeError(f"{where}: `radius` must be a real number, got {type(radius).__name__}")
+        _validate.positive_float(where, "radius", radius)
+    r = jnp.asarray(radius, c.dtype)
+    return _polyline(where, circle_point, jnp.concatenate([c, r[None]]), n)
 
 
 def bezier_closed(control_points, samples_per_segment: int = 16) -> Curve:
@@ -144,15 +173,14 @@ def bezier_closed(control_points, samples_per_segment: int = 16) -> Curve:
 
     **Returns:** [`Curve`][voxax.curves.Curve].
     """
-    P = _float(control_points)
-    if P.ndim != 2 or P.shape[1] != 2 or P.shape[0] % 3 != 0 or P.shape[0] == 0:
-        raise ValueError(f"bezier_closed: control_points must have shape (3K, 2), got {tuple(P.shape)}")
-    spp = int(samples_per_segment)
-    if spp < 1:
-        raise ValueError("bezier_closed: samples_per_segment must be >= 1")
+    where = "voxax.curves.bezier_closed"
+    P = _float(where, "control_points", control_points, 2)
+    if P.ndim != 2 or P.shape[0] % 3 != 0 or P.shape[0] == 0:
+        raise ValueError(f"{where}: `control_points` must have shape (3K, 2), got {tuple(P.shape)}")
+    spp = _validate.positive_int(where, "samples_per_segment", samples_per_segment)
     K = P.shape[0] // 3
     if K * spp < 3:
-        raise ValueError("bezier_closed: need at least 3 vertices in total")
+        raise ValueError(f"{where}: `samples_per_segment` must give at least 3 vertices in total, got {K} x {spp}")
     # Bernstein weights (spp, 4) at u = j / spp, applied to every segment: (K, spp, 2).
     u = np.arange(spp) / spp
     B = np.stack([(1 - u) ** 3, 3 * (1 - u) ** 2 * u, 3 * (1 - u) * u**2, u**3], axis=1)
@@ -249,7 +277,9 @@ def voxelize_curve_mc(
     where = "voxax.curves.voxelize_curve_mc"
     _validate.grid(where, grid, dim=2)
     st = _filters.mc_settings(grid, kernel, samples, strata, 1, where)
-    params = _float(params)
+    if not callable(curve):
+        raise TypeError(f"{where}: `curve` must be a function curve(params, t), got {type(curve).__name__}")
+    params = _float(where, "params", params)
     key = _validate.jax_key(where, key)
     segments = _validate.positive_int(where, "segments", segments, minimum=3)
     curve_samples = _validate.positive_int(where, "curve_samples", curve_samples)

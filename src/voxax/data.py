@@ -233,7 +233,7 @@ def torus(
     64
     """
     if not 0 < minor < major:
-        raise ValueError(f"torus needs 0 < minor < major, got minor={minor}, major={major}")
+        raise ValueError(f"voxax.data.torus: `minor` and `major` must satisfy 0 < minor < major, got minor={minor}, major={major}")
     u = 2 * np.pi * np.arange(int(n_major)) / int(n_major)
     v = 2 * np.pi * np.arange(int(n_minor)) / int(n_minor)
     u, v = np.meshgrid(u, v, indexing="ij")
@@ -287,10 +287,10 @@ def bent_bar(
     """
     n_along, n_around = int(n_along), int(n_around)
     if n_along < 2 or n_around < 3:
-        raise ValueError("bent_bar needs n_along >= 2 and n_around >= 3")
+        raise ValueError("voxax.data.bent_bar: `n_along` must be >= 2 and `n_around` >= 3")
     a, b = width / 2.0, height / 2.0
     if not radius > a:
-        raise ValueError("bent_bar needs radius > width / 2")
+        raise ValueError("voxax.data.bent_bar: `radius` must be > width / 2")
     t = 2 * np.pi * float(turns) * np.arange(n_along) / (n_along - 1)
     s = 2 * np.pi * np.arange(n_around) / n_around
     e = 2.0 / float(roundness)
@@ -362,7 +362,7 @@ def with_inverted_component(
     (True, [0.5, 0.0, 0.0])
     """
     if not gap > 0:
-        raise ValueError("gap must be > 0 so that the two components are disjoint")
+        raise ValueError("voxax.data.with_inverted_component: `gap` must be > 0 so that the two components are disjoint")
     total = 2 * radius + gap + 2 * inverted_radius
     c_main = np.array([-total / 2 + radius, 0.0, 0.0])
     c_inv = np.array([total / 2 - inverted_radius, 0.0, 0.0])
@@ -500,7 +500,7 @@ def mug(segments: int = 48) -> Mesh:
 
     segments = int(segments)
     if segments < 3:
-        raise ValueError(f"mug: `segments` must be >= 3, got {segments}")
+        raise ValueError(f"voxax.data.mug: `segments` must be >= 3, got {segments}")
     outer = Manifold.cylinder(1.0, 0.5, 0.5, segments)
     inner = Manifold.cylinder(1.0, 0.42, 0.42, segments).translate((0.0, 0.0, 0.12))
     ring = CrossSection.circle(0.07, 16).translate((0.28, 0.0)).revolve(segments)
@@ -590,7 +590,7 @@ def polygon_square(
     lo = np.asarray(lower, dtype=np.float64).reshape(2)
     hi = np.asarray(upper, dtype=np.float64).reshape(2)
     if not np.all(hi > lo):
-        raise ValueError(f"polygon_square needs upper > lower, got lower={lo}, upper={hi}")
+        raise ValueError(f"voxax.data.polygon_square: `upper` must be > `lower`, got lower={lo}, upper={hi}")
     vertices = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
     return Mesh(vertices, _closed_ring_segments(4))
 
@@ -616,7 +616,7 @@ def circle_polyline(
     """
     n = int(n)
     if n < 3:
-        raise ValueError("circle_polyline needs n >= 3")
+        raise ValueError("voxax.data.circle_polyline: `n` must be >= 3")
     a = 2 * np.pi * np.arange(n) / n
     vertices = float(radius) * np.stack([np.cos(a), np.sin(a)], 1) + np.asarray(center, float)
     return Mesh(vertices, _closed_ring_segments(n))
@@ -649,7 +649,7 @@ def star_polyline(
     """
     n_points = int(n_points)
     if n_points < 2:
-        raise ValueError("star_polyline needs n_points >= 2")
+        raise ValueError("voxax.data.star_polyline: `n_points` must be >= 2")
     n = 2 * n_points
     a = float(rotation) + 2 * np.pi * np.arange(n) / n
     r = np.where(np.arange(n) % 2 == 0, float(outer), float(inner))

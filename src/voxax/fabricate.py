@@ -67,27 +67,30 @@ _NAMES = "xyz"
 # --------------------------------------------------------------------------------------
 
 
-def _check_axis(axis) -> int:
+def _check_axis(axis, where: str) -> int:
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or int(axis) not in (0, 1, 2):
-        raise ValueError(f"axis must be 0, 1 or 2 (x, y, z), got {axis!r}")
+        raise ValueError(f"{where}: `axis` must be 0, 1 or 2 (x, y, z), got {axis!r}")
     return int(axis)
 
 
-def _is_grid_input(shape, grid) -> bool:
+def _is_grid_input(shape, grid, where: str) -> bool:
     if grid is None:
         return False
-    _validate.grid("fabricate", grid, dim=3)
+    _validate.grid(where, grid, dim=3)
     return True
 
 
-def _as_grid_values(W, grid: Grid) -> np.ndarray:
+def _as_grid_values(W, grid: Grid, where: str) -> np.ndarray:
     if isinstance(W, Mesh) or hasattr(W, "faces"):
-        raise TypeError("`grid` goes with a voxel grid W (nx, ny, nz); pass a mesh without `grid`")
-    W = np.asarray(W, dtype=np.float64)
+        raise TypeError(f"{where}: `grid` goes with a voxel grid W (nx, ny, nz); pass a mesh without `grid`")
+    W = np.asarray(W)
+    if W.dtype.kind not in "fiub":
+        raise TypeError(f"{where}: `shape` must be a mesh or a real grid W, got {W.dtype}")
+    W = W.astype(np.float64)
     if W.shape != grid.shape:
-        raise ValueError(f"W must have the grid's shape {grid.shape}, got {W.shape}")
+        raise ValueError(f"{where}: `shape` (a grid W) must have the grid's shape {grid.shape}, got {W.shape}")
     if not np.all(np.isfinite(W)):
-        raise ValueError("W contains NaN or Inf")
+        raise ValueError(f"{where}: `shape` (a grid W) must be finite (it contains NaN or Inf)")
     return W
 
 
@@ -146,7 +149,7 @@ def _centres_1d(grid: Grid, axis: int) -> np.ndarray:
     return (e[:-1] + e[1:]) / 2.0
 
 
-def _polygons_cross_section(polygons):
+def _polygons_cross_section(polygons, where: str = "voxax.fabricate.cut_solid"):
     from manifold3d import CrossSection, FillRule
 
     if hasattr(polygons, "to_polygons"):  # already a CrossSection
@@ -155,15 +158,18 @@ def _polygons_cross_section(polygons):
     for poly in polygons:
         poly = np.asarray(poly, dtype=np.float64)
         if poly.ndim != 2 or poly.shape[1] != 2:
-            raise ValueError(f"each polygon must be an (n, 2) array, got shape {poly.shape}")
+            raise ValueError(f"{where}: each polygon must be an (n, 2) array, got shape {poly.shape}")
+        if not np.all(np.isfinite(poly)):
+            raise ValueError(f"{where}: the polygons must be finite (they contain NaN or Inf)")
         if len(poly) >= 3:
             loops.append(np.ascontiguousarray(poly))
     return CrossSection(loops, FillRule.EvenOdd) if loops else CrossSection()
 
 
 def _cross_sections(shape, axes, grid, threshold, where):
-    if _is_grid_input(shape, grid):
-        W = _as_grid_values(shape, grid)
+    if _is_grid_input(shape, grid, where):
+        W = _as_grid_values(shape, grid, where)
+        threshold = _validate.finite_number(where, "threshold", threshold)
         return [_grid_cross_section(W, grid, a, threshold) for a in axes]
     vertices, faces = _mesh_arrays(shape, where)
     return [_mesh_cross_section(vertices, faces, a) for a in axes]
@@ -190,7 +196,7 @@ def silhouette_polygons(shape: Any, axis: int | None = None, *, grid: Grid | Non
     `PLANE_AXES[axis]` (outer boundaries counter-clockwise, holes clockwise); for
     `axis=None`, a tuple of three such lists (along x, y, z).
     """
-    axes = (0, 1, 2) if axis is None else (_check_axis(axis),)
+    axes = (0, 1, 2) if axis is None else (_check_axis(axis, "voxax.fabricate.silhouette_polygons"),)
     sections = _cross_sections(shape, axes, grid, threshold, "voxax.fabricate.silhouette_polygons")
     polys = [[np.asarray(p, dtype=np.float64) for p in cs.to_polygons()] for cs in sections]
     return tuple(polys) if axis is None else polys[0]
@@ -331,28 +337,37 @@ def write_svg(
 
     **Returns:** `path` as a string.
     """
-    polys = [np.asarray(p, dtype=np.float64) for p in polygons]
-    for p in polys:
+    where = "voxax.fabricate.write_svg"
+    polys = []
+    for p in polygons:
+        p = np.asarray(p)
+        if p.dtype.kind not in "fiu":
+            raise TypeError(f"{where}: `polygons` must be real (n, 2) arrays, got {p.dtype}")
+        p = p.astype(np.float64)
         if p.ndim != 2 or p.shape[1] != 2:
-            raise ValueError(f"each polygon must be an (n, 2) array, got shape {p.shape}")
+            raise ValueError(f"{where}: `polygons` must be (n, 2) arrays, got shape {p.shape}")
         if not np.all(np.isfinite(p)):
-            raise ValueError("polygons contain NaN or Inf")
+            raise ValueError(f"{where}: `polygons` must be finite (they contain NaN or Inf)")
+        polys.append(p)
+    margin_mm = _validate.positive_float(where, "margin_mm", margin_mm, allow_zero=True)
+    stroke_mm = _validate.positive_float(where, "stroke_mm", stroke_mm)
+    if scale_bar_mm is not None:
+        scale_bar_mm = _validate.positive_float(where, "scale_bar_mm", scale_bar_mm)
     polys = [p for p in polys if len(p) >= 3]
     if frame is None:
         if not polys:
-            raise ValueError("write_svg: no polygons and no frame given")
+            raise ValueError(f"{where}: `polygons` must hold a polygon of 3 points or more when no `frame` is given")
         pts = np.concatenate(polys)
         frame = (*pts.min(axis=0), *pts.max(axis=0))
-    umin, vmin, umax, vmax = (float(x) for x in frame)
+    if np.shape(frame) != (4,):
+        raise ValueError(f"{where}: `frame` must be (umin, vmin, umax, vmax), got {frame!r}")
+    umin, vmin, umax, vmax = (_validate.finite_number(where, "frame", x) for x in frame)
     if not (umax > umin and vmax > vmin):
-        raise ValueError(f"frame must have positive width and height, got {frame}")
+        raise ValueError(f"{where}: `frame` must have positive width and height, got {frame}")
     if mm_per_unit is None:
-        if not size_mm > 0:
-            raise ValueError(f"size_mm must be > 0, got {size_mm}")
+        size_mm = _validate.positive_float(where, "size_mm", size_mm)
         mm_per_unit = float(size_mm) / max(umax - umin, vmax - vmin)
-    mm_per_unit = float(mm_per_unit)
-    if not (mm_per_unit > 0 and math.isfinite(mm_per_unit)):
-        raise ValueError(f"mm_per_unit must be > 0, got {mm_per_unit}")
+    mm_per_unit = _validate.positive_float(where, "mm_per_unit", mm_per_unit)
     margin = float(margin_mm)
     fw, fh = (umax - umin) * mm_per_unit, (vmax - vmin) * mm_per_unit
     bar = float(scale_bar_mm) if scale_bar_mm is not None else _nice_length(max(fw / 3.0, 1.0))
@@ -482,10 +497,12 @@ def bandsaw_templates(
     os.makedirs(out_dir, exist_ok=True)
     bounds = shape.bounds
     extent = bounds[1] - bounds[0]
+    where = "voxax.fabricate.bandsaw_templates"
     if mm_per_unit is None:
-        if not size_mm > 0:
-            raise ValueError(f"size_mm must be > 0, got {size_mm}")
+        size_mm = _validate.positive_float(where, "size_mm", size_mm)
         mm_per_unit = float(size_mm) / float(extent.max())
+    mm_per_unit = _validate.positive_float(where, "mm_per_unit", mm_per_unit)
+    _validate.positive_float(where, "margin_mm", margin_mm, allow_zero=True)
     sections = [_mesh_cross_section(vertices, faces, a) for a in range(3)]
     silhouettes = tuple([np.asarray(p, dtype=np.float64) for p in cs.to_polygons()] for cs in sections)
     svg_paths = []

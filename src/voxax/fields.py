@@ -40,6 +40,9 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from . import _validate
 
 __all__ = [
     "DeepSDF",
@@ -61,25 +64,25 @@ __all__ = [
 ]
 
 
-def _points(points, dim: int | None = None, name: str = "points"):
-    p = jnp.asarray(points)
+def _points(where: str, points, dim: int | None = None, name: str = "points"):
+    """`points (..., d)` as a float JAX array, checked through `_validate.coordinates` for
+    their dtype and shape: real (float or integer), never bool, complex or strings. Their
+    values are not checked (a field is a pure function: NaN in, NaN out)."""
+    p = _validate.coordinates(where, name, points, dim, finite=False)
+    p = jnp.asarray(p)
     if not jnp.issubdtype(p.dtype, jnp.floating):
         p = p.astype(jnp.result_type(float))
-    if p.ndim < 1:
-        raise ValueError(f"{name} must have shape (..., d), got a scalar")
-    if dim is not None and p.shape[-1] != dim:
-        raise ValueError(f"{name} must have shape (..., {dim}), got {p.shape}")
     return p
 
 
-def _vector(x, d: int, name: str, dtype):
+def _vector(where: str, x, d: int, name: str, dtype):
+    if isinstance(x, (bool, str, bytes, complex)) or (hasattr(x, "dtype") and np.dtype(x.dtype).kind not in "fiu"):
+        raise TypeError(f"{where}: `{name}` must be a real number or vector, got {getattr(x, 'dtype', type(x).__name__)}")
     v = jnp.asarray(x, dtype=dtype)
     if v.ndim == 0:
         v = jnp.broadcast_to(v, (d,))
     if v.shape[-1] != d:
-        raise ValueError(
-            f"{name} must have {d} components to match the points, got shape {v.shape}"
-        )
+        raise ValueError(f"{where}: `{name}` must have {d} components to match the points, got shape {v.shape}")
     return v
 
 
@@ -108,8 +111,8 @@ def sphere(points, radius=1.0, center=0.0):
     >>> float(sphere(jnp.array([0.0, 3.0, 4.0]), radius=2.0))
     3.0
     """
-    p = _points(points)
-    c = _vector(center, p.shape[-1], "center", p.dtype)
+    p = _points("voxax.fields.sphere", points)
+    c = _vector("voxax.fields.sphere", center, p.shape[-1], "center", p.dtype)
     return _safe_norm(p - c) - radius
 
 
@@ -132,10 +135,10 @@ def box(points, half_extents=0.5, center=0.0):
     >>> box(jnp.array([[0.0, 0.0, 0.0], [2.0, 2.0, 0.0]]), half_extents=1.0).tolist()
     [-1.0, 1.4142135623730951]
     """
-    p = _points(points)
+    p = _points("voxax.fields.box", points)
     d = p.shape[-1]
-    q = jnp.abs(p - _vector(center, d, "center", p.dtype)) - _vector(
-        half_extents, d, "half_extents", p.dtype
+    q = jnp.abs(p - _vector("voxax.fields.box", center, d, "center", p.dtype)) - _vector(
+        "voxax.fields.box", half_extents, d, "half_extents", p.dtype
     )
     outside = _safe_norm(jnp.maximum(q, 0))
     inside = jnp.minimum(jnp.max(q, axis=-1), 0)
@@ -162,10 +165,10 @@ def torus(points, major_radius=0.5, minor_radius=0.2, center=0.0, axis="z"):
     >>> round(float(torus(jnp.array([0.5, 0.0, 0.0]))), 12)
     -0.2
     """
-    p = _points(points, 3)
+    p = _points("voxax.fields.torus", points, 3)
     if axis not in _AXES:
-        raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
-    p = p - _vector(center, 3, "center", p.dtype)
+        raise ValueError(f"voxax.fields.torus: `axis` must be 'x', 'y' or 'z', got {axis!r}")
+    p = p - _vector("voxax.fields.torus", center, 3, "center", p.dtype)
     a = _AXES[axis]
     plane = [i for i in range(3) if i != a]
     ring = _safe_norm(p[..., plane]) - major_radius
@@ -194,7 +197,7 @@ def gyroid(points, period=1.0, level=0.0):
     >>> float(gyroid(jnp.zeros(3)))
     0.0
     """
-    p = _points(points, 3) * (2 * math.pi / period)
+    p = _points("voxax.fields.gyroid", points, 3) * (2 * math.pi / period)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     return (
         jnp.sin(x) * jnp.cos(y)
@@ -255,7 +258,7 @@ def chebyshev(points, degree: int = 8, level=0.0):
     >>> float(chebyshev(jnp.zeros(3)))  # T_8(0) = 1 on each axis
     3.0
     """
-    p = _points(points)
+    p = _points("voxax.fields.chebyshev", points)
     return jnp.sum(chebyshev_polynomial(p, degree), axis=-1) - level
 
 
@@ -275,7 +278,7 @@ def blob(points):
     >>> float(blob(jnp.zeros(3)))
     -1.0
     """
-    p = _points(points, 3)
+    p = _points("voxax.fields.blob", points, 3)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     return x * x + y * y + z * z + jnp.sin(4 * x) - jnp.cos(4 * y) + jnp.sin(4 * z)
 
@@ -352,7 +355,7 @@ def translated(field: Callable, offset) -> Callable:
     """
 
     def moved(points, *args, **kwargs):
-        p = _points(points)
+        p = _points("voxax.fields.translated", points)
         return field(p - jnp.asarray(offset, dtype=p.dtype), *args, **kwargs)
 
     return moved
@@ -369,7 +372,7 @@ def scaled(field: Callable, factor) -> Callable:
     """
 
     def grown(points, *args, **kwargs):
-        p = _points(points)
+        p = _points("voxax.fields.scaled", points)
         return factor * field(p / factor, *args, **kwargs)
 
     return grown
@@ -429,11 +432,13 @@ class Siren(eqx.Module):
         first_omega_0: float = 30.0,
         dtype=None,
     ):
-        if depth < 1:
-            raise ValueError(f"depth must be >= 1, got {depth}")
-        if in_size < 1 or out_size < 1 or width < 1:
-            raise ValueError("in_size, out_size and width must be >= 1")
-        dtype = dtype or jnp.result_type(float)
+        where = "voxax.fields.Siren"
+        in_size, out_size, width, depth = (_validate.positive_int(where, name, value) for name, value in (
+            ("in_size", in_size), ("out_size", out_size), ("width", width), ("depth", depth)))
+        key = _validate.key(where, key)
+        omega_0 = _validate.positive_float(where, "omega_0", omega_0)
+        first_omega_0 = _validate.positive_float(where, "first_omega_0", first_omega_0)
+        dtype = jnp.result_type(float) if dtype is None else _validate.float_dtype(where, dtype)
         sizes = [in_size] + [width] * depth + [out_size]
         keys = jax.random.split(key, 2 * (len(sizes) - 1))
         weights, biases = [], []
@@ -462,7 +467,7 @@ class Siren(eqx.Module):
         return y[0] if self.out_size == 1 else y
 
     def __call__(self, points):
-        p = _points(points, self.in_size)
+        p = _points("voxax.fields.Siren", points, self.in_size)
         lead = p.shape[:-1]
         flat = p.reshape(-1, self.in_size)
         out = jax.vmap(self._single)(flat)
@@ -516,15 +521,18 @@ class DeepSDF(eqx.Module):
         dim: int = 3,
         dtype=None,
     ):
-        if n_shapes < 1 or latent_size < 0 or width < 1 or depth < 1:
-            raise ValueError(
-                "voxax.fields.DeepSDF: `n_shapes`, `width` and `depth` must be >= 1 and `latent_size` >= 0"
-            )
-        if skip is not None and not 0 < skip < depth:
-            raise ValueError(
-                f"skip must lie in [1, depth) = [1, {depth}), or be None; got {skip}"
-            )
-        dtype = dtype or jnp.result_type(float)
+        where = "voxax.fields.DeepSDF"
+        n_shapes, width, depth = (_validate.positive_int(where, name, value) for name, value in (
+            ("n_shapes", n_shapes), ("width", width), ("depth", depth)))
+        latent_size = _validate.positive_int(where, "latent_size", latent_size, minimum=0)
+        dim = _validate.positive_int(where, "dim", dim)
+        if skip is not None:
+            skip = _validate.positive_int(where, "skip", skip)
+            if skip >= depth:
+                raise ValueError(f"{where}: `skip` must lie in [1, depth) = [1, {depth}), or be None; got {skip}")
+        key = _validate.key(where, key)
+        code_std = _validate.positive_float(where, "code_std", code_std, allow_zero=True)
+        dtype = jnp.result_type(float) if dtype is None else _validate.float_dtype(where, dtype)
         kc, *kl = jax.random.split(key, depth + 2)
         self.codes = code_std * jax.random.normal(
             kc, (n_shapes, latent_size), dtype=dtype
@@ -558,11 +566,11 @@ class DeepSDF(eqx.Module):
     def decode(self, latent, points):
         """The field of latent code `latent (latent_size,)` (or `(..., latent_size)`,
         broadcast with the points' leading axes) at `points (..., dim)` -> `(...)`."""
-        p = _points(points, self.dim)
+        p = _points("voxax.fields.DeepSDF", points, self.dim)
         z = jnp.asarray(latent, dtype=p.dtype)
         if z.shape[-1:] != (self.latent_size,):
             raise ValueError(
-                f"latent must have shape (..., {self.latent_size}), got {z.shape}"
+                f"voxax.fields.DeepSDF.decode: `latent` must have shape (..., {self.latent_size}), got {z.shape}"
             )
         lead = jnp.broadcast_shapes(p.shape[:-1], z.shape[:-1])
         p = jnp.broadcast_to(p, lead + (self.dim,)).reshape(-1, self.dim)
@@ -573,7 +581,26 @@ class DeepSDF(eqx.Module):
 
     def __call__(self, points, index=0):
         """The field of training shape(s) `index` at `points (..., dim)` -> `(...)`."""
+        _shape_index("voxax.fields.DeepSDF", index, self.codes.shape[0])
         return self.decode(self.codes[jnp.asarray(index)], points)
+
+
+def _shape_index(where: str, index, n: int) -> None:
+    """Checks the shape indices `index` (an int or an int array) of a DeepSDF with `n`
+    codes: integers, and in `[0, n)` when concrete (JAX would clamp them silently)."""
+    if isinstance(index, (bool, np.bool_)) or (hasattr(index, "dtype") and np.dtype(index.dtype).kind not in "iu"):
+        raise TypeError(f"{where}: `index` must be an int or an int array, got {getattr(index, 'dtype', 'bool')}")
+    if not hasattr(index, "dtype") and not isinstance(index, (int, np.integer)):
+        try:
+            index = np.asarray(index)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `index` must be an int or an int array, got {type(index).__name__}") from None
+        if index.dtype.kind not in "iu":
+            raise TypeError(f"{where}: `index` must be an int or an int array, got {index.dtype}")
+    if _validate.is_concrete(index) and np.size(index):
+        a = np.asarray(index)
+        if a.min() < 0 or a.max() >= n:
+            raise ValueError(f"{where}: `index` must lie in [0, {n}) (the model's shapes), got [{a.min()}, {a.max()}]")
 
 
 def deepsdf_loss(
@@ -601,7 +628,23 @@ def deepsdf_loss(
 
     **Returns:** scalar loss.
     """
-    pred = model(points, index)
+    where = "voxax.fields.deepsdf_loss"
+    if not isinstance(model, DeepSDF):
+        raise TypeError(f"{where}: `model` must be a voxax.fields.DeepSDF, got {type(model).__name__}")
+    p = _points(where, _validate.coordinates(where, "points", points, model.dim), model.dim)
+    if not hasattr(sdf, "dtype"):
+        sdf = np.asarray(sdf)
+    if np.dtype(sdf.dtype).kind not in "fiu":
+        raise TypeError(f"{where}: `sdf` must be a real array, got {sdf.dtype}")
+    if tuple(sdf.shape) != tuple(p.shape[:-1]):
+        raise ValueError(f"{where}: `sdf` must have one value per point, shape {tuple(p.shape[:-1])}, got "
+                         f"{tuple(sdf.shape)}")
+    if _validate.is_concrete(sdf) and np.size(sdf) and not np.all(np.isfinite(np.asarray(sdf))):
+        raise ValueError(f"{where}: `sdf` must be finite (it contains NaN or Inf)")
+    _shape_index(where, index, model.codes.shape[0])
+    clamp = _validate.positive_float(where, "clamp", clamp)
+    code_sigma = _validate.positive_float(where, "code_sigma", code_sigma)
+    pred = model(p, index)
     s = jnp.asarray(sdf, dtype=pred.dtype)
     data = jnp.mean(jnp.abs(jnp.clip(pred, -clamp, clamp) - jnp.clip(s, -clamp, clamp)))
     codes = model.codes[jnp.asarray(index)]

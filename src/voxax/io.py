@@ -225,6 +225,58 @@ def _merge_exact_duplicates(vertices: np.ndarray, faces: np.ndarray):
     return vertices[first[order]], rank[inverse.reshape(-1)][faces]
 
 
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_ply_header(where: str, name: str) -> None:
+    """Refuses a PLY file whose header claims more elements than the file can hold (at
+    least one byte and a separator per ASCII value, the values' sizes in a binary file),
+    or more than 2^31 - 1 vertices or faces, before anything is read or allocated. Other
+    files, and headers this cannot parse, are left to the reader."""
+    try:
+        with open(name, "rb") as fh:
+            if fh.read(4) not in (b"ply\n", b"ply\r"):
+                return
+            head = b"ply\n" + fh.read(1 << 16)
+        size = os.path.getsize(name)
+    except OSError:
+        return
+    end = head.find(b"end_header")
+    if end < 0:
+        return
+    stop = head.find(b"\n", end)
+    if stop < 0:
+        return
+    body = size - (stop + 1)  # `head` holds the file's first bytes at their own offsets
+    fmt, elements = None, []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if len(words) >= 2 and words[0] == "format":
+            fmt = words[1]
+        elif len(words) == 3 and words[0] == "element":
+            try:
+                elements.append([words[1], int(words[2]), 0])
+            except ValueError:
+                return
+        elif len(words) >= 3 and words[0] == "property" and elements:
+            if fmt == "ascii":
+                elements[-1][2] += 2
+            else:
+                kind = words[2] if words[1] == "list" else words[1]
+                elements[-1][2] += _PLY_SIZES.get(kind, 1)
+    counts = {element: count for element, count, _ in elements}
+    for element, label in (("vertex", "vertices"), ("face", "faces")):
+        if counts.get(element, 0) > _validate.INT32_MAX:
+            raise ValueError(f"{where}: {name!r} is too large: its header claims {counts[element]} {label}, more "
+                             "than the 2^31 - 1 voxax supports")
+    need = sum(count * max(per, 1) for _, count, per in elements) - (1 if fmt == "ascii" else 0)
+    if any(count < 0 for _, count, _ in elements) or need > body:
+        claims = ", ".join(f"{count} {element}" for element, count, _ in elements)
+        raise ValueError(f"{where}: {name!r} is truncated or corrupt: its header claims more elements ({claims}) "
+                         f"than the file's {max(body, 0)} bytes after the header can hold")
+
+
 def load(
     path: str | os.PathLike,
     process: bool = False,
@@ -270,6 +322,8 @@ def load(
     name = os.fspath(path)
     if not os.path.exists(name):
         raise FileNotFoundError(f"{where}: no such file: {name!r}")
+    if os.path.isfile(name):
+        _check_ply_header(where, name)
     try:
         obj = trimesh.load(name, process=process, **kwargs)
         vertices, faces = _geometry_arrays(obj)

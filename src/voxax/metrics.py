@@ -176,11 +176,11 @@ def _nearest(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def _distances(
-    src: np.ndarray, dst: np.ndarray, dst_mesh: Mesh | None, to_surface: bool
+    src: np.ndarray, dst: np.ndarray, dst_mesh: Mesh | None, to_surface: bool, where: str = "voxax.metrics.chamfer"
 ) -> np.ndarray:
     if to_surface:
         if dst_mesh is None:
-            raise ValueError("to_surface=True needs meshes, not point clouds")
+            raise ValueError(f"{where}: `to_surface=True` needs meshes, not point clouds")
         return BVH(dst_mesh).closest_points(src).distance
     return _nearest(src, dst)
 
@@ -232,10 +232,10 @@ def chamfer(
     n = _count(where, n)
     P, ma = _cloud(a, n, key, "a", where)
     Q, mb = _cloud(b, n, _key_b(key, where), "b", where)
-    d_qp = _distances(Q, P, ma, to_surface)
+    d_qp = _distances(Q, P, ma, to_surface, where)
     if convention == "g2p":
         return float(np.mean(d_qp**2))
-    d_pq = _distances(P, Q, mb, to_surface)
+    d_pq = _distances(P, Q, mb, to_surface, where)
     if convention == "l2":
         return float(np.sum(d_pq**2) + np.sum(d_qp**2))
     ref = mb.vertices[np.unique(mb.faces)] if mb is not None else Q
@@ -275,7 +275,7 @@ def chamfer_loss(p, q, *, squared: bool = True, chunk_size: int = 1024):
             f"p and q must have shapes (N, d) and (M, d), got {p.shape} and {q.shape}"
         )
     if p.shape[0] == 0 or q.shape[0] == 0:
-        raise ValueError("chamfer_loss needs non-empty point sets")
+        raise ValueError("voxax.metrics.chamfer_loss: `p` and `q` must be non-empty point sets")
     n = p.shape[0]
     c = max(1, min(int(chunk_size), n))
     pad = (-n) % c
@@ -364,8 +364,8 @@ def f_score(
     n = _count(where, n)
     P, ma = _cloud(a, n, key, "a", where)
     Q, mb = _cloud(b, n, _key_b(key, where), "b", where)
-    precision = float(np.mean(_distances(P, Q, mb, to_surface) <= threshold))
-    recall = float(np.mean(_distances(Q, P, ma, to_surface) <= threshold))
+    precision = float(np.mean(_distances(P, Q, mb, to_surface, where) <= threshold))
+    recall = float(np.mean(_distances(Q, P, ma, to_surface, where) <= threshold))
     if precision + recall == 0:
         return 0.0
     return 2 * precision * recall / (precision + recall)

@@ -142,13 +142,13 @@ def slices(
     plt = pyplot()
     W = np.asarray(W, dtype=np.float64)
     if W.ndim not in (2, 3):
-        raise ValueError(f"slices: expected a 2D or 3D grid, got shape {W.shape}")
+        raise ValueError(f"voxax.plot.slices: expected a 2D or 3D grid, got shape {W.shape}")
     if grid is not None and tuple(grid.shape) != W.shape:
-        raise ValueError(f"slices: W has shape {W.shape} but the grid has shape {tuple(grid.shape)}")
+        raise ValueError(f"voxax.plot.slices: `W` has shape {W.shape} but the grid has shape {tuple(grid.shape)}")
     if axis is not None and (W.ndim != 3 or axis not in (0, 1, 2)):
-        raise ValueError(f"slices: axis must be None or 0, 1, 2 for a 3D grid, got {axis!r}")
+        raise ValueError(f"voxax.plot.slices: `axis` must be None or 0, 1, 2 for a 3D grid, got {axis!r}")
     if int(count) < 1:
-        raise ValueError(f"slices: count must be >= 1, got {count}")
+        raise ValueError(f"voxax.plot.slices: `count` must be >= 1, got {count}")
     limit = _symmetric_limit(W, vmax)
     if W.ndim == 3 and axis is None:
         extents = []
@@ -229,9 +229,9 @@ def silhouettes(
     plt = pyplot()
     W = np.asarray(W)
     if W.ndim != 3:
-        raise ValueError(f"silhouettes: expected a 3D grid (nx, ny, nz), got shape {W.shape}")
+        raise ValueError(f"voxax.plot.silhouettes: expected a 3D grid (nx, ny, nz), got shape {W.shape}")
     if grid is not None and tuple(grid.shape) != W.shape:
-        raise ValueError(f"silhouettes: W has shape {W.shape} but the grid has shape {tuple(grid.shape)}")
+        raise ValueError(f"voxax.plot.silhouettes: `W` has shape {W.shape} but the grid has shape {tuple(grid.shape)}")
     if method == "mellowmax":
         from .energies import silhouettes as _soft
 
@@ -242,7 +242,7 @@ def silhouettes(
         W = np.asarray(W, dtype=np.float64)
         sil = [W.max(axis=a) for a in range(3)]
     else:
-        raise ValueError(f"silhouettes: method must be 'mellowmax' or 'max', got {method!r}")
+        raise ValueError(f"voxax.plot.silhouettes: `method` must be 'mellowmax' or 'max', got {method!r}")
     limit = _symmetric_limit(np.concatenate([s.ravel() for s in sil]), vmax)
     fig, axes = plt.subplots(1, 3, figsize=(10.4, 3.4), squeeze=False, layout="constrained")
     im = None
@@ -302,14 +302,14 @@ def projections(
     else:
         Ws = [np.asarray(grids, dtype=np.float64)]
     if not Ws or any(W.ndim != 3 for W in Ws):
-        raise ValueError(f"projections: expected 3D grids (nx, ny, nz), got shapes {[W.shape for W in Ws]}")
+        raise ValueError(f"voxax.plot.projections: expected 3D grids (nx, ny, nz), got shapes {[W.shape for W in Ws]}")
     if len({W.shape for W in Ws}) != 1:
-        raise ValueError(f"projections: the grids differ in shape: {[W.shape for W in Ws]}")
+        raise ValueError(f"voxax.plot.projections: the grids differ in shape: {[W.shape for W in Ws]}")
     if grid is not None and tuple(grid.shape) != Ws[0].shape:
-        raise ValueError(f"projections: W has shape {Ws[0].shape} but the grid has shape {tuple(grid.shape)}")
+        raise ValueError(f"voxax.plot.projections: `W` has shape {Ws[0].shape} but the grid has shape {tuple(grid.shape)}")
     labels = [str(i) for i in range(len(Ws))] if labels is None else [str(x) for x in labels]
     if len(labels) != len(Ws):
-        raise ValueError(f"projections: {len(labels)} labels for {len(Ws)} grids")
+        raise ValueError(f"voxax.plot.projections: {len(labels)} labels for {len(Ws)} grids")
     top = float(vmax) if vmax is not None else max(max(float(np.nanmax(W)), 1.0) for W in Ws)
     fig, axes = plt.subplots(len(Ws), 3, figsize=(10.5, 3.3 * len(Ws)), squeeze=False, layout="constrained")
     im = None
@@ -332,18 +332,18 @@ def projections(
 
 
 def _mesh_arrays(vertices, faces, where):
-    v, f = _validate.mesh(where, vertices, faces, integer_vertices=True, finite=False)
+    v, f = _validate.mesh(where, vertices, faces, integer_vertices=True)
     return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
 
 
-def _face_values(values, n_vertices: int, faces: np.ndarray):
+def _face_values(values, n_vertices: int, faces: np.ndarray, where: str = "voxax.plot.mesh"):
     """Per-face values from per-vertex `(V,)`/`(V, d)` or per-face `(F,)`/`(F, d)` values."""
     q = np.asarray(values, dtype=np.float64)
     if q.ndim == 2:  # vectors (e.g. displacements): their lengths
         q = np.linalg.norm(q, axis=1)
     if q.ndim != 1 or q.shape[0] not in (n_vertices, len(faces)):
         raise ValueError(
-            f"values must have shape (V,) = ({n_vertices},) per vertex or (F,) = ({len(faces)},) "
+            f"{where}: `values` must have shape (V,) = ({n_vertices},) per vertex or (F,) = ({len(faces)},) "
             f"per face (or (V, d) / (F, d) vectors, coloured by their length), got {np.shape(values)}"
         )
     if q.shape[0] == n_vertices:
@@ -561,7 +561,7 @@ def gradient_field(
     v, f = _mesh_arrays(vertices, faces, "voxax.plot.gradient_field")
     g = np.asarray(gradient, dtype=np.float64)
     if g.shape != v.shape:
-        raise ValueError(f"gradient_field: gradient must have the vertices' shape {v.shape}, got {g.shape}")
+        raise ValueError(f"voxax.plot.gradient_field: `gradient` must have the vertices' shape {v.shape}, got {g.shape}")
     dim = v.shape[1]
     lengths = np.linalg.norm(g, axis=1)
     if normalize:
@@ -582,7 +582,7 @@ def gradient_field(
         if W is not None:
             Wn = np.asarray(W, dtype=np.float64)
             if Wn.ndim != 2:
-                raise ValueError(f"gradient_field: W must be a 2D grid, got shape {Wn.shape}")
+                raise ValueError(f"voxax.plot.gradient_field: `W` must be a 2D grid, got shape {Wn.shape}")
             limit = _symmetric_limit(Wn)
             im = ax.imshow(Wn.T, origin="lower", cmap="RdBu_r", vmin=-limit, vmax=limit,
                            extent=_extent(grid, 0, 1), interpolation="nearest")
@@ -672,10 +672,10 @@ def history(
     plt = pyplot()
     series = _history_series(result_or_history)
     if x not in ("step", "time"):
-        raise ValueError(f"history: x must be 'step' or 'time', got {x!r}")
+        raise ValueError(f"voxax.plot.history: `x` must be 'step' or 'time', got {x!r}")
     times = series.get("time")
     if x == "time" and times is None:
-        raise ValueError("history: x='time' needs a 'time' series in the history")
+        raise ValueError("voxax.plot.history: x='time' needs a 'time' series in the history")
     if keys is None:
         keys = [k for k in series if k != "time"]
         if "energy" in keys:
@@ -685,9 +685,9 @@ def history(
         keys = [keys] if isinstance(keys, str) else list(keys)
         missing = [k for k in keys if k not in series]
         if missing:
-            raise KeyError(f"history: no series {missing}; recorded: {sorted(series)}")
+            raise KeyError(f"voxax.plot.history: no series {missing}; recorded: {sorted(series)}")
     if not keys:
-        raise ValueError("history: nothing to plot (the history is empty)")
+        raise ValueError("voxax.plot.history: nothing to plot (the history is empty)")
     n = len(keys)
     fig, axes = plt.subplots(n, 1, figsize=(6.4, 1.7 * n + 0.7), sharex=True, squeeze=False, layout="constrained")
     for ax, name in zip(axes[:, 0], keys):
@@ -767,10 +767,10 @@ def mesh_plotly(
     vertices, faces, (values,) = _validate.unpack_mesh("voxax.plot.mesh_plotly", vertices, faces, values)
     v, f = _mesh_arrays(vertices, faces, "voxax.plot.mesh_plotly")
     if v.shape[1] != 3:
-        raise ValueError("mesh_plotly: needs a 3D triangle mesh; use voxax.plot.mesh for 2D polylines")
+        raise ValueError("voxax.plot.mesh_plotly: needs a 3D triangle mesh; use voxax.plot.mesh for 2D polylines")
     kwargs = {}
     if values is not None:
-        face_q, raw = _face_values(values, len(v), f)
+        face_q, raw = _face_values(values, len(v), f, "voxax.plot.mesh_plotly")
         if raw.shape[0] == len(v):
             kwargs.update(intensity=raw, intensitymode="vertex")
         else:

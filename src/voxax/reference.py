@@ -492,7 +492,9 @@ def winding_number_ray(vertices, faces=None, points=None) -> np.ndarray:
     vertices, faces, (points,) = _validate.unpack_mesh("voxax.reference.winding_number_ray", vertices, faces, points)
     v, f = _check_mesh(vertices, faces, None, "voxax.reference.winding_number_ray")
     d = v.shape[1]
-    q = np.asarray(points, dtype=np.float64)
+    if points is None:
+        raise TypeError("voxax.reference.winding_number_ray: missing `points`")
+    q = np.asarray(_validate.coordinates("voxax.reference.winding_number_ray", "points", points, d), dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != d:
         raise ValueError(f"voxax.reference.winding_number_ray: `points` must have shape (P, {d}), got {q.shape}")
     w = np.zeros(len(q))

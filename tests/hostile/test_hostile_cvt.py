@@ -32,9 +32,14 @@ CASES = [
     ("cvt.remesh", "a string", "RM('ball.obj', 20)", "TypeError", "`source`"),
     ("cvt.remesh", "a field without a grid", "RM(voxax.fields.sphere, 20)", "ValueError", "`grid`"),
     ("cvt.remesh", "a NaN field", "RM(lambda p: voxax.fields.sphere(p) * np.nan, 20, grid=G8)", "ValueError",
-     "finite"),
+     "voxax.cvt.remesh: the field `source` must be finite"),
     ("cvt.remesh", "a field missing the grid", "RM(lambda p: voxax.fields.sphere(p) + 10.0, 20, grid=G8)",
-     "ValueError", "empty surface"),
+     "ValueError", "voxax.cvt.remesh: the field has no zero crossing"),
+    ("cvt.remesh", "all vertices at one point", "RM((np.zeros_like(V), F), 20)", "ValueError",
+     "voxax.cvt.remesh: `source` must have an extent"),
+    ("cvt.remesh", "every face of zero area", "RM((V, np.stack([F[:, 0], F[:, 0], F[:, 1]], 1)), 20, orient=False)",
+     "ValueError", "every face has zero area"),
+    ("cvt.remesh", "a flat closed mesh", "RM((V * [1, 1, 0], F), 20)", "ValueError", "the mesh is flat"),
     # remesh: the parameters
     ("cvt.remesh", "alpha inf", "RM(BALL, 20, alpha=float('inf'))", "ValueError", "`alpha`"),
     ("cvt.remesh", "alpha NaN", "RM(BALL, 20, alpha=float('nan'))", "ValueError", "`alpha`"),
@@ -53,7 +58,8 @@ CASES = [
     ("cvt.remesh", "threads 0", "RM(BALL, 20, threads=0)", "ValueError", "`threads`"),
     ("cvt.remesh", "2D grid", "RM(BALL, 20, grid=voxax.Grid.cube(8, dim=2))", "ValueError", "3D"),
     ("cvt.remesh", "a small ball stays closed",
-     "m, r = RM(BALL, 40, method='lloyd', steps=5, polish=0); assert r.closed and r.euler_characteristic == 2",
+     "res = RM(BALL, 40, method='lloyd', steps=5, polish=0); assert isinstance(res, cvt.RemeshResult); m, r = res;"
+     "assert r.closed and r.euler_characteristic == 2",
      None, ""),
     # fragments
     ("cvt.fragments", "complex vertices", "cvt.fragments((V + 0j, F), G8)", "TypeError", "`vertices`"),
@@ -78,7 +84,16 @@ CASES = [
     ("cvt.rdt", "not Fragments", "cvt.rdt((V, F), SD)", "TypeError", "`frag`"),
     ("cvt.rdt", "the seeds of a tetrahedron",
      "f, r = cvt.rdt(FR, 0.5 * np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]) / np.sqrt(3));"
-     "assert len(f) == 4 and r.boundary_edges == 0", None, ""),
+     "assert isinstance(FR, cvt.Fragments) and isinstance(r, cvt.RdtReport) and len(f) == 4 and r.boundary_edges == 0",
+     None, ""),
+    ("cvt.energy_gradient", "complex seeds", "cvt.energy_gradient(SD + 0j, FR)", "TypeError", "`seeds`"),
+    ("cvt.energy_gradient", "against central differences (oracle)",
+     "g = np.asarray(cvt.energy_gradient(SD, FR)); d = np.zeros_like(SD); d[3, 1] = 1e-6;"
+     "fd = (float(cvt.energy(SD + d, FR)) - float(cvt.energy(SD - d, FR))) / 2e-6;"
+     "assert g.shape == SD.shape and np.isclose(g[3, 1], fd, rtol=1e-4, atol=1e-10), (g[3, 1], fd)", None, ""),
+    ("cvt.optimize", "Lloyd steps lower the energy (oracle)",
+     "r = cvt.optimize(FR, SD, method='lloyd', steps=3); assert isinstance(r, cvt.CVTResult);"
+     "e = np.asarray(r.energy); assert e[-1] <= e[0] + 1e-15 and r.seeds.shape == SD.shape, e", None, ""),
     ("cvt.init_seeds", "n 0", "cvt.init_seeds(FR, 0)", "ValueError", "`n`"),
     ("cvt.init_seeds", "more seeds than fragments", "cvt.init_seeds(FR, FR.size + 1)", "ValueError", "`n`"),
     ("cvt.init_seeds", "float n", "cvt.init_seeds(FR, 10.0)", "TypeError", "`n`"),

@@ -37,7 +37,7 @@ CASES = [
     ("esi.select", "NaN candidates", "esi.select(CUBE, **SEL, candidates_hf=np.full((2, 3), np.nan))",
      "ValueError", "`candidates_hf`"),
     ("esi.select", "the same axes at 1e30 and 1e-30 (oracle)",
-     "r0 = esi.select(CUBE, **SEL)\n"
+     "r0 = esi.select(CUBE, **SEL); assert isinstance(r0, esi.ESI)\n"
      "for s in (1e30, 1e-30):\n r = esi.select((CV * s, CF), **SEL); assert np.isfinite(r.energy), (s, r);"
      " assert np.allclose(r.dhf_axis, r0.dhf_axis) and np.allclose(r.hf_axes, r0.hf_axes), (s, r, r0)", None, ""),
     ("esi.energy", "NaN HF axis", "esi.energy((Z, [[np.nan, 0, 0]]), CUBE, n_samples=100, resolution=8)",
@@ -63,6 +63,22 @@ CASES = [
     ("esi.frame_for", "zero direction", "esi.frame_for((0, 0, 0), (0, 0, 0), 1.0, 4)", "ValueError", "`direction`"),
     ("esi.frame_for", "NaN radius", "esi.frame_for(Z, (0, 0, 0), float('nan'), 4)", "ValueError", "`radius`"),
     ("esi.candidates", "n_dhf 2.5", "esi.candidates(2.5, 3)", "TypeError", "`n_dhf`"),
+    ("esi.candidates", "unit candidate axes (oracle)",
+     "c = esi.candidates(5, 7); assert isinstance(c, esi.Candidates) and len(c.dhf) >= 5 and len(c.hf) >= 7;"
+     "assert all(np.allclose(np.linalg.norm(a, axis=1), 1) for a in (c.dhf, c.hf))", None, ""),
+    ("esi.frame_for", "an orthonormal frame (oracle)",
+     "f = esi.frame_for(Z, (0, 0, 0), 1.0, 4); assert isinstance(f, esi.Frame) and f.resolution == 4;"
+     "m = np.stack([f.u, f.v, f.d]); assert np.allclose(m @ m.T, np.eye(3)) and np.allclose(f.d, [0, 0, 1])", None, ""),
+    ("esi.height_field_solid", "a cube's height-field solid is closed (oracle)",
+     "h = esi.height_field_solid(esi.depth_map(CUBE, Z, resolution=4), 1); assert isinstance(h, esi.HeightFieldSolid);"
+     "assert voxax.metrics.manifold_report(h.boundary).closed and h.boundary.signed_volume() > 0", None, ""),
+    ("esi.energy_terms", "a cube's terms (oracle)",
+     "t = esi.energy_terms(AX, CUBE, n_samples=100, resolution=8); assert isinstance(t, esi.EnergyTerms);"
+     "assert np.isclose(t.dist, t.cd_st + t.cd_ts) and t.E >= t.dist >= 0", None, ""),
+    ("nesi.training_data", "points of a cube (oracle)",
+     "t = nesi.training_data(AX, CUBE, n_samples=200); assert isinstance(t, nesi.Training);"
+     "assert isinstance(t.data, nesi.TrainingData) and np.isfinite(np.asarray(t.data.p0)).all() and t.scale > 0",
+     None, ""),
     ("esi.fibonacci_sphere", "n = -1", "esi.fibonacci_sphere(-1)", "ValueError", "`n`"),
     ("esi.fibonacci_sphere", "unit directions (oracle)",
      "d = esi.fibonacci_sphere(50, hemisphere=True); assert d.shape == (50, 3);"

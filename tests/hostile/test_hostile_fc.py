@@ -72,6 +72,18 @@ CASES = [
      "`threshold`"),
     ("fc.roundtrip", "NaN vertices", "fc.roundtrip((VNAN, F), G8, progress=False)", "ValueError", "NaN"),
     ("fc.edge_topology", "faces past the vertices", "fc.edge_topology(V, F + len(V))", "ValueError", "out of range"),
+    ("fc.edge_topology", "a closed ball's edges (oracle)",
+     "e = fc.edge_topology(V, F); assert isinstance(e, fc.EdgeTopology);"
+     "assert (e.n_edges, e.euler_characteristic, e.n_boundary_edges, e.closed) == (3 * len(F) // 2, 2, 0, True), e",
+     None, ""),
+    ("fc.pieces", "the pieces add up to the ball's area (oracle)",
+     "p = fc.pieces(V, F, G8); assert isinstance(p, fc.Pieces); a = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]);"
+     "assert np.isclose(p.area.sum(), 0.5 * np.linalg.norm(a, axis=1).sum()) and set(p.face.tolist()) == set(range(len(F)))",
+     None, ""),
+    ("fc.roundtrip", "a ball's round trip stays closed (oracle)",
+     "m, r = fc.roundtrip(BALL, G8, progress=False); assert isinstance(r, fc.RoundtripReport);"
+     "assert r.manifold.closed and r.manifold.euler_characteristic == 2 and r.hausdorff < 2 * max(G8.spacing), r",
+     None, ""),
 ]
 
 

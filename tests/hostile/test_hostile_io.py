@@ -22,7 +22,9 @@ CASES = [
     ("io.load", "NaN vertices", PLY.format(nv=3, nf=1, body="nan 0 0\\n1 0 0\\n0 1 0\\n3 0 1 2\\n")
      + "voxax.io.load('m.ply')", "ValueError", "NaN or Inf"),
     ("io.load", "a header claiming 10^12 vertices", PLY.format(nv=10**12, nf=1, body=BODY)
-     + "voxax.io.load('m.ply')", "ValueError", "no triangles"),
+     + "voxax.io.load('m.ply')", "ValueError", "its header claims 1000000000000 vertices"),
+    ("io.load", "a header claiming more vertices than the file holds", PLY.format(nv=2000, nf=1, body=BODY)
+     + "voxax.io.load('m.ply')", "ValueError", "truncated or corrupt: its header claims more elements"),
     ("io.load", "a directory", "import os; os.makedirs('d.ply', exist_ok=True); voxax.io.load('d.ply')", "ValueError",
      "not a file"),
     ("io.load", "a number for the path", "voxax.io.load(3)", "TypeError", "`path`"),

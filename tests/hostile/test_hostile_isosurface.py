@@ -33,7 +33,8 @@ CASES = [
     ("isosurface", "NaN values, close=True", "voxax.isosurface(SNAN, G, close=True)", "ValueError", "finite"),
     ("isosurface", "jit NaN values", f"{J}(SNAN).block_until_ready()", "JaxRuntimeError", "NaN or Inf"),
     ("isosurface", "bool values are occupancies",
-     "same_mesh(voxax.isosurface(S < 0, G, 0.5, inside='above'), voxax.isosurface((S < 0) * 1.0, G, 0.5, inside='above'))",
+     "m = voxax.isosurface(S < 0, G, 0.5, inside='above'); assert isinstance(m, voxax.IsoMesh);"
+     "same_mesh(m, voxax.isosurface((S < 0) * 1.0, G, 0.5, inside='above'))",
      None, ""),
     ("isosurface", "subnormal samples give the same mesh",
      "same_mesh(voxax.isosurface(S * 1e-310, G), voxax.isosurface(S, G))", None, ""),

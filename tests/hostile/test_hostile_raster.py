@@ -39,7 +39,7 @@ CASES = [
     ("raster.line_crossings", "a path", "lc('cube.obj', G8, 0)", "TypeError", "voxax.io.load"),
     # valid but extreme: exact results
     ("raster.line_crossings", "a cube: two crossings per inner line",
-     "d = lc(CV, CF, G8, 2); assert len(d.depth) == 32 and set(np.round(d.depth, 12)) == {-0.5, 0.5};"
+     "d = lc(CV, CF, G8, 2); assert isinstance(d, voxax.raster.Dexels) and len(d.depth) == 32 and set(np.round(d.depth, 12)) == {-0.5, 0.5};"
      "assert int(d.sign.sum()) == 0 and np.all(d.counts()[d.counts() > 0] == 2)", None, ""),
     ("raster.line_crossings", "lines through the cube's edges count once",
      "d = lc(CV, CF, G8, 0, lines=([-0.5, 0.0, 0.5], [-0.5, 0.0, 0.5])); assert int(d.sign.sum()) == 0;"

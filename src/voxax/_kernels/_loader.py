@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 __all__ = ["BACKWARD", "FORWARD", "TANGENT", "MARCHING_CUBES", "CLOSEST_POINTS", "FIRST_HITS", "KNN", "TARGETS",
-           "CVT_ASSIGN", "WINDING_CHECK", "SPARSE_FORWARD", "SPARSE_BACKWARD", "SPARSE_TANGENT", "grid_attributes",
+           "CVT_ASSIGN", "WINDING_CHECK", "FINITE_CHECK", "SPARSE_FORWARD", "SPARSE_BACKWARD", "SPARSE_TANGENT", "grid_attributes",
            "kernel_constants", "library", "library_path"]
 
 FORWARD = "voxax_forward"
@@ -22,6 +22,7 @@ FIRST_HITS = "voxax_first_hits"
 KNN = "voxax_knn"
 CVT_ASSIGN = "voxax_cvt_assign"
 WINDING_CHECK = "voxax_winding_check"
+FINITE_CHECK = "voxax_finite_check"
 SPARSE_FORWARD = "voxax_sparse_forward"
 SPARSE_BACKWARD = "voxax_sparse_backward"
 SPARSE_TANGENT = "voxax_sparse_tangent"
@@ -29,7 +30,7 @@ SPARSE_TANGENT = "voxax_sparse_tangent"
 # Every FFI target the library exports, by name (each is also the exported symbol). The one
 # registry of voxax's custom calls: registration and the export safety checks read it.
 TARGETS: tuple[str, ...] = (FORWARD, BACKWARD, TANGENT, MARCHING_CUBES, CLOSEST_POINTS, FIRST_HITS, KNN, CVT_ASSIGN,
-                            WINDING_CHECK, SPARSE_FORWARD, SPARSE_BACKWARD, SPARSE_TANGENT)
+                            WINDING_CHECK, SPARSE_FORWARD, SPARSE_BACKWARD, SPARSE_TANGENT, FINITE_CHECK)
 
 _NAMES = ("libvoxax_kernels.so", "libvoxax_kernels.dylib", "voxax_kernels.dll")
 

@@ -16,7 +16,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
+
+from .. import _validate
 
 __all__ = ["LeastSquaresResult", "least_squares"]
 
@@ -108,18 +111,28 @@ def least_squares(
     [1.414214, 2.0]
     ```
     """
+    where = "voxax.least_squares"
+    if not callable(residual_fn):
+        raise TypeError(f"{where}: `residual_fn` must be a function residual_fn(y, args), got "
+                        f"{type(residual_fn).__name__}")
+    rtol = _validate.positive_float(where, "rtol", rtol, allow_zero=True)
+    atol = _validate.positive_float(where, "atol", atol, allow_zero=True)
+    for leaf in jax.tree_util.tree_leaves(y0):
+        a = np.asarray(leaf) if _validate.is_concrete(leaf) else None
+        if a is not None and a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}: `y0` must be finite (it contains NaN or Inf)")
     if isinstance(solver, str):
         if solver not in _SOLVERS:
-            raise ValueError(f"least_squares: unknown solver {solver!r}; choose one of {sorted(_SOLVERS)}")
+            raise ValueError(f"voxax.least_squares: unknown solver {solver!r}; choose one of {sorted(_SOLVERS)}")
         if linear_solver is None:
             linear_solver = lx.Normal(lx.CG(rtol=1e-6, atol=1e-12))
         solver = _SOLVERS[solver](rtol=rtol, atol=atol, linear_solver=linear_solver)
     elif not isinstance(solver, optx.AbstractLeastSquaresSolver):
         raise TypeError(
-            f"least_squares: `solver` must be a name or an optimistix least-squares solver, got {type(solver).__name__}"
+            f"voxax.least_squares: `solver` must be a name or an optimistix least-squares solver, got {type(solver).__name__}"
         )
     if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"least_squares: `max_steps` must be a positive int, got {max_steps!r}")
+        raise ValueError(f"voxax.least_squares: `max_steps` must be a positive int, got {max_steps!r}")
     start = time.perf_counter()
     sol = optx.least_squares(residual_fn, solver, y0, args=args, max_steps=max_steps, throw=throw)
     value = jax.block_until_ready(sol.value)

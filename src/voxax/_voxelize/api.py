@@ -139,7 +139,9 @@ def use_host_callback(enabled: bool) -> None:
 
     - `enabled`: `True` to force the host callback, `False` to choose by platform.
     """
-    _ops.set_host_callback(enabled)
+    if not isinstance(enabled, (bool, np.bool_)):
+        raise TypeError(f"voxax.use_host_callback: `enabled` must be True or False, got {type(enabled).__name__}")
+    _ops.set_host_callback(bool(enabled))
 
 
 _ops.set_host_callback(os.environ.get("VOXAX_HOST_CALLBACK", "") == "1")
@@ -169,6 +171,19 @@ def voxelize_corner_gradients(vertices, faces=None, grid: Grid | None = None, co
     if cotangent is None:
         raise TypeError(f"{where}: missing `cotangent`")
     vertices, faces = _check(vertices, faces, grid, where)
+    if not hasattr(cotangent, "dtype"):
+        cotangent = np.asarray(cotangent)
+    if np.dtype(cotangent.dtype).kind not in "fiu":
+        raise TypeError(f"{where}: `cotangent` must be a real array, got {cotangent.dtype}")
+    batch = np.broadcast_shapes(tuple(np.shape(vertices)[:-2]), tuple(np.shape(faces)[:-2]))
+    if tuple(cotangent.shape[cotangent.ndim - grid.dim:]) != tuple(grid.shape) or cotangent.ndim - grid.dim < 0:
+        raise ValueError(f"{where}: `cotangent` must have shape (..., *grid.shape) = (..., "
+                         f"{', '.join(map(str, grid.shape))}), got {tuple(cotangent.shape)}")
+    try:
+        np.broadcast_shapes(tuple(cotangent.shape[: cotangent.ndim - grid.dim]), batch)
+    except ValueError:
+        raise ValueError(f"{where}: the batch axes of `cotangent` {tuple(cotangent.shape)} do not broadcast with "
+                         f"those of the mesh {batch}") from None
     return _corner_gradients(vertices, faces, grid, cotangent)
 
 

@@ -31,9 +31,18 @@ def slab_grids(grid: Grid, count: int) -> list[Grid]:
 
     A list of `count` `voxax.Grid`s.
     """
+    where = "voxax.slab_grids"
     if not isinstance(grid, Grid):
-        raise TypeError(f"voxax.slab_grids: `grid` must be a voxax.Grid, got {type(grid).__name__}")
-    count = int(count)
+        raise TypeError(f"{where}: `grid` must be a voxax.Grid, got {type(grid).__name__}")
+    count = _validate.positive_int(where, "count", count)
+    if grid.shape[0] % count:
+        raise ValueError(f"{where}: `count` must divide the grid's {grid.shape[0]} cells along x ({count} slabs do "
+                         f"not divide {grid.shape[0]} cells)")
+    return _slabs(grid, count)
+
+
+def _slabs(grid: Grid, count: int) -> list[Grid]:
+    """`slab_grids` for a device count, refused in the words of `voxelize_sharded`."""
     nx = grid.shape[0]
     if count < 1 or nx % count:
         raise ValueError(
@@ -96,7 +105,7 @@ def voxelize_sharded(vertices, faces=None, grid: Grid | None = None, mesh: Mesh 
     if _validate.is_concrete(vertices) and _validate.is_concrete(faces):
         _validate.mesh("voxax.voxelize_sharded", vertices, faces, dim=grid.dim, batch=True)  # before any int32 cast
     count = int(mesh.shape[axis_name])
-    slabs = tuple(slab_grids(grid, count))
+    slabs = tuple(_slabs(grid, count))
     nb = max(np.ndim(vertices), np.ndim(faces)) - 2
     out_spec = P(*([None] * nb), axis_name, *([None] * (grid.dim - 1)))
     fn = _sharded_fn(slabs, mesh, axis_name, nb, out_spec)
@@ -132,7 +141,7 @@ def voxelize_slab(vertices, faces=None, grid: Grid | None = None, axis_name: str
         raise ValueError(
             f"voxax.voxelize_slab: no mesh axis named {axis_name!r} here; call it inside jax.shard_map over that axis"
         ) from err
-    slabs = slab_grids(grid, count)
+    slabs = _slabs(grid, count)
     vertices = jax.lax.pcast(jax.numpy.asarray(vertices), (axis_name,), to="varying")
     faces = jax.lax.pcast(jax.numpy.asarray(faces), (axis_name,), to="varying")
     branches = [functools.partial(_one_slab, grid=s) for s in slabs]

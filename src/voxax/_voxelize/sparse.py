@@ -417,9 +417,16 @@ def sparse_capacity(vertices=None, faces=None, grid: Grid | None = None) -> tupl
     size that fits a closed surface of moderate complexity spanning the grid:
     `4 (nx ny + ny nz + nz nx)` cells and `2 nx ny` runs. Both at most `grid.size`.
     """
+    where = "voxax.sparse_capacity"
+    if vertices is not None:
+        vertices, faces, (grid,) = _validate.unpack_mesh(where, vertices, faces, grid)
     if grid is None:
-        raise TypeError("voxax.sparse_capacity: missing `grid`")
-    grid = _validate.grid("voxax.sparse_capacity", grid, dim=3)
+        raise TypeError(f"{where}: missing `grid`")
+    grid = _validate.grid(where, grid, dim=3)
+    if vertices is not None:
+        vertices, faces = _validate.mesh(where, vertices, faces, dim=3, batch=True, allow_empty=True)
+        if not (_validate.is_concrete(vertices) and _validate.is_concrete(faces)):
+            raise TypeError(f"{where}: needs concrete vertices and faces (call it outside jax.jit), or none")
     nx, ny, nz = grid.shape
     size = grid.size
     if vertices is None:

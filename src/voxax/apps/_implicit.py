@@ -59,12 +59,12 @@ def _target_silhouettes(target, grid: Grid, w: float):
     if isinstance(target, (tuple, list)) and len(target) == 3 and all(np.ndim(t) == 2 for t in target):
         sil = tuple(jnp.asarray(t) for t in target)
     else:
-        m = as_mesh("optimize_implicit", target)
+        m = as_mesh("voxax.apps.optimize_implicit", target)
         W = voxelize(jnp.asarray(m.vertices, jnp.result_type(float)), jnp.asarray(m.faces), grid)
         sil = energies.silhouettes(W, w)
     want = ((grid.shape[1], grid.shape[2]), (grid.shape[0], grid.shape[2]), (grid.shape[0], grid.shape[1]))
     if tuple(s.shape for s in sil) != want:
-        raise ValueError(f"optimize_implicit: target silhouettes must have shapes {want}, got "
+        raise ValueError(f"voxax.apps.optimize_implicit: `target` silhouettes must have shapes {want}, got "
                          f"{tuple(s.shape for s in sil)}")
     return sil
 
@@ -120,7 +120,7 @@ def optimize_implicit(
     """
     import optax
 
-    name = "optimize_implicit"
+    name = "voxax.apps.optimize_implicit"
     if not callable(fn):
         raise TypeError(f"{name}: `fn` must be callable as fn(params, x)")
     if not isinstance(grid, Grid) or grid.dim != 3:

@@ -96,7 +96,7 @@ def optimize_for_molding(
     source = _common.as_mesh(where, mesh)
     _common.warn_if_open(source, where)
     if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)) or int(axis) not in (0, 1, 2):
-        raise ValueError(f"{where}: axis must be 0, 1 or 2, got {axis!r}")
+        raise ValueError(f"{where}: `axis` must be 0, 1 or 2, got {axis!r}")
     axis = int(axis)
     resolution = _common.check_resolution(where, resolution)
     w = _common.check_positive(where, w, "w")

@@ -117,7 +117,12 @@ def _instance_intersections(meshes: list, period: float) -> int:
 
 
 def rotation_matrices(angles):
-    """Rotation matrices `Rz(yaw) @ Ry(pitch) @ Rx(roll)` from `(..., 3)` yaw, pitch, roll."""
+    """Rotation matrices `Rz(yaw) @ Ry(pitch) @ Rx(roll)` from `(..., 3)` yaw, pitch, roll
+    (real, finite when concrete)."""
+    where = "voxax.apps.rotation_matrices"
+    angles = jnp.asarray(_validate.coordinates(where, "angles", angles, 3))
+    if not jnp.issubdtype(angles.dtype, jnp.floating):
+        angles = angles.astype(jnp.result_type(float))
     yaw, pitch, roll = angles[..., 0], angles[..., 1], angles[..., 2]
     cy, sy = jnp.cos(yaw), jnp.sin(yaw)
     cp, sp = jnp.cos(pitch), jnp.sin(pitch)
@@ -139,7 +144,7 @@ def _mesh_list(meshes) -> list[Mesh]:
     if _is_mesh_like(meshes) or not isinstance(meshes, (list, tuple)):
         return [_common.as_mesh("voxax.apps.optimize_tiling", meshes)]
     if not meshes:
-        raise ValueError("optimize_tiling needs at least one mesh")
+        raise ValueError("voxax.apps.optimize_tiling: `meshes` must hold at least one mesh")
     first = meshes[0]
     if len(meshes) == 2 and not _is_mesh_like(first) and np.ndim(first) == 2:
         return [_common.as_mesh("voxax.apps.optimize_tiling", meshes)]  # a single (vertices, faces) pair
@@ -150,13 +155,13 @@ def _counts(instances, k: int) -> list[int]:
     if isinstance(instances, (int, np.integer)) and not isinstance(instances, bool):
         n = int(instances)
         if n < k:
-            raise ValueError(f"instances ({n}) must be at least the number of meshes ({k})")
+            raise ValueError(f"voxax.apps.optimize_tiling: `instances` ({n}) must be at least the number of meshes ({k})")
         return [n // k + (1 if i < n % k else 0) for i in range(k)]
     counts = [int(c) for c in instances]
     if len(counts) != k:
-        raise ValueError(f"instances gives {len(counts)} counts for {k} meshes")
+        raise ValueError(f"voxax.apps.optimize_tiling: `instances` gives {len(counts)} counts for {k} meshes")
     if any(c < 1 for c in counts):
-        raise ValueError(f"every mesh needs at least one instance, got counts {counts}")
+        raise ValueError(f"voxax.apps.optimize_tiling: `instances` must give every mesh at least one instance, got {counts}")
     return counts
 
 
@@ -352,13 +357,13 @@ def optimize_tiling(
     for m in sources:
         _common.warn_if_open(m, "voxax.apps.optimize_tiling")
     if isinstance(blocks, bool) or not isinstance(blocks, (int, np.integer)) or blocks < 1:
-        raise ValueError(f"blocks must be a positive int, got {blocks!r}")
+        raise ValueError(f"voxax.apps.optimize_tiling: `blocks` must be a positive int, got {blocks!r}")
     blocks = int(blocks)
     key = _validate.key_or_seed("voxax.apps.optimize_tiling", key, seed)
     resolution = _common.check_resolution("voxax.apps.optimize_tiling", resolution, blocks)
     alpha, learning_rate, min_step = _common.check_steps("voxax.apps.optimize_tiling", arap_weight, learning_rate, min_step)
     if init not in ("random", "lattice"):
-        raise ValueError(f"init must be 'random' or 'lattice', got {init!r}")
+        raise ValueError(f"voxax.apps.optimize_tiling: `init` must be 'random' or 'lattice', got {init!r}")
     counts = _counts(instances, len(sources))
     B = sum(counts)
     mesh_index = np.repeat(np.arange(len(sources)), counts)

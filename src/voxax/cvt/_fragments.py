@@ -65,6 +65,9 @@ class Fragments(NamedTuple):
         return float(max(self.grid.spacing))
 
 
+_WHERE = "voxax.cvt.fragments"
+
+
 def real_array(where: str, name: str, value, dtype=np.float64) -> np.ndarray:
     """`value` as a C-contiguous NumPy array of `dtype`, refusing booleans, complex numbers
     and objects (which would be cast silently)."""
@@ -726,10 +729,22 @@ def fragments(
     return sample(source, grid, inside=inside, iterations=iterations, threads=threads)[0]
 
 
-def sample(source, grid=None, *, inside: str = "below", iterations: int = 30, threads=None) -> tuple:
+def sample(source, grid=None, *, inside: str = "below", iterations: int = 30, threads=None,
+           where: str = _WHERE) -> tuple:
     """[`fragments`][voxax.cvt.fragments] with, per axis, which lines start inside the solid
     (`(n_u * n_v,)` bool): a line that starts inside without crossing the surface shows
-    that the solid reaches beyond the grid. **Returns:** `(Fragments, starts)`."""
+    that the solid reaches beyond the grid. Errors name `where` (the public function
+    that samples). **Returns:** `(Fragments, starts)`."""
+    try:
+        return _sample_checked(source, grid, inside, iterations, threads)
+    except (TypeError, ValueError, MemoryError) as err:
+        text = str(err)
+        if where == _WHERE or not text.startswith(_WHERE + ":"):
+            raise
+        raise type(err)(where + text[len(_WHERE):]) from None
+
+
+def _sample_checked(source, grid, inside: str, iterations: int, threads) -> tuple:
     frag, starts = _sample(source, grid, inside, iterations, threads)
     if frag.size == 0 and not isinstance(source, Fragments):
         # checked here, for the whole: the operands of a CSG node may have no surface on

@@ -26,7 +26,6 @@ from ._fragments import (
     checked,
     checked_key,
     checked_threads,
-    fragments,
     sample,
     union_all,
 )
@@ -160,6 +159,27 @@ def _not_a_solid(frag: Fragments, mesh_report) -> str:
     return f"{_WHERE}: `source` must bound a solid to be oriented: {why} ({counts}); or pass orient=False"
 
 
+def _degenerate(mesh: Mesh, orient: bool) -> None:
+    """Refuses a mesh without extent (its faces' vertices all at one point) or whose
+    faces all have zero area: it has no surface to sample; with `orient`, also a flat one
+    (extent 0 along an axis): it bounds no solid."""
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    used = v[np.unique(f)]
+    extent = used.max(axis=0) - used.min(axis=0)
+    size = float(extent.max())
+    if size == 0:
+        raise ValueError(f"{_WHERE}: `source` must have an extent: the mesh is degenerate (every vertex of its faces "
+                         "lies at one point)")
+    u = (v - used.min(axis=0)) / size  # unit size: the areas neither underflow nor overflow
+    if not np.any(np.cross(u[f[:, 1]] - u[f[:, 0]], u[f[:, 2]] - u[f[:, 0]])):
+        raise ValueError(f"{_WHERE}: `source` must have a surface: the mesh is degenerate (every face has zero "
+                         "area)")
+    if orient and not np.all(extent > 0):
+        axis = "xyz"[int(np.argmin(extent))]
+        raise ValueError(f"{_WHERE}: `source` must bound a solid to be oriented: the mesh is flat (extent 0 along "
+                         f"{axis}, no enclosed volume); or pass orient=False")
+
+
 def _mesh_source(source):
     return as_mesh(_WHERE, source) if _validate.is_mesh_object(source) or _validate.is_mesh_pair(source) else None
 
@@ -286,7 +306,7 @@ def _refine(source, grid: Grid, frag: Fragments, n_seeds: int, alpha: float, ins
         mid = 0.5 * (lo + hi)
         half = 0.5 * shape * h
         grid = Grid(tuple(mid - half), tuple(mid + half), tuple(int(n) for n in shape))
-        frag = fragments(source, grid, inside=inside, threads=threads)
+        frag = sample(source, grid, inside=inside, threads=threads, where=_WHERE)[0]
     return frag
 
 
@@ -301,6 +321,7 @@ def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str,
     if mesh is not None:
         if len(mesh.faces) == 0:
             raise ValueError(f"{_WHERE}: `source` must be a non-empty triangle mesh, got no faces")
+        _degenerate(mesh, orient)
         report = metrics.manifold_report(mesh)
         if orient and report.n_boundary_edges:
             raise ValueError(f"{_WHERE}: `source` must be closed to be oriented: the mesh is open "
@@ -322,7 +343,8 @@ def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str,
             if mesh is None:
                 raise ValueError(f"{_WHERE}: `grid` must be given for fields, grids and CSG expressions")
             grid = _default_grid(mesh, n_seeds)
-        frag, starts = sample(mesh if mesh is not None else source, grid, inside=inside, threads=threads)
+        frag, starts = sample(mesh if mesh is not None else source, grid, inside=inside, threads=threads,
+                              where=_WHERE)
         beyond = sum(int(np.sum(st)) for st in starts) if mesh is None else 0  # a mesh's: from its signs
         if mesh is not None and orient and open_lines(frag):
             lo, hi = np.asarray(grid.lower), np.asarray(grid.upper)

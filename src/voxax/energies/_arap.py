@@ -139,7 +139,7 @@ def arap_rotations(vertices, rest_vertices, faces, weights=None):
     faces = jnp.asarray(faces)
     _check_mesh(vertices, faces, "arap_rotations")
     if rest_vertices.shape[-2:] != vertices.shape[-2:]:
-        raise ValueError(f"arap_rotations: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
+        raise ValueError(f"voxax.energies.arap_rotations: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
     if weights is None:
         weights = cotangent_weights(rest_vertices, faces)
     weights = jnp.asarray(weights, vertices.dtype)
@@ -216,12 +216,12 @@ def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normal
     faces = jnp.asarray(faces)
     _check_mesh(vertices, faces, "arap")
     if rest_vertices.shape[-2:] != vertices.shape[-2:]:
-        raise ValueError(f"arap: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
+        raise ValueError(f"voxax.energies.arap: `rest_vertices` {rest_vertices.shape} and `vertices` {vertices.shape} differ in shape")
     if weights is None:
         weights = cotangent_weights(rest_vertices, faces)
     weights = jnp.asarray(weights, vertices.dtype)
     if weights.shape[-2:] != faces.shape[-2:]:
-        raise ValueError(f"arap: `weights` must have shape {faces.shape} (one per face edge), got {weights.shape}")
+        raise ValueError(f"voxax.energies.arap: `weights` must have shape {faces.shape} (one per face edge), got {weights.shape}")
     if rotations is None:
         rotations = arap_rotations(vertices, rest_vertices, faces, weights)
     rotations = jax.lax.stop_gradient(jnp.asarray(rotations, vertices.dtype))

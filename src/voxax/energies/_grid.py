@@ -7,11 +7,29 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from .. import _validate
 
 
-def _check_3d(W, name: str):
-    if jnp.ndim(W) < 3:
-        raise ValueError(f"{name}: expected a grid with at least 3 axes (..., nx, ny, nz), got shape {jnp.shape(W)}")
+def _grid(where: str, W, name: str = "W", rank: int = 3):
+    """`W` as a float JAX array of at least `rank` axes, real (bools and integers become
+    floats; complex numbers and strings are refused) and finite (checked eagerly, and
+    by the value-check kernel under a trace: `_validate.finite_values`)."""
+    if not hasattr(W, "dtype"):
+        try:
+            W = np.asarray(W)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `{name}` must be a real array, got {type(W).__name__}") from None
+    if np.dtype(W.dtype).kind not in "fiub":
+        raise TypeError(f"{where}: `{name}` must be a real array, got {W.dtype}")
+    W = jnp.asarray(W)
+    if not jnp.issubdtype(W.dtype, jnp.floating):
+        W = W.astype(jnp.result_type(float))
+    if W.ndim < rank:
+        raise ValueError(f"{where}: `{name}` must be a grid with at least {rank} axes (..., nx, ny, nz), got shape "
+                         f"{W.shape}")
+    return _validate.finite_values(where, name, W)
 
 
 @functools.partial(jax.jit, static_argnames=("axis",))
@@ -80,7 +98,10 @@ def silhouettes(W, w: float = 1000.0):
     ((32, 32), (32, 32), (32, 32))
     ```
     """
-    _check_3d(W, "silhouettes")
+    return _silhouettes(_grid("voxax.energies.silhouettes", W), w)
+
+
+def _silhouettes(W, w):
     return mellowmax(W, w, axis=-3), mellowmax(W, w, axis=-2), mellowmax(W, w, axis=-1)
 
 
@@ -110,7 +131,11 @@ def cut_shape(W, w: float = 1000.0):
     ((32, 32, 32), True, True)
     ```
     """
-    Sx, Sy, Sz = silhouettes(W, w)
+    return _cut_shape(_grid("voxax.energies.cut_shape", W), w)
+
+
+def _cut_shape(W, w):
+    Sx, Sy, Sz = _silhouettes(W, w)
     return Sx[..., None, :, :] * Sy[..., :, None, :] * Sz[..., :, :, None]
 
 
@@ -143,8 +168,8 @@ def bandsaw_cut(W, w: float = 1000.0):
     True
     ```
     """
-    W = jnp.asarray(W)
-    S = cut_shape(W, w)
+    W = _grid("voxax.energies.bandsaw_cut", W)
+    S = _cut_shape(W, w)
     return jnp.mean((S - W) ** 2)
 
 
@@ -178,7 +203,7 @@ def self_intersection(W, eps: float = 1e-3):
     True
     ```
     """
-    W = jnp.asarray(W)
+    W = _grid("voxax.energies.self_intersection", W, rank=0)
     return jnp.sum(jnp.where(W > 1.0 + eps, W * W, 0.0)) / W.size
 
 
@@ -210,14 +235,15 @@ def fold_periodic(W, blocks: int = 3):
     ((4, 4, 4), 729.0)
     ```
     """
-    W = jnp.asarray(W)
-    _check_3d(W, "fold_periodic")
-    b = int(blocks)
-    if b < 1:
-        raise ValueError(f"voxax.energies.fold_periodic: `blocks` must be a positive integer, got {blocks}")
+    return _fold(_grid("voxax.energies.fold_periodic", W), blocks, "voxax.energies.fold_periodic")
+
+
+def _fold(W, blocks, where: str, name: str = "W"):
+    b = _validate.positive_int(where, "blocks", blocks)
     *batch, nx, ny, nz = W.shape
     if nx % b or ny % b or nz % b:
-        raise ValueError(f"voxax.energies.fold_periodic: grid shape {(nx, ny, nz)} is not divisible by blocks={b} on every axis")
+        raise ValueError(f"{where}: `{name}` of shape {(nx, ny, nz)} must be divisible by `blocks` = {b} on every "
+                         "axis")
     W = W.reshape(-1, b, nx // b, b, ny // b, b, nz // b)
     return W.sum(axis=(0, 1, 3, 5))
 
@@ -256,7 +282,8 @@ def tiling(W_instances, blocks: int = 3, normalize: bool = False):
     True
     ```
     """
-    cell = fold_periodic(W_instances, blocks)
+    where = "voxax.energies.tiling"
+    cell = _fold(_grid(where, W_instances, "W_instances"), blocks, where, "W_instances")
     e = jnp.sum((cell - 1.0) ** 2)
     return e / cell.size if normalize else e
 
@@ -288,10 +315,12 @@ def volume(W, grid):
     0.75
     ```
     """
-    W = jnp.asarray(W)
+    where = "voxax.energies.volume"
+    _validate.grid(where, grid)
+    W = _grid(where, W, rank=0)
     d = len(grid.shape)
     if tuple(W.shape[W.ndim - d:]) != tuple(grid.shape):
-        raise ValueError(f"volume: grid of shape {W.shape} does not end in grid.shape {grid.shape}")
+        raise ValueError(f"{where}: `W` of shape {W.shape} must end in grid.shape {grid.shape}")
     return W.sum(axis=tuple(range(W.ndim - d, W.ndim))) * grid.voxel_volume
 
 
@@ -327,8 +356,9 @@ def interpenetration(W_a, W_b):
     0.25
     ```
     """
-    W_a = jnp.asarray(W_a)
-    W_b = jnp.asarray(W_b)
+    where = "voxax.energies.interpenetration"
+    W_a = _grid(where, W_a, "W_a", rank=0)
+    W_b = _grid(where, W_b, "W_b", rank=0)
     if W_a.shape != W_b.shape:
-        raise ValueError(f"interpenetration: grids must have the same shape, got {W_a.shape} and {W_b.shape}")
+        raise ValueError(f"{where}: `W_a` and `W_b` must have the same shape, got {W_a.shape} and {W_b.shape}")
     return jnp.sum(jnp.clip(W_a, 0.0, 1.0) * jnp.clip(W_b, 0.0, 1.0)) / W_a.size

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _validate
+
 __all__ = ["esi_gap", "height_field_hull"]
 
 
@@ -25,8 +27,8 @@ def height_field_hull(W, axis: int = 2, w: float = 1000.0):
     - `axis`: 0, 1 or 2 (x, y, z).
     - `w`: the mellowmax sharpness (finite, > 0).
 
-    Concrete grids must be finite (NaN or Inf raise `ValueError`); under a trace a NaN
-    propagates as in any JAX function.
+    `W` must be finite: NaN or Inf raise `ValueError` eagerly and fail the computation
+    with the same message under `jax.jit` (a `jax.errors.JaxRuntimeError`).
 
     **Returns:** `(..., nx, ny, nz)`, the soft hull.
 
@@ -47,9 +49,8 @@ def height_field_hull(W, axis: int = 2, w: float = 1000.0):
     W = jnp.asarray(W)
     if W.ndim < 3:
         raise ValueError(f"{where}: `W` must have shape (..., nx, ny, nz), got {W.shape}")
-    if not isinstance(W, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(W))):
-        raise ValueError(f"{where}: `W` must be finite (it contains NaN or Inf)")
     w = _sharpness(where, w)
+    W = _validate.finite_values(where, "W", W)
     if W.size == 0:
         return jnp.zeros_like(W)
     ax = W.ndim - 3 + axis

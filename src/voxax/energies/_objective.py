@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import jax.numpy as jnp
+
+from .. import _validate
 
 __all__ = ["objective"]
 
@@ -46,11 +48,26 @@ def objective(terms: dict, weights: dict | None = None, extras: Callable | None 
     ['arap', 'energy', 'sect', 'step_size', 'time']
     ```
     """
+    where = "voxax.energies.objective"
+    if not isinstance(terms, Mapping):
+        raise TypeError(f"{where}: `terms` must be a dict {{name: term(y, args)}}, got {type(terms).__name__}")
+    if not terms:
+        raise ValueError(f"{where}: `terms` must hold at least one term (got an empty dict)")
+    for name, term in terms.items():
+        if not callable(term):
+            raise TypeError(f"{where}: `terms` must map names to functions term(y, args); {name!r} is a "
+                            f"{type(term).__name__}")
+    if weights is not None and not isinstance(weights, Mapping):
+        raise TypeError(f"{where}: `weights` must be a dict {{name: float}} or None, got {type(weights).__name__}")
     terms = dict(terms)
-    weights = dict(weights or {})
+    weights = {name: _validate.finite_number(where, f"weights[{name!r}]", value) if _validate.is_concrete(value)
+               else value for name, value in dict(weights or {}).items()}
     unknown = set(weights) - set(terms)
     if unknown:
-        raise ValueError(f"objective: weights given for unknown terms {sorted(unknown)}")
+        raise ValueError(f"{where}: `weights` names unknown terms {sorted(unknown)}")
+    if extras is not None and not callable(extras):
+        raise TypeError(f"{where}: `extras` must be a function extras(y, args) -> dict or None, got "
+                        f"{type(extras).__name__}")
 
     def fn(y, args=None):
         aux = {}

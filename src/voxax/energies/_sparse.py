@@ -6,6 +6,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .. import _validate
 from .._voxelize.sparse import SparseGrid
 
 __all__ = ["sparse_column_sums", "sparse_self_intersection", "sparse_silhouette_z", "sparse_volume"]
@@ -38,6 +39,8 @@ def sparse_self_intersection(sg: SparseGrid, eps: float = 1e-3):
     A scalar; its gradient flows through the boundary values.
     """
     _check(sg, "voxax.energies.sparse_self_intersection")
+    if _validate.is_concrete(eps):
+        eps = _validate.positive_float("voxax.energies.sparse_self_intersection", "eps", eps, allow_zero=True)
     b = sg.values
     r = sg.run_values
     e = jnp.sum(jnp.where(b > 1.0 + eps, b * b, 0.0)) + jnp.sum(jnp.where(r > 1.0 + eps, r * r * _lengths(sg), 0.0))
@@ -92,6 +95,8 @@ def sparse_silhouette_z(sg: SparseGrid, w: float = 1000.0):
     `(nx, ny)` float, the mellowmax of every column.
     """
     _check(sg, "voxax.energies.sparse_silhouette_z")
+    if _validate.is_concrete(w):
+        w = _validate.positive_float("voxax.energies.sparse_silhouette_z", "w", w)
     nx, ny, nz = sg.grid.shape
     dt = sg.values.dtype
     c, r = sg.cells, sg.runs

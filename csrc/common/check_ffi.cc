@@ -1,0 +1,79 @@
+// XLA FFI handler that checks the values of a float array under jit, for the pure-JAX
+// entry points whose input values Python cannot see while tracing:
+//
+// voxax_finite_check(x (...) f32/f64) -> flag () s32 (0; one per item under vmap)
+//   attributes: `where` (the public function, e.g. "voxax.energies.height_field_hull"),
+//   `name` (the argument), `max_abs` (the largest magnitude accepted; inf for any).
+//
+// Fails with InvalidArgument "<where>: `<name>` must be finite ..." at the first NaN or
+// infinite element, or "... magnitude <= <max_abs> ..." at the first one beyond `max_abs`.
+// The caller ties its result to the flag, so that the check runs before the result is used.
+
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <string_view>
+
+#include "common/errors.h"
+#include "common/ffi_bind.h"
+
+namespace voxax {
+namespace {
+
+constexpr char kWhere[] = "where";
+constexpr char kName[] = "name";
+constexpr char kMaxAbs[] = "max_abs";
+
+std::string prefix(std::string_view where, std::string_view name) {
+  return std::string(where) + ": `" + std::string(name) + "` ";
+}
+
+template <typename T>
+ffi::Error check_values(const T* x, size_t count, std::string_view where, std::string_view name,
+                        double max_abs) {
+  for (size_t i = 0; i < count; ++i) {
+    const double v = static_cast<double>(x[i]);
+    if (!std::isfinite(v))
+      return ffi::Error::InvalidArgument(prefix(where, name) +
+                                         "must be finite (it contains NaN or Inf at flat index " +
+                                         std::to_string(i) + ")");
+    if (std::fabs(v) > max_abs) {
+      char bound[32];
+      std::snprintf(bound, sizeof bound, "%g", max_abs);
+      return ffi::Error::InvalidArgument(prefix(where, name) + "must have magnitude <= " + bound +
+                                         " (flat index " + std::to_string(i) + ")");
+    }
+  }
+  return ffi::Error::Success();
+}
+
+ffi::Error FiniteCheck(ffi::AnyBuffer x, ffi::ResultBuffer<ffi::S32> flag,
+                       ffi::Attr<std::string_view, kWhere> where_attr,
+                       ffi::Attr<std::string_view, kName> name_attr,
+                       ffi::Attr<double, kMaxAbs> max_abs_attr) {
+  return guarded("the finite check", [&]() -> ffi::Error {
+    const std::string_view where = *where_attr, name = *name_attr;
+    const double max_abs = *max_abs_attr;
+    ffi::Error err = ffi::Error::Success();
+    switch (x.element_type()) {
+      case ffi::DataType::F32:
+        err = check_values(x.typed_data<float>(), x.element_count(), where, name, max_abs);
+        break;
+      case ffi::DataType::F64:
+        err = check_values(x.typed_data<double>(), x.element_count(), where, name, max_abs);
+        break;
+      default:
+        return ffi::Error::InvalidArgument(prefix(where, name) + "must be float32 or float64");
+    }
+    if (err.failure()) return err;
+    int32_t* out = flag->typed_data();
+    for (size_t i = 0; i < flag->element_count(); ++i) out[i] = 0;
+    return ffi::Error::Success();
+  });
+}
+
+}  // namespace
+
+VOXAX_FFI_HANDLER(voxax_finite_check, FiniteCheck)
+
+}  // namespace voxax
