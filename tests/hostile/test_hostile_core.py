@@ -79,6 +79,10 @@ CASES = [
      "r = voxax.minimize(lambda y, a: jnp.sum((y - 1.0) ** 2), jnp.zeros(3), learning_rate=0.1, progress=False,"
      " stop=voxax.StopRules(max_steps=400)); assert isinstance(r, voxax.MinimizeResult);"
      "assert r.stop_reason == voxax.StopReason.CONVERGED and np.allclose(r.y, 1.0, atol=1e-3), r", None, ""),
+    ("optimize", "StopRules max_steps 1.5", "voxax.StopRules(max_steps=1.5)", "TypeError", "`max_steps`"),
+    ("optimize", "StopRules min_step NaN", "voxax.StopRules(min_step=np.nan)", "ValueError", "`min_step`"),
+    ("optimize", "StopRules patience 0", "voxax.StopRules(patience=0)", "ValueError", "`patience`"),
+    ("optimize", "minimize of a number", "voxax.minimize(3, jnp.zeros(2))", "TypeError", "`fn`"),
     ("optimize", "least_squares of a linear residual (oracle)",
      "r = voxax.least_squares(lambda y, a: 2.0 * y - 3.0, jnp.zeros(3)); assert isinstance(r, voxax.LeastSquaresResult);"
      "assert r.converged and np.allclose(r.value, 1.5), r", None, ""),

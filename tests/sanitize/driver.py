@@ -1901,6 +1901,50 @@ def run_winding(rng, rounds=40):
         fail("winding check kernel: a valid input did not return 0")
 
 
+def run_finite_check(rng, rounds=40):
+    """The value-check kernel of traced float arrays (csrc/common/check_ffi.cc): random
+    shapes (scalars, empty, large) and dtypes with NaN, Inf or huge values at random flat
+    positions, under jit and vmap; the first bad index must be reported, valid arrays pass."""
+    from voxax._kernels.checks import finite_check_ffi
+
+    check = jax.jit(finite_check_ffi, static_argnames=("where", "name", "max_abs"))
+    shapes = [(), (0,), (1,), (7,), (3, 0, 2), (33, 5), (4, 4, 4), (20_000,)]
+    for r in range(rounds):
+        shape = shapes[r % len(shapes)]
+        dtype = (np.float32, np.float64)[r % 2]
+        x = rng.normal(size=shape).astype(dtype)
+        max_abs = float(("inf", 10.0)[(r // 2) % 2])
+        bad = x.size and r % 3 != 0
+        idx = int(rng.integers(x.size)) if bad else -1
+        if bad:
+            flat = x.reshape(-1)
+            flat[idx] = (np.nan, np.inf, -np.inf, 1e30)[r % 4]
+            if flat[idx] == 1e30 and max_abs == float("inf"):
+                bad, idx = False, -1
+        COUNTS["finite_check"] += 1
+        try:
+            out = int(check(jnp.asarray(x), where="voxax.test", name="x", max_abs=max_abs))
+        except (ValueError, jax.errors.JaxRuntimeError) as err:
+            if not bad or f"flat index {idx})" not in str(err) or "voxax.test: `x` must" not in str(err):
+                fail(f"finite check: wrong rejection of {shape} {dtype.__name__} (bad index {idx}): {err}")
+            continue
+        if bad or out != 0:
+            fail(f"finite check: accepted {shape} {dtype.__name__} with a bad value at {idx} (flag {out})")
+    # under vmap: one flag per item, the failing item's value found
+    xs = jnp.asarray(rng.normal(size=(5, 9)))
+    flags = jax.vmap(lambda v: finite_check_ffi(v, "voxax.test", "x"))(xs)
+    if flags.shape != (5,) or int(jnp.abs(flags).sum()) != 0:
+        fail(f"finite check under vmap: flags {flags}")
+    bad = {
+        "vmap NaN": (lambda: jax.vmap(lambda v: finite_check_ffi(v, "voxax.test", "x"))(xs.at[3, 4].set(jnp.nan)),
+                     "flat index 4"),
+        "int array": (lambda: check(jnp.zeros(3, jnp.int32), where="voxax.test", name="x"), "float32 or float64"),
+        "negative bound": (lambda: check(jnp.zeros(3), where="voxax.test", name="x", max_abs=-1.0), "magnitude"),
+        "empty names": (lambda: check(jnp.full(3, jnp.nan), where="", name=""), "must be finite"),
+    }
+    expect_rejected("finite_check", bad, (ValueError, jax.errors.JaxRuntimeError))
+
+
 def pool_threads():
     """Threads of XLA's CPU pool (the one the kernels run on), by name."""
     try:
@@ -2084,6 +2128,7 @@ def main(argv=None):
         run_cpu_features()
         run_winding(rng, max(21, args.spatial_inputs // 5))
         run_sparse(rng, max(14, args.inputs // 20))
+        run_finite_check(rng, max(24, args.spatial_inputs // 4))
         while COUNTS["eager"] + COUNTS["jit"] < args.inputs:
             dim = 3 if i % 3 else 2
             family = families[i % len(families)]
@@ -2114,6 +2159,7 @@ def main(argv=None):
     print("inputs per kind: " + ", ".join(f"{k} {COUNTS[k]}" for k in ("dim3", "dim2", "float64", "float32", "eager", "jit", "batched")))
     print(f"spatial (BVH) inputs: {COUNTS['spatial']}, invalid: {COUNTS['spatial_invalid']}")
     print(f"kNN inputs: {COUNTS['knn']}, invalid: {COUNTS['knn_invalid']}")
+    print(f"finite-check inputs: {COUNTS['finite_check']}, invalid: {COUNTS['finite_check_invalid']}")
     print(f"line crossings inputs: {COUNTS['line_crossings']}, invalid: {COUNTS['line_crossings_invalid']}")
     print(f"sparse voxelization inputs: {COUNTS['sparse']}, invalid: {COUNTS['sparse_invalid']}")
     print(f"selection bound sums: {COUNTS['bounds']} calls, invalid: {COUNTS['bounds_invalid']}")

@@ -38,6 +38,7 @@ import numpy as np
 import optax
 import optimistix as optx
 
+from .. import _validate
 from .._optional import require
 from .._progress import ProgressBar
 from .._values import ValueEquality
@@ -117,17 +118,20 @@ class StopRules:
 
     def __post_init__(self):
         if self.max_w is not None and self.max_w_threshold is not None and self.max_w != self.max_w_threshold:
-            raise ValueError("StopRules: give `max_w_threshold` or its alias `max_w`, not two different values")
+            raise ValueError("voxax.StopRules: give `max_w_threshold` or its alias `max_w`, not two different values")
         if self.max_w is not None and self.max_w_threshold is None:
             object.__setattr__(self, "max_w_threshold", self.max_w)
         if self.max_w_threshold is not None and self.max_w is None:
             object.__setattr__(self, "max_w", self.max_w_threshold)
-        if int(self.max_steps) < 0:
-            raise ValueError(f"StopRules: `max_steps` must be >= 0, got {self.max_steps}")
-        object.__setattr__(self, "max_steps", int(self.max_steps))
-        if int(self.patience) < 1:
-            raise ValueError(f"StopRules: `patience` must be >= 1, got {self.patience}")
-        object.__setattr__(self, "patience", int(self.patience))
+        where = "voxax.StopRules"
+        object.__setattr__(self, "max_steps", _validate.positive_int(where, "max_steps", self.max_steps, minimum=0))
+        object.__setattr__(self, "patience", _validate.positive_int(where, "patience", self.patience))
+        for name in ("min_step", "energy_tol"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _validate.positive_float(where, name, getattr(self, name), allow_zero=True))
+        for name in ("max_w", "max_w_threshold"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _validate.finite_number(where, name, getattr(self, name)))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -167,11 +171,11 @@ class _WithAux(eqx.Module):
         out = self.fn(y, args)
         if self.has_aux:
             if not (isinstance(out, tuple) and len(out) == 2):
-                raise ValueError("minimize: with has_aux=True, `fn(y, args)` must return (scalar, aux)")
+                raise ValueError("voxax.minimize: with has_aux=True, `fn(y, args)` must return (scalar, aux)")
             f, aux = out
         else:
             if isinstance(out, tuple):
-                raise ValueError("minimize: `fn(y, args)` returned a tuple; pass has_aux=True for (scalar, aux)")
+                raise ValueError("voxax.minimize: `fn(y, args)` returned a tuple; pass has_aux=True for (scalar, aux)")
             f, aux = out, None
         return jnp.asarray(f), aux
 
@@ -209,18 +213,18 @@ def _make_solver(solver, learning_rate):
             return "lbfgsb", None
         if name in ("bfgs", "lbfgs"):
             return "quasi_newton", name
-        raise ValueError(f"minimize: unknown solver {solver!r}; use {_NAMES}")
+        raise ValueError(f"voxax.minimize: unknown solver {solver!r}; use {_NAMES}")
     if isinstance(solver, optax.GradientTransformation):
         return "optax", solver
     if isinstance(solver, optx.AbstractMinimiser):
         return ("quasi_newton" if isinstance(solver, optx.AbstractQuasiNewton) else "optimistix"), solver
-    raise TypeError(f"minimize: `solver` must be {_NAMES}; got {type(solver).__name__}")
+    raise TypeError(f"voxax.minimize: `solver` must be {_NAMES}; got {type(solver).__name__}")
 
 
 def _box(bounds, y0):
     """`(lower, upper)` pytrees shaped like `y0` from scalars, arrays or pytrees (None: unbounded)."""
     if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
-        raise TypeError("minimize: `bounds` must be a pair (lower, upper) of scalars, arrays or pytrees like y0")
+        raise TypeError("voxax.minimize: `bounds` must be a pair (lower, upper) of scalars, arrays or pytrees like y0")
     leaves, treedef = jtu.tree_flatten(y0)
 
     def side(b, fill, name):
@@ -232,7 +236,7 @@ def _box(bounds, y0):
         elif len(b_leaves) == 1:
             pairs = ((b_leaves[0], x) for x in leaves)
         else:
-            raise ValueError(f"minimize: `bounds` {name} must be a scalar, an array or a pytree like y0")
+            raise ValueError(f"voxax.minimize: `bounds` {name} must be a scalar, an array or a pytree like y0")
         out = []
         for bl, x in pairs:
             bl = jnp.asarray(bl, jnp.result_type(x))
@@ -240,15 +244,15 @@ def _box(bounds, y0):
                 out.append(jnp.broadcast_to(bl, jnp.shape(x)))
             except ValueError:
                 raise ValueError(
-                    f"minimize: `bounds` {name} of shape {bl.shape} does not broadcast to a variable of shape {jnp.shape(x)}"
+                    f"voxax.minimize: `bounds` {name} of shape {bl.shape} does not broadcast to a variable of shape {jnp.shape(x)}"
                 ) from None
             if jnp.any(jnp.isnan(out[-1])):
-                raise ValueError(f"minimize: `bounds` {name} contains NaN")
+                raise ValueError(f"voxax.minimize: `bounds` {name} contains NaN")
         return out
 
     lower, upper = side(bounds[0], -jnp.inf, "lower"), side(bounds[1], jnp.inf, "upper")
     if any(bool(jnp.any(lo > hi)) for lo, hi in zip(lower, upper)):
-        raise ValueError("minimize: `bounds` need lower <= upper everywhere")
+        raise ValueError("voxax.minimize: `bounds` need lower <= upper everywhere")
     return jtu.tree_unflatten(treedef, lower), jtu.tree_unflatten(treedef, upper)
 
 
@@ -431,11 +435,11 @@ def _checked_fn(fn_aux, y0, args, stop: StopRules):
     entries."""
     f_struct, aux_struct = eqx.filter_eval_shape(fn_aux, y0, args)
     if not (f_struct.shape == () and jnp.issubdtype(f_struct.dtype, jnp.floating)):
-        raise ValueError(f"minimize: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
+        raise ValueError(f"voxax.minimize: `fn` must return a floating-point scalar, got shape {f_struct.shape} "
                          f"and dtype {f_struct.dtype}")
     aux_names = sorted(_scalar_aux(aux_struct)) if aux_struct is not None else []
     if stop.max_w_threshold is not None and "max_w" not in aux_names:
-        raise ValueError("minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
+        raise ValueError("voxax.minimize: the `max_w_threshold` stopping rule needs has_aux=True and a scalar "
                          "aux['max_w'] (e.g. W.max()) from `fn`")
     return f_struct, aux_struct, aux_names
 
@@ -446,7 +450,7 @@ def _box_bounds(bounds, kind: str, y0):
     lower = upper = None
     if bounds is not None:
         if kind in ("quasi_newton", "optimistix"):
-            raise ValueError("minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
+            raise ValueError("voxax.minimize: `bounds` need an optax solver ('adam', 'sgd', an optax "
                              "GradientTransformation) or solver='lbfgsb'; optimistix minimizers are unconstrained")
         lower, upper = _box(bounds, y0)
         y0 = optax.projections.projection_box(y0, lower, upper)
@@ -557,8 +561,10 @@ def minimize(
     ('converged', Array([1., 1., 1., 1.], dtype=float64))
     ```
     """
+    if not callable(fn):
+        raise TypeError(f"voxax.minimize: `fn` must be a callable fn(y, args), got {type(fn).__name__}")
     if not isinstance(stop, StopRules):
-        raise TypeError(f"minimize: `stop` must be a StopRules, got {type(stop).__name__}")
+        raise TypeError(f"voxax.minimize: `stop` must be a StopRules, got {type(stop).__name__}")
     kind, solver = _make_solver(solver, learning_rate)
     options = {} if options is None else dict(options)
     y0 = jtu.tree_map(_as_inexact, y0)
