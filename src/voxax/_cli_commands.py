@@ -105,6 +105,14 @@ def _prepare_folder(path: str) -> None:
     os.makedirs(path, exist_ok=True)
 
 
+def _start_app(args, meshes):
+    """The set-up of the application commands: the output folder, JAX's precision, and the
+    meshes read from the files `meshes`, outward-oriented (or flipped)."""
+    _prepare_folder(args.out)
+    _setup_jax(args.float32)
+    return [_flip_or_refuse(_load_mesh(m), args.flip, need_outward=True) for m in meshes]
+
+
 @contextlib.contextmanager
 def _grid_check(mesh, normalize: bool):
     """With --no-normalize, warns in command-line words when the mesh leaves the
@@ -242,12 +250,10 @@ def _voxelize(args) -> int:
 
 
 def _resolve(args) -> int:
-    _prepare_folder(args.out)
-    _setup_jax(args.float32)
+    (mesh,) = _start_app(args, [args.mesh])
     import voxax
     from voxax import apps
 
-    mesh = _flip_or_refuse(_load_mesh(args.mesh), args.flip, need_outward=True)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.resolve_self_intersections(
             mesh, eps=args.eps, normalize=not args.no_normalize, refine=not args.no_refine,
@@ -276,12 +282,10 @@ def _resolve(args) -> int:
 
 
 def _bandsaw(args) -> int:
-    _prepare_folder(args.out)
-    _setup_jax(args.float32)
+    (mesh,) = _start_app(args, [args.mesh])
     import voxax
     from voxax import apps, fabricate
 
-    mesh = _flip_or_refuse(_load_mesh(args.mesh), args.flip, need_outward=True)
     with _grid_check(mesh, not args.no_normalize):
         out, report = apps.optimize_for_bandsaw(
             mesh, w=args.w, min_step=args.min_step or None, normalize=not args.no_normalize,
@@ -314,14 +318,12 @@ def _tile(args) -> int:
         raise UsageError(f"--instances gives {counts} counts for {meshes_given} meshes (give one total or one per mesh)")
     if counts == 1 and args.instances[0] < meshes_given:
         raise UsageError(f"--instances {args.instances[0]} is fewer than the {meshes_given} meshes")
-    _prepare_folder(args.out)
-    _setup_jax(args.float32)
+    meshes = _start_app(args, args.meshes)
     import numpy as np
 
     import voxax
     from voxax import apps
 
-    meshes = [_flip_or_refuse(_load_mesh(m), args.flip, need_outward=True) for m in args.meshes]
     instances = args.instances if counts > 1 else args.instances[0]
     placed, report = apps.optimize_tiling(
         meshes, instances=instances, min_step=args.min_step or None, deform=not args.rigid, init=args.init,

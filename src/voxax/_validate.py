@@ -349,6 +349,20 @@ def positive_float(where: str, name: str, value, allow_zero: bool = False) -> fl
     return out
 
 
+def typed_array(where: str, name: str, value, kinds: str = "fiu", what: str = "a real array"):
+    """`value` itself if it has a dtype (a NumPy or JAX array, traced or not), else as a
+    NumPy array; its dtype's kind must be one of `kinds` (NumPy's letters: "f" float, "i"
+    and "u" integers, "b" bool): else `TypeError` "`<name>` must be <what>"."""
+    if not hasattr(value, "dtype"):
+        try:
+            value = np.asarray(value)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `{name}` must be {what}, got {type(value).__name__}") from None
+    if np.dtype(value.dtype).kind not in kinds:
+        raise TypeError(f"{where}: `{name}` must be {what}, got {value.dtype}")
+    return value
+
+
 def coordinates(where: str, name: str, value, d: int | None = 3, *, finite: bool = True):
     """Checks an array of points `(..., d)` (any `d >= 1` for `d=None`): a real (float or
     integer) dtype, never bool, complex or strings, and, when concrete and `finite`, finite

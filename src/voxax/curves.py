@@ -73,13 +73,7 @@ def _float(where: str, name: str, x, d: int | None = None):
 
 def _parameters(where: str, t, dtype):
     """The curve parameters `t`: real (never bool, complex or strings), finite when concrete."""
-    if not hasattr(t, "dtype"):
-        try:
-            t = np.asarray(t)
-        except (TypeError, ValueError):
-            raise TypeError(f"{where}: `t` must be real numbers, got {type(t).__name__}") from None
-    if np.dtype(t.dtype).kind not in "fiu":
-        raise TypeError(f"{where}: `t` must be real numbers, got {t.dtype}")
+    t = _validate.typed_array(where, "t", t, "fiu", "real numbers")
     if _validate.is_concrete(t) and np.size(t) and not np.all(np.isfinite(np.asarray(t))):
         raise ValueError(f"{where}: `t` must be finite (it contains NaN or Inf)")
     return jnp.asarray(t, dtype)

@@ -591,12 +591,7 @@ def _shape_index(where: str, index, n: int) -> None:
     if isinstance(index, (bool, np.bool_)) or (hasattr(index, "dtype") and np.dtype(index.dtype).kind not in "iu"):
         raise TypeError(f"{where}: `index` must be an int or an int array, got {getattr(index, 'dtype', 'bool')}")
     if not hasattr(index, "dtype") and not isinstance(index, (int, np.integer)):
-        try:
-            index = np.asarray(index)
-        except (TypeError, ValueError):
-            raise TypeError(f"{where}: `index` must be an int or an int array, got {type(index).__name__}") from None
-        if index.dtype.kind not in "iu":
-            raise TypeError(f"{where}: `index` must be an int or an int array, got {index.dtype}")
+        index = _validate.typed_array(where, "index", index, "iu", "an int or an int array")
     if _validate.is_concrete(index) and np.size(index):
         a = np.asarray(index)
         if a.min() < 0 or a.max() >= n:

@@ -8,7 +8,7 @@ import operator
 import jax
 import numpy as np
 
-from .. import _kernels
+from .. import _kernels, _validate
 from .._constants import MAX_ABS_COORDINATE
 from .._kernels import knn as _knn
 from .._validate import INT32_MAX
@@ -100,12 +100,7 @@ def _check_shape(shape: tuple, name: str) -> None:
 def _rows(x, name: str) -> np.ndarray:
     """Concrete coordinates as C-contiguous float64, checked as the kernel checks them (the
     kernel alone checks that the points are not all below 1e-75)."""
-    try:
-        a = np.asarray(x)
-    except (ValueError, TypeError):
-        raise TypeError(f"{_WHERE}: `{name}` must be a real array of 3D points, got {type(x).__name__}") from None
-    if a.dtype.kind not in "fiu":
-        raise TypeError(f"{_WHERE}: `{name}` must be a real (float or int) array, got dtype {a.dtype}")
+    a = np.asarray(_validate.typed_array(_WHERE, name, x, "fiu", "a real (float or int) array of 3D points"))
     _check_shape(a.shape, name)
     a = np.ascontiguousarray(a, dtype=np.float64)
     if a.size:

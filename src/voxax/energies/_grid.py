@@ -7,7 +7,6 @@ import math
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .. import _validate
 
@@ -16,13 +15,7 @@ def _grid(where: str, W, name: str = "W", rank: int = 3):
     """`W` as a float JAX array of at least `rank` axes, real (bools and integers become
     floats; complex numbers and strings are refused) and finite (checked eagerly, and
     by the value-check kernel under a trace: `_validate.finite_values`)."""
-    if not hasattr(W, "dtype"):
-        try:
-            W = np.asarray(W)
-        except (TypeError, ValueError):
-            raise TypeError(f"{where}: `{name}` must be a real array, got {type(W).__name__}") from None
-    if np.dtype(W.dtype).kind not in "fiub":
-        raise TypeError(f"{where}: `{name}` must be a real array, got {W.dtype}")
+    W = _validate.typed_array(where, name, W, "fiub")
     W = jnp.asarray(W)
     if not jnp.issubdtype(W.dtype, jnp.floating):
         W = W.astype(jnp.result_type(float))
