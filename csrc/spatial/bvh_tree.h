@@ -546,6 +546,9 @@ class Bvh {
     V2d org[3], inv[3];
     double tmin;
     bool neg[3];
+    // per axis the byte offsets of the near and the far bounds in a record whose lo[3][2]
+    // and hi[3][2] (float) start at 0 and 24 (RayRec, Pair): a load, not a branch
+    int32_t near[3], far[3];
   };
   static RayPair ray_pair(const Ray& r) {
     RayPair s;
@@ -553,6 +556,8 @@ class Bvh {
       s.org[a] = v2_splat(r.org[a]);
       s.inv[a] = v2_splat(r.inv[a]);
       s.neg[a] = r.inv[a] < 0.0;
+      s.near[a] = (s.neg[a] ? 24 : 0) + 8 * a;
+      s.far[a] = (s.neg[a] ? 0 : 24) + 8 * a;
     }
     s.tmin = r.tmin;
     return s;
@@ -562,10 +567,13 @@ class Bvh {
     constexpr double kGrow =
         1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
     V2d t0 = v2_splat(s.tmin), t1 = v2_splat(tfar);
+    static_assert(offsetof(Rec, lo) == 0 && offsetof(Rec, hi) == 24, "bounds at 0 and 24");
+    const char* base = reinterpret_cast<const char*>(&pr);
     for (int a = 0; a < 3; ++a) {
-      const V2d lo = v2_load(pr.lo[a]), hi = v2_load(pr.hi[a]);
-      const V2d tn = ((s.neg[a] ? hi : lo) - s.org[a]) * s.inv[a];
-      const V2d tf = ((s.neg[a] ? lo : hi) - s.org[a]) * s.inv[a] * kGrow;
+      const V2d near = v2_load(reinterpret_cast<const float*>(base + s.near[a]));
+      const V2d far = v2_load(reinterpret_cast<const float*>(base + s.far[a]));
+      const V2d tn = (near - s.org[a]) * s.inv[a];
+      const V2d tf = (far - s.org[a]) * s.inv[a] * kGrow;
       t0 = v2_max(tn, t0);
       t1 = v2_min(tf, t1);
     }
