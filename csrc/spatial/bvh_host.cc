@@ -200,13 +200,18 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
           od[6 * (j - b) + a] = O[3 * order[j] + a];
           od[6 * (j - b) + 3 + a] = D[3 * order[j] + a];
         }
+      // The results are written after the chunk's traversals: the outputs of a ray lie in
+      // four scattered cache lines, and a burst of independent stores overlaps their misses
+      // where stores between traversals filled the store buffer.
+      RayHit hits[kChunk];
+      bool found[kChunk];
       for (int64_t j = b; j < e; ++j) {
-        const int64_t i = order[j];
         const double* r = od + 6 * (j - b);
         const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
-        RayHit h;
-        voxax::spatial::store_hit(bvh->first_hit(ray, any != 0, &h), h, i, t, face, bary, sign);
+        found[j - b] = bvh->first_hit(ray, any != 0, &hits[j - b]);
       }
+      for (int64_t j = b; j < e; ++j)
+        voxax::spatial::store_hit(found[j - b], hits[j - b], order[j], t, face, bary, sign);
     });
     return true;
   });

@@ -21,29 +21,39 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
   bool found = false;
   if (nodes_.empty()) return false;
   constexpr double inf = std::numeric_limits<double>::infinity();
-  struct Entry {
-    int32_t ref, count;
-    double t;
-  };
+  // The stack as two arrays of 8-byte values (entry distance; reference and count packed),
+  // each written and read with 8-byte moves: a 16-byte entry struct is copied with 16-byte
+  // moves that cannot take their data from the two narrower stores that wrote it (a stall
+  // on every push and pop).
   constexpr int kStack = 192;
-  Entry stack[kStack];
+  double stack_t[kStack];
+  uint64_t stack_rc[kStack];
+  auto pack = [](int32_t ref, int32_t count) {
+    return static_cast<uint64_t>(static_cast<uint32_t>(ref)) |
+           static_cast<uint64_t>(static_cast<uint32_t>(count)) << 32;
+  };
   int sp = 0;
   const double t_root = ray_box(ray, root_box_, ray.tmax);
   if (t_root == inf) return false;
   const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
   const RayPair rp = ray_pair(ray);
   // the root: a leaf, or Quad 0
-  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_, t_root};
+  stack_t[sp] = t_root;
+  stack_rc[sp++] = pack(root_count_ > 0 ? root_ref_ : 0, root_count_);
   RayHit h;
   while (sp > 0) {
-    const Entry e = stack[--sp];
+    --sp;
+    const double et = stack_t[sp];
+    const uint64_t erc = stack_rc[sp];
+    const int32_t eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
+    const int32_t ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
     // Boxes are culled against the best t with a relative margin: a triangle's computed
     // t and its box's slab distance round differently, and a hit a few ulps before the
     // best one must not be culled (the result is the smallest computed t).
     const double cull = best.t + 1e-9 * std::fabs(best.t);
-    if (e.t > cull) continue;
-    if (e.count > 0) {
-      for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
+    if (et > cull) continue;
+    if (ecount > 0) {
+      for (int32_t i = eref; i < eref + ecount; ++i) {
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], best.t, &h)) {
           if (!found || h.t < best.t || (h.t == best.t && ids_[i] < best.face)) {
             best = h;
@@ -59,9 +69,10 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       continue;
     }
     if (sp + kQuadWidth > kStack) return brute_first(ray, any, out);
-    const Quad& qd = quads_[e.ref];
-    Entry kid[kQuadWidth];
-    int nk = 0;
+    const Quad& qd = quads_[eref];
+    // the children met, pushed in order of decreasing t by insertion (ties keep the slot
+    // order on the way up), so that the nearest is visited first
+    const int base = sp;
     for (int half = 0; half < kQuadWidth / 2; ++half) {
       const RayRec& pr = qd.half[half];
       double t2[2];
@@ -76,17 +87,16 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
         if (pr.count[j] >= 0 && t2[j] != inf) {
           // the records or triangles start loading now (a hint: no effect on results)
           prefetch_ref(pr.ref[j], pr.count[j]);
-          // insertion by t (ties keep the slot order)
-          int at = nk++;
-          while (at > 0 && kid[at - 1].t > t2[j]) {
-            kid[at] = kid[at - 1];
+          int at = sp++;
+          while (at > base && stack_t[at - 1] <= t2[j]) {
+            stack_t[at] = stack_t[at - 1];
+            stack_rc[at] = stack_rc[at - 1];
             --at;
           }
-          kid[at] = {pr.ref[j], pr.count[j], t2[j]};
+          stack_t[at] = t2[j];
+          stack_rc[at] = pack(pr.ref[j], pr.count[j]);
         }
     }
-    // the nearest is visited first
-    while (nk > 0) stack[sp++] = kid[--nk];
   }
   if (found) *out = best;
   return found;

@@ -217,6 +217,34 @@ def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
             assert first.face[i] == -1 and np.isinf(first.t[i])
 
 
+def test_first_hits_of_a_large_mesh_vs_brute_force():
+    # 40k faces: the triangles (over 2 MiB) take the huge-page allocation; 600 rays span
+    # three chunks of results (the last one partial), written after their traversals
+    mesh = data.large(40_000)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    rng = np.random.default_rng(7)
+    o = rng.uniform(V.min(0), V.max(0), (600, 3))
+    d = rng.normal(size=(600, 3))
+    bvh = voxax.BVH(V, F)
+    first = bvh.first_hits(o, d, threads=1)
+    anyh = bvh.any_hits(o, d, threads=1)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    n = np.cross(b - a, c - a)
+    for i, (t, f) in enumerate(brute_hits(o, d, V, F)):
+        assert anyh[i] == (len(t) > 0)
+        if len(t):
+            assert first.face[i] == f[0]
+            np.testing.assert_allclose(first.t[i], t[0], rtol=1e-10)
+            assert first.sign[i] == np.sign(n[f[0]] @ d[i])
+            hit_point = np.einsum("k,kd->d", first.barycentric[i], V[F[first.face[i]]])
+            np.testing.assert_allclose(hit_point, o[i] + first.t[i] * d[i], atol=1e-10)
+        else:
+            assert first.face[i] == -1 and np.isinf(first.t[i]) and first.sign[i] == 0
+    again = bvh.first_hits(o, d, threads=2)
+    for x, y in zip(first, again):
+        assert np.array_equal(x, y)
+
+
 def test_watertight_rays_through_edges_and_vertices():
     # axis-aligned rays through a cube's edges, its face diagonals and its centre: every ray
     # strictly inside the footprint crosses exactly twice, entering then exiting
