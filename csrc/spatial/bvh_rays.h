@@ -106,19 +106,10 @@ inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
   constexpr double inf = std::numeric_limits<double>::infinity();
   const size_t start = out->size();
   if (nodes_.empty() || ray_box(ray, root_box_, ray.tmax) == inf) return;
-  struct Entry {
-    int32_t ref, count;
-  };
-  constexpr int kStack = 192;
-  Entry stack[kStack];
-  int sp = 0;
-  const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
-  const RayPair rp = ray_pair(ray);
-  // the root: a leaf, or Quad 0
-  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_};
+  QuadWalk w(*this, ray);
   RayHit h;
-  while (sp > 0) {
-    const Entry e = stack[--sp];
+  while (w.sp > 0) {
+    const QuadWalk::Entry e = w.stack[--w.sp];
     if (e.count > 0) {
       for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
@@ -128,7 +119,7 @@ inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
       }
       continue;
     }
-    if (sp + kQuadWidth > kStack) {  // every triangle instead
+    if (w.full()) {  // every triangle instead
       out->resize(start);
       for (int32_t i = 0; i < static_cast<int32_t>(ids_.size()); ++i)
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], ray.tmax, &h)) {
@@ -137,21 +128,7 @@ inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {
         }
       break;
     }
-    const Quad& qd = quads_[e.ref];
-    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
-      const RayRec& pr = qd.half[half];
-      double t2[2];
-      if (pairwise) {
-        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
-        t2[0] = tt[0];
-        t2[1] = tt[1];
-      } else {
-        for (int j = 0; j < 2; ++j)
-          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
-      }
-      for (int j = 1; j >= 0; --j)
-        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
-    }
+    w.push_children(ray, quads_[e.ref]);
   }
   std::sort(out->begin() + start, out->end(), [](const RayHit& x, const RayHit& y) {
     return x.t < y.t || (x.t == y.t && x.face < y.face);
@@ -165,18 +142,9 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
     *sum = 0;
     return true;
   }
-  struct Entry {
-    int32_t ref, count;
-  };
-  constexpr int kStack = 192;
-  Entry stack[kStack];
-  int sp = 0;
-  const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
-  const RayPair rp = ray_pair(ray);
-  // the root: a leaf, or Quad 0
-  stack[sp++] = {root_count_ > 0 ? root_ref_ : 0, root_count_};
-  while (sp > 0) {
-    const Entry e = stack[--sp];
+  QuadWalk w(*this, ray);
+  while (w.sp > 0) {
+    const QuadWalk::Entry e = w.stack[--w.sp];
     if (e.count > 0) {
       for (int32_t i = e.ref; i < e.ref + e.count; ++i) {
         const int c = ray_crossing(ray, &tris_[9 * static_cast<size_t>(i)], margin);
@@ -185,22 +153,8 @@ inline bool Bvh::crossings(const Ray& ray, double margin, int64_t* sum) const {
       }
       continue;
     }
-    if (sp + kQuadWidth > kStack) return false;
-    const Quad& qd = quads_[e.ref];
-    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
-      const RayRec& pr = qd.half[half];
-      double t2[2];
-      if (pairwise) {
-        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
-        t2[0] = tt[0];
-        t2[1] = tt[1];
-      } else {
-        for (int j = 0; j < 2; ++j)
-          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
-      }
-      for (int j = 1; j >= 0; --j)
-        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
-    }
+    if (w.full()) return false;
+    w.push_children(ray, quads_[e.ref]);
   }
   *sum = s;
   return true;

@@ -76,10 +76,13 @@ struct LargeAlloc {
   LargeAlloc(const LargeAlloc<U>&) {}
   T* allocate(size_t n) {
     constexpr size_t kHuge = size_t(1) << 21;
-    if (n > std::numeric_limits<size_t>::max() / sizeof(T) / 2) throw std::bad_alloc();
+    // at most PTRDIFF_MAX bytes once rounded up to the alignment
+    constexpr size_t kMaxBytes =
+        static_cast<size_t>(std::numeric_limits<std::ptrdiff_t>::max()) - kHuge;
+    if (n > kMaxBytes / sizeof(T)) throw std::bad_alloc();
     const size_t bytes = n * sizeof(T);
     const size_t align = bytes >= kHuge ? kHuge : std::max<size_t>(64, alignof(T));
-    const size_t rounded = (bytes + align - 1) / align * align;
+    const size_t rounded = std::max(align, (bytes + align - 1) / align * align);  // never 0
     void* p = std::aligned_alloc(align, rounded);
     if (!p) throw std::bad_alloc();
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
@@ -579,6 +582,52 @@ class Bvh {
     }
     return v2_select(t0 > t1, v2_splat(std::numeric_limits<double>::infinity()), t0);
   }
+
+  // Pushes {ref, count} of every child of Quad qd whose box the ray meets within
+  // [tmin, tmax] onto stack[sp...] (the last slot first, so the first is popped first);
+  // returns the new sp. For traversals that visit every child met (all hits, crossings).
+  template <typename Entry>
+  static int push_met_children(const Ray& ray, const RayPair& rp, bool pairwise, const Quad& qd,
+                               Entry* stack, int sp) {
+    constexpr double inf = std::numeric_limits<double>::infinity();
+    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
+      const RayRec& pr = qd.half[half];
+      double t2[2];
+      if (pairwise) {
+        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
+        t2[0] = tt[0];
+        t2[1] = tt[1];
+      } else {
+        for (int j = 0; j < 2; ++j)
+          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
+      }
+      for (int j = 1; j >= 0; --j)
+        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
+    }
+    return sp;
+  }
+
+  // A traversal that visits every child a ray meets (all hits, crossings): a stack of
+  // {ref, count} (a leaf's triangles, or a Quad), starting at the root.
+  struct QuadWalk {
+    struct Entry {
+      int32_t ref, count;
+    };
+    static constexpr int kStack = 192;
+    Entry stack[kStack];
+    int sp = 0;
+    bool pairwise;
+    RayPair rp;
+    QuadWalk(const Bvh& bvh, const Ray& ray)
+        : pairwise(!(ray.flat[0] || ray.flat[1] || ray.flat[2])), rp(ray_pair(ray)) {
+      // the root: a leaf, or Quad 0
+      stack[sp++] = {bvh.root_count_ > 0 ? bvh.root_ref_ : 0, bvh.root_count_};
+    }
+    bool full() const { return sp + kQuadWidth > kStack; }
+    void push_children(const Ray& ray, const Quad& qd) {
+      sp = push_met_children(ray, rp, pairwise, qd, stack, sp);
+    }
+  };
 
   // Both children's lower bounds of the squared distance from p, at once: the larger of
   // the distance to the float box and slab_dist2 (the same formulas, evaluated lane by
