@@ -16,6 +16,7 @@
 #include <cstring>
 #include <exception>
 #include <limits>
+#include <memory>
 #include <new>
 #include <string>
 #include <vector>
@@ -156,37 +157,30 @@ VOXAX_EXPORT int voxax_line_crossings(const double* V, int64_t nv, const int32_t
     voxax::spatial::parallel_chunks(nf, kFaceChunk, threads, [&](int64_t c, int64_t b, int64_t e) {
       cross_faces(V, F, b, e, axis, L0, n0, L1, n1, &parts[c]);
     });
-    auto* out = new Crossings();
-    try {
-      // A counting sort by line (stable, in face order), then each line's crossings by
-      // depth and face: a total order, the same for any thread count.
-      out->offsets.assign(lines + 1, 0);
-      size_t total = 0;
-      for (const auto& part : parts) {
-        total += part.size();
-        for (const Crossing& x : part) ++out->offsets[x.line + 1];
-      }
-      for (int64_t l = 0; l < lines; ++l) out->offsets[l + 1] += out->offsets[l];
-      out->items.resize(total);
-      std::vector<int64_t> cursor(out->offsets.begin(), out->offsets.end() - 1);
-      for (auto& part : parts) {
-        for (const Crossing& x : part) out->items[cursor[x.line]++] = x;
-        std::vector<Crossing>().swap(part);
-      }
-      voxax::spatial::parallel_chunks(lines, kLineChunk, threads,
-                                      [&](int64_t, int64_t b, int64_t e) {
-                                        for (int64_t l = b; l < e; ++l) {
-                                          auto first = out->items.begin() + out->offsets[l];
-                                          auto last = out->items.begin() + out->offsets[l + 1];
-                                          if (last - first > 1)
-                                            std::sort(first, last, voxax::raster::crossing_less);
-                                        }
-                                      });
-    } catch (...) {
-      delete out;
-      throw;
+    auto out = std::make_unique<Crossings>();  // freed if a step throws
+    // A counting sort by line (stable, in face order), then each line's crossings by
+    // depth and face: a total order, the same for any thread count.
+    out->offsets.assign(lines + 1, 0);
+    size_t total = 0;
+    for (const auto& part : parts) {
+      total += part.size();
+      for (const Crossing& x : part) ++out->offsets[x.line + 1];
     }
-    *handle = out;
+    for (int64_t l = 0; l < lines; ++l) out->offsets[l + 1] += out->offsets[l];
+    out->items.resize(total);
+    std::vector<int64_t> cursor(out->offsets.begin(), out->offsets.end() - 1);
+    for (auto& part : parts) {
+      for (const Crossing& x : part) out->items[cursor[x.line]++] = x;
+      std::vector<Crossing>().swap(part);
+    }
+    voxax::spatial::parallel_chunks(lines, kLineChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      for (int64_t l = b; l < e; ++l) {
+        auto first = out->items.begin() + out->offsets[l];
+        auto last = out->items.begin() + out->offsets[l + 1];
+        if (last - first > 1) std::sort(first, last, voxax::raster::crossing_less);
+      }
+    });
+    *handle = out.release();
     return true;
   });
 }

@@ -18,6 +18,7 @@
 #include <cstring>
 #include <exception>
 #include <limits>
+#include <memory>
 #include <new>
 #include <string>
 #include <vector>
@@ -123,14 +124,9 @@ VOXAX_EXPORT int voxax_bvh_build(const double* V, int64_t nv, const int32_t* F, 
         !voxax::check_coordinate_scale(V, 3 * nv, "vertices", msg))
       return false;
     if (!voxax::check_host_faces(F, nf, nv, msg)) return false;
-    Bvh* bvh = new Bvh();
-    try {
-      bvh->build(V, F, nf);
-    } catch (...) {
-      delete bvh;
-      throw;
-    }
-    *handle = bvh;
+    auto bvh = std::make_unique<Bvh>();  // freed if the build throws
+    bvh->build(V, F, nf);
+    *handle = bvh.release();
     return true;
   });
 }
@@ -238,20 +234,15 @@ VOXAX_EXPORT int voxax_bvh_all_hits(void* handle, const double* O, const double*
         counts[i] = static_cast<int64_t>(parts[c].size() - before);
       }
     });
-    Hits* hits = new Hits();
-    try {
-      size_t total = 0;
-      for (const auto& p : parts) total += p.size();
-      hits->hits.reserve(total);
-      for (auto& p : parts) {
-        hits->hits.insert(hits->hits.end(), p.begin(), p.end());
-        std::vector<RayHit>().swap(p);
-      }
-    } catch (...) {
-      delete hits;
-      throw;
+    auto hits = std::make_unique<Hits>();  // freed if a copy throws
+    size_t total = 0;
+    for (const auto& p : parts) total += p.size();
+    hits->hits.reserve(total);
+    for (auto& p : parts) {
+      hits->hits.insert(hits->hits.end(), p.begin(), p.end());
+      std::vector<RayHit>().swap(p);
     }
-    *out = hits;
+    *out = hits.release();
     return true;
   });
 }
