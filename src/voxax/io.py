@@ -229,25 +229,26 @@ _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort"
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 
 
-def _check_ply_header(where: str, name: str) -> None:
+def _check_ply_header(where: str, name: str) -> dict:
     """Refuses a PLY file whose header claims more elements than the file can hold (at
     least one byte and a separator per ASCII value, the values' sizes in a binary file),
     or more than 2^31 - 1 vertices or faces, before anything is read or allocated. Other
-    files, and headers this cannot parse, are left to the reader."""
+    files, and headers this cannot parse, are left to the reader. Returns the header's
+    element counts (`{}` for other files), which `load` compares with what was read."""
     try:
         with open(name, "rb") as fh:
             if fh.read(4) not in (b"ply\n", b"ply\r"):
-                return
+                return {}
             head = b"ply\n" + fh.read(1 << 16)
         size = os.path.getsize(name)
     except OSError:
-        return
+        return {}
     end = head.find(b"end_header")
     if end < 0:
-        return
+        return {}
     stop = head.find(b"\n", end)
     if stop < 0:
-        return
+        return {}
     body = size - (stop + 1)  # `head` holds the file's first bytes at their own offsets
     fmt, elements = None, []
     for line in head[:end].decode("ascii", "replace").splitlines():
@@ -258,7 +259,7 @@ def _check_ply_header(where: str, name: str) -> None:
             try:
                 elements.append([words[1], int(words[2]), 0])
             except ValueError:
-                return
+                return {}
         elif len(words) >= 3 and words[0] == "property" and elements:
             if fmt == "ascii":
                 elements[-1][2] += 2
@@ -275,6 +276,7 @@ def _check_ply_header(where: str, name: str) -> None:
         claims = ", ".join(f"{count} {element}" for element, count, _ in elements)
         raise ValueError(f"{where}: {name!r} is truncated or corrupt: its header claims more elements ({claims}) "
                          f"than the file's {max(body, 0)} bytes after the header can hold")
+    return counts
 
 
 def load(
@@ -322,14 +324,16 @@ def load(
     name = os.fspath(path)
     if not os.path.exists(name):
         raise FileNotFoundError(f"{where}: no such file: {name!r}")
-    if os.path.isfile(name):
-        _check_ply_header(where, name)
+    claims = _check_ply_header(where, name) if os.path.isfile(name) else {}
     try:
         obj = trimesh.load(name, process=process, **kwargs)
         vertices, faces = _geometry_arrays(obj)
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, MemoryError) as err:
         # trimesh raises many kinds for unreadable or truncated files
         raise ValueError(f"{where}: cannot read {name!r}: {type(err).__name__}: {err}") from err
+    if claims and not process and (len(faces) < claims.get("face", 0) or len(vertices) < claims.get("vertex", 0)):
+        raise ValueError(f"{where}: {name!r} is truncated or corrupt: its header claims {claims.get('vertex', 0)} "
+                         f"vertices and {claims.get('face', 0)} faces, {len(vertices)} and {len(faces)} were read")
     if len(faces) == 0:
         raise ValueError(
             f"{where}: {name!r} contains no triangles (loaded a {type(obj).__name__}); voxax needs a triangle mesh"

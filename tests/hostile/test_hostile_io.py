@@ -25,6 +25,9 @@ CASES = [
      + "voxax.io.load('m.ply')", "ValueError", "its header claims 1000000000000 vertices"),
     ("io.load", "a header claiming more vertices than the file holds", PLY.format(nv=2000, nf=1, body=BODY)
      + "voxax.io.load('m.ply')", "ValueError", "truncated or corrupt: its header claims more elements"),
+    ("io.load", "a header claiming one vertex more than the file holds",
+     PLY.format(nv=4, nf=1, body="0.000 0.000 0.000\\n1.000 0.000 0.000\\n0.000 1.000 0.000\\n3 0 1 2\\n")
+     + "voxax.io.load('m.ply')", "ValueError", "truncated or corrupt: its header claims 4 vertices and 1 faces"),
     ("io.load", "a directory", "import os; os.makedirs('d.ply', exist_ok=True); voxax.io.load('d.ply')", "ValueError",
      "not a file"),
     ("io.load", "a number for the path", "voxax.io.load(3)", "TypeError", "`path`"),
