@@ -274,36 +274,14 @@ ERRORS = [
 # command the way the `voxax` entry point does (`sys.exit(main())`: an uncaught exception
 # prints a traceback and exits 1) with its own stdout and stderr, and exits.
 _DRIVER = r"""
-import json, os, sys, traceback
+import json, sys
+from _forked import run_forked
 from voxax.cli import main
 
 results = []
 for argv in json.loads(sys.argv[1]):
-    pipes = [os.pipe(), os.pipe()]
-    pid = os.fork()
-    if pid == 0:
-        os.dup2(pipes[0][1], 1)
-        os.dup2(pipes[1][1], 2)
-        try:
-            code = main(argv)
-        except SystemExit as exit:
-            code = exit.code if isinstance(exit.code, int) else (0 if exit.code is None else 1)
-            if isinstance(exit.code, str):
-                print(exit.code, file=sys.stderr)
-        except BaseException:
-            traceback.print_exc()
-            code = 1
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    for r, w in pipes:
-        os.close(w)
-    _, status = os.waitpid(pid, 0)
-    texts = []
-    for r, _ in pipes:
-        with os.fdopen(r, "rb") as fh:
-            texts.append(fh.read().decode("utf-8", "replace"))
-    results.append([os.waitstatus_to_exitcode(status), *texts])
+    status, _, stdout, stderr = run_forked(lambda argv=argv: main(argv))
+    results.append([status, stdout, stderr])
 print(json.dumps(results))
 """
 
@@ -324,8 +302,9 @@ def error_runs(tmp_path_factory):
     (tmp / "nan.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
                                  "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
                                  "end_header\n0 0 0\nnan 1 0\n0 0 1\n3 0 1 2\n")
+    forked = Path(__file__).resolve().parent / "hostile"  # `_forked`, the fork per case
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
+        [str(Path(voxax.__file__).resolve().parents[1]), str(forked), os.environ.get("PYTHONPATH", "")]))
     cases = [[a.replace("{tmp}", str(tmp)) for a in argv] for argv, _ in ERRORS]
     proc = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(cases)], cwd=tmp, env=env,
                           capture_output=True, text=True, timeout=600)

@@ -35,59 +35,52 @@ P = np.zeros((3, 3))
 VNAN = V.copy(); VNAN[2, 1] = np.nan
 """
 
+_MARK = "@@voxax-hostile-outcome@@"
+
 _DRIVER = r"""
-import json, os, signal, sys, traceback
-setup, cases, limit = sys.argv[1], json.loads(sys.argv[2]), float(sys.argv[3])
+import json, sys
+from _forked import run_forked
+setup, cases, limit, mark = sys.argv[1], json.loads(sys.argv[2]), float(sys.argv[3]), sys.argv[4]
 import voxax  # imported once; XLA starts in each child
-results = []
-for code in cases:
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        os.close(r)
-        out = os.fdopen(w, "w")
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, 2)
+
+def case(code):
+    def body():
         try:
             env = {}
             exec(setup, env)
             exec(code, env)
-            out.write(json.dumps({"status": "returned"}))
+            out = {"status": "returned"}
         except BaseException as err:
-            out.write(json.dumps({"status": "raised", "type": type(err).__name__, "message": str(err)}))
-        out.flush()
-        os._exit(0)
-    os.close(w)
-    import select, time
-    start, status = time.monotonic(), None
-    while time.monotonic() - start < limit:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            break
-        time.sleep(0.02)
-    else:
-        os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
+            out = {"status": "raised", "type": type(err).__name__, "message": str(err)}
+        print("\n" + mark + json.dumps(out), flush=True)  # the last line of the child's stdout
+        return 0
+    return body
+
+results = []
+for code in cases:
+    status, _, stdout, _ = run_forked(case(code), limit)
+    if status is None:
         results.append({"status": "hang"})
-        os.close(r)
-        continue
-    with os.fdopen(r) as fh:
-        text = fh.read()
-    code_ = os.waitstatus_to_exitcode(status)
-    if code_ != 0 or not text:
-        results.append({"status": "crash", "exit": code_})
+    elif status != 0 or mark not in stdout:
+        results.append({"status": "crash", "exit": status})
     else:
-        results.append(json.loads(text))
+        results.append(json.loads(stdout[stdout.rindex(mark) + len(mark):]))
 print(json.dumps(results))
 """
 
 
+def child_env() -> dict:
+    """The environment of a driver script: voxax and `_forked` importable."""
+    import _forked
+
+    paths = [str(Path(voxax.__file__).resolve().parents[1]), _forked.FOLDER, os.environ.get("PYTHONPATH", "")]
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(paths))
+
+
 def run_cases(cases, cwd, setup=SETUP, limit=120.0):
     """Runs every case's code in its own forked child; one outcome dict per case."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.run([sys.executable, "-c", _DRIVER, setup, json.dumps([c[2] for c in cases]), str(limit)],
-                          cwd=cwd, env=env, capture_output=True, text=True, timeout=3600)
+    proc = subprocess.run([sys.executable, "-c", _DRIVER, setup, json.dumps([c[2] for c in cases]), str(limit), _MARK],
+                          cwd=cwd, env=child_env(), capture_output=True, text=True, timeout=3600)
     assert proc.returncode == 0, proc.stderr[-4000:]
     results = json.loads(proc.stdout.strip().splitlines()[-1])
     assert len(results) == len(cases)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _hostile_driver import child_env
 
 import voxax
 
@@ -58,57 +59,19 @@ CASES = [
 ]
 
 _DRIVER = r"""
-import json, os, runpy, signal, sys, time, traceback
+import json, runpy, sys
+from _forked import run_forked
 import voxax.cli  # imported once; each child runs `python -m voxax`
 cases, limit = json.loads(sys.argv[1]), float(sys.argv[2])
-results = []
-for argv in cases:
-    pipes = [os.pipe(), os.pipe()]
-    start = time.monotonic()
-    pid = os.fork()
-    if pid == 0:
-        os.dup2(pipes[0][1], 1)
-        os.dup2(pipes[1][1], 2)
+
+def command(argv):
+    def body():
         sys.argv = ["voxax", *argv]
-        try:
-            runpy.run_module("voxax", run_name="__main__", alter_sys=True)
-            code = 0
-        except SystemExit as exit:
-            code = exit.code if isinstance(exit.code, int) else (0 if exit.code is None else 1)
-            if isinstance(exit.code, str):
-                print(exit.code, file=sys.stderr)
-        except BaseException:
-            traceback.print_exc()
-            code = 1
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    for r, w in pipes:
-        os.close(w)
-    # read while waiting: a child that fills a pipe must not block
-    import threading
-    texts = [b"", b""]
-    def drain(i, fd):
-        with os.fdopen(fd, "rb") as fh:
-            texts[i] = fh.read()
-    readers = [threading.Thread(target=drain, args=(i, r)) for i, (r, _) in enumerate(pipes)]
-    for t in readers:
-        t.start()
-    status = None
-    while time.monotonic() - start < limit:
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            break
-        time.sleep(0.02)
-    else:
-        os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
-        status = None
-    for t in readers:
-        t.join()
-    code = None if status is None else os.waitstatus_to_exitcode(status)
-    results.append([code, time.monotonic() - start, *(t.decode("utf-8", "replace") for t in texts)])
-print(json.dumps(results))
+        runpy.run_module("voxax", run_name="__main__", alter_sys=True)
+        return 0
+    return body
+
+print(json.dumps([list(run_forked(command(argv), limit)) for argv in cases]))
 """
 
 
@@ -128,11 +91,6 @@ def _files(tmp: Path) -> None:
     np.savez(tmp / "nan.npz", W=np.where(W > 0.5, np.nan, W), lower=grid.lower, upper=grid.upper, shape=grid.shape)
 
 
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(Path(voxax.__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")]))
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Every case's `[exit status or None (a hang), seconds, stdout, stderr]`."""
@@ -141,7 +99,7 @@ def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("hostile_cli")
     _files(tmp)
     argvs = [shlex.split(line.replace("{tmp}", str(tmp))) for _, _, line, _, _ in CASES]
-    proc = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(argvs), str(_LIMIT)], cwd=tmp, env=_env(),
+    proc = subprocess.run([sys.executable, "-c", _DRIVER, json.dumps(argvs), str(_LIMIT)], cwd=tmp, env=child_env(),
                           capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 0, proc.stderr[-4000:]
     results = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -175,7 +133,7 @@ def test_hostile_command_line(runs, case):
 
 def test_the_console_entry_point(tmp_path):
     """`python -m voxax` itself (not a fork): an unknown option exits 2 with one line."""
-    proc = subprocess.run([sys.executable, "-m", "voxax", "fc", "torus", "--bogus"], cwd=tmp_path, env=_env(),
+    proc = subprocess.run([sys.executable, "-m", "voxax", "fc", "torus", "--bogus"], cwd=tmp_path, env=child_env(),
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines() == ["voxax fc: error: unrecognized arguments: --bogus (see 'voxax fc "
