@@ -41,10 +41,7 @@ def interpolate(W, grid: Grid, points) -> jax.Array:
     """
     where = "voxax.baselines.interpolate"
     _validate.grid(where, grid)
-    if not hasattr(W, "dtype"):
-        W = np.asarray(W)
-    if np.dtype(W.dtype).kind not in "fiub":
-        raise TypeError(f"{where}: `W` must be a real array, got {W.dtype}")
+    W = _validate.typed_array(where, "W", W, "fiub")
     W = jnp.asarray(W)
     if not jnp.issubdtype(W.dtype, jnp.floating):
         W = W.astype(jnp.result_type(float))

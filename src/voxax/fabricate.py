@@ -83,10 +83,7 @@ def _is_grid_input(shape, grid, where: str) -> bool:
 def _as_grid_values(W, grid: Grid, where: str) -> np.ndarray:
     if isinstance(W, Mesh) or hasattr(W, "faces"):
         raise TypeError(f"{where}: `grid` goes with a voxel grid W (nx, ny, nz); pass a mesh without `grid`")
-    W = np.asarray(W)
-    if W.dtype.kind not in "fiub":
-        raise TypeError(f"{where}: `shape` must be a mesh or a real grid W, got {W.dtype}")
-    W = W.astype(np.float64)
+    W = np.asarray(_validate.typed_array(where, "shape", W, "fiub", "a mesh or a real grid W"), np.float64)
     if W.shape != grid.shape:
         raise ValueError(f"{where}: `shape` (a grid W) must have the grid's shape {grid.shape}, got {W.shape}")
     if not np.all(np.isfinite(W)):
@@ -340,10 +337,7 @@ def write_svg(
     where = "voxax.fabricate.write_svg"
     polys = []
     for p in polygons:
-        p = np.asarray(p)
-        if p.dtype.kind not in "fiu":
-            raise TypeError(f"{where}: `polygons` must be real (n, 2) arrays, got {p.dtype}")
-        p = p.astype(np.float64)
+        p = np.asarray(_validate.typed_array(where, "polygons", p, "fiu", "real (n, 2) arrays"), np.float64)
         if p.ndim != 2 or p.shape[1] != 2:
             raise ValueError(f"{where}: `polygons` must be (n, 2) arrays, got shape {p.shape}")
         if not np.all(np.isfinite(p)):

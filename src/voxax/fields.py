@@ -627,10 +627,7 @@ def deepsdf_loss(
     if not isinstance(model, DeepSDF):
         raise TypeError(f"{where}: `model` must be a voxax.fields.DeepSDF, got {type(model).__name__}")
     p = _points(where, _validate.coordinates(where, "points", points, model.dim), model.dim)
-    if not hasattr(sdf, "dtype"):
-        sdf = np.asarray(sdf)
-    if np.dtype(sdf.dtype).kind not in "fiu":
-        raise TypeError(f"{where}: `sdf` must be a real array, got {sdf.dtype}")
+    sdf = _validate.typed_array(where, "sdf", sdf, "fiu")
     if tuple(sdf.shape) != tuple(p.shape[:-1]):
         raise ValueError(f"{where}: `sdf` must have one value per point, shape {tuple(p.shape[:-1])}, got "
                          f"{tuple(sdf.shape)}")

@@ -155,10 +155,7 @@ def _cloud(x, n: int, key, name: str, where: str) -> tuple[np.ndarray, Mesh | No
     if isinstance(x, (Mesh, BVH)) or _validate.is_mesh_object(x) or _validate.is_mesh_pair(x):
         m = _mesh(x, name, where)
         return sample_surface(m, n, key).points, m
-    p = np.asarray(x)
-    if p.dtype.kind not in "fiu":
-        raise TypeError(f"{where}: `{name}` must be a mesh or a float point cloud (N, 3), got {p.dtype}")
-    p = p.astype(np.float64)
+    p = np.asarray(_validate.typed_array(where, name, x, "fiu", "a mesh or a float point cloud (N, 3)"), np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"{where}: `{name}` must be a mesh or a point cloud (N, 3), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
