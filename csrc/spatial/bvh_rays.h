@@ -76,13 +76,7 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
     for (int half = 0; half < kQuadWidth / 2; ++half) {
       const RayRec& pr = qd.half[half];
       double t2[2];
-      if (pairwise) {
-        const V2d tt = pair_ray_boxes(rp, pr, cull);
-        t2[0] = tt[0];
-        t2[1] = tt[1];
-      } else {
-        for (int j = 0; j < 2; ++j) t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, cull);
-      }
+      record_entries(ray, rp, pairwise, pr, cull, t2);
       for (int j = 0; j < 2; ++j)
         if (pr.count[j] >= 0 && t2[j] != inf) {
           // the records or triangles start loading now (a hint: no effect on results)

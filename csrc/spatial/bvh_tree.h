@@ -548,7 +548,6 @@ class Bvh {
   struct RayPair {
     V2d org[3], inv[3];
     double tmin;
-    bool neg[3];
     // per axis the byte offsets of the near and the far bounds in a record whose lo[3][2]
     // and hi[3][2] (float) start at 0 and 24 (RayRec, Pair): a load, not a branch
     int32_t near[3], far[3];
@@ -558,9 +557,9 @@ class Bvh {
     for (int a = 0; a < 3; ++a) {
       s.org[a] = v2_splat(r.org[a]);
       s.inv[a] = v2_splat(r.inv[a]);
-      s.neg[a] = r.inv[a] < 0.0;
-      s.near[a] = (s.neg[a] ? 24 : 0) + 8 * a;
-      s.far[a] = (s.neg[a] ? 0 : 24) + 8 * a;
+      const bool neg = r.inv[a] < 0.0;
+      s.near[a] = (neg ? 24 : 0) + 8 * a;
+      s.far[a] = (neg ? 0 : 24) + 8 * a;
     }
     s.tmin = r.tmin;
     return s;
@@ -583,28 +582,20 @@ class Bvh {
     return v2_select(t0 > t1, v2_splat(std::numeric_limits<double>::infinity()), t0);
   }
 
-  // Pushes {ref, count} of every child of Quad qd whose box the ray meets within
-  // [tmin, tmax] onto stack[sp...] (the last slot first, so the first is popped first);
-  // returns the new sp. For traversals that visit every child met (all hits, crossings).
-  template <typename Entry>
-  static int push_met_children(const Ray& ray, const RayPair& rp, bool pairwise, const Quad& qd,
-                               Entry* stack, int sp) {
-    constexpr double inf = std::numeric_limits<double>::infinity();
-    for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
-      const RayRec& pr = qd.half[half];
-      double t2[2];
-      if (pairwise) {
-        const V2d tt = pair_ray_boxes(rp, pr, ray.tmax);
-        t2[0] = tt[0];
-        t2[1] = tt[1];
-      } else {
-        for (int j = 0; j < 2; ++j)
-          t2[j] = pr.count[j] < 0 ? inf : pair_ray_box(ray, pr, j, ray.tmax);
-      }
-      for (int j = 1; j >= 0; --j)
-        if (pr.count[j] >= 0 && t2[j] != inf) stack[sp++] = {pr.ref[j], pr.count[j]};
+  // The entry distances of the two children of a record within [tmin, tfar] (inf for one
+  // missed, and for an unused slot): both at once, or one by one for a ray with a zero
+  // direction component (`pairwise` false).
+  static void record_entries(const Ray& ray, const RayPair& rp, bool pairwise, const RayRec& pr,
+                             double tfar, double* t2) {
+    if (pairwise) {
+      const V2d tt = pair_ray_boxes(rp, pr, tfar);
+      t2[0] = tt[0];
+      t2[1] = tt[1];
+    } else {
+      for (int j = 0; j < 2; ++j)
+        t2[j] = pr.count[j] < 0 ? std::numeric_limits<double>::infinity()
+                                : pair_ray_box(ray, pr, j, tfar);
     }
-    return sp;
   }
 
   // A traversal that visits every child a ray meets (all hits, crossings): a stack of
@@ -624,8 +615,17 @@ class Bvh {
       stack[sp++] = {bvh.root_count_ > 0 ? bvh.root_ref_ : 0, bvh.root_count_};
     }
     bool full() const { return sp + kQuadWidth > kStack; }
+    // Pushes every child of qd the ray meets within [tmin, tmax], the last slot first (so
+    // the first is popped first).
     void push_children(const Ray& ray, const Quad& qd) {
-      sp = push_met_children(ray, rp, pairwise, qd, stack, sp);
+      for (int half = kQuadWidth / 2 - 1; half >= 0; --half) {
+        const RayRec& pr = qd.half[half];
+        double t2[2];
+        record_entries(ray, rp, pairwise, pr, ray.tmax, t2);
+        for (int j = 1; j >= 0; --j)
+          if (pr.count[j] >= 0 && t2[j] != std::numeric_limits<double>::infinity())
+            stack[sp++] = {pr.ref[j], pr.count[j]};
+      }
     }
   };
 
