@@ -11,6 +11,7 @@ which ties a traced array to the kernels' value check.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import operator
 import os
@@ -42,6 +43,9 @@ __all__ = [
     "coordinates",
     "ray_interval",
     "finite_values",
+    "file_path",
+    "writing",
+    "flag",
 ]
 
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -591,3 +595,32 @@ def int32_faces(faces):
     if is_concrete(faces):
         return jnp.asarray(np.asarray(faces).astype(np.int32))
     return jnp.clip(faces, -1 if kind.kind == "i" else 0, INT32_MAX).astype(jnp.int32)
+
+
+def file_path(where: str, name: str, value) -> str:
+    """`value` as a file name (`str` or `os.PathLike`, not bytes); else `TypeError`."""
+    if isinstance(value, bytes):
+        raise TypeError(f"{where}: `{name}` must be a file path (str or os.PathLike), got bytes")
+    try:
+        return os.fspath(value)
+    except TypeError:
+        raise TypeError(f"{where}: `{name}` must be a file path (str or os.PathLike), got {type(value).__name__}") from None
+
+
+@contextlib.contextmanager
+def writing(where: str, path: str):
+    """Writing `path`: an `OSError` (missing folder, no permission, a folder of that name)
+    is raised again, of the same type, as one line naming the function and the file."""
+    try:
+        yield
+    except OSError as err:
+        reason = err.strerror or str(err)
+        raise type(err)(f"{where}: cannot write {path!r}: {reason}") from None
+
+
+def flag(where: str, name: str, value) -> bool:
+    """A yes/no option: `True` or `False` (NumPy's bools too), never a string or a number
+    whose truth would be taken silently (`normalize="no"` is true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{where}: `{name}` must be True or False, got {type(value).__name__}")
+    return bool(value)

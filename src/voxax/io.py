@@ -394,12 +394,16 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise ValueError(
-            f"save() writes a single 3D triangle mesh, got vertices of shape {vertices.shape}"
+            f"voxax.io.save: `mesh` must be a single 3D triangle mesh, got vertices of shape {vertices.shape}"
         )
-    path = os.fspath(path)
+    path = _validate.file_path("voxax.io.save", "path", path)
     ext = os.path.splitext(path)[1].lower()
+    if not ext:
+        raise ValueError(f"voxax.io.save: `path` must end in a mesh file extension (.ply, .obj, .stl, .off, ...), "
+                         f"got {path!r}")
     if ext == ".ply" and not kwargs:
-        _write_ply64(vertices, faces, path)
+        with _validate.writing("voxax.io.save", path):
+            _write_ply64(vertices, faces, path)
         return
     import trimesh
 
@@ -409,6 +413,8 @@ def save(mesh: Any, path: str | os.PathLike, **kwargs: Any) -> None:
         kwargs.setdefault("include_normals", False)
     tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
     try:
-        tm.export(path, **kwargs)
+        with _validate.writing("voxax.io.save", path):
+            tm.export(path, **kwargs)
     except ValueError as err:
-        raise ValueError(f"voxax.io.save: cannot write {ext!r} files ({err})") from None
+        reason = "no exporter for them" if "exporter not available" in str(err) else str(err).splitlines()[0]
+        raise ValueError(f"voxax.io.save: cannot write {ext!r} files ({reason})") from None

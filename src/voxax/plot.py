@@ -23,6 +23,7 @@ unless a backend has been chosen already, so they work on headless machines; cal
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 
 import numpy as np
@@ -67,11 +68,23 @@ def pyplot():
     return plt
 
 
-def _finish(fig, title, path, dpi=110):
+def _save(fig, path, where: str, dpi=110) -> None:
+    """Saves `fig` to `path` (its format from the extension, PNG without one); an unknown
+    extension or a file that cannot be written gives one line naming `where`."""
+    path = _validate.file_path(where, "path", path)
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    formats = fig.canvas.get_supported_filetypes()
+    if ext and ext not in formats:
+        raise ValueError(f"{where}: `path` must end in one of {', '.join('.' + k for k in sorted(formats))}, got {path!r}")
+    with _validate.writing(where, path):
+        fig.savefig(path, dpi=dpi)
+
+
+def _finish(fig, title, path, where: str, dpi=110):
     if title:
         fig.suptitle(title)
     if path is not None:
-        fig.savefig(path, dpi=dpi)
+        _save(fig, path, where, dpi)
     return fig
 
 
@@ -180,7 +193,7 @@ def slices(
         ax.set_ylabel(_NAMES[a1])
         ax.set_title(label, fontsize="medium")
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.85)
-    return _finish(fig, title, path)
+    return _finish(fig, title, path, "voxax.plot.slices")
 
 
 def silhouettes(
@@ -254,7 +267,7 @@ def silhouettes(
         ax.set_ylabel(_NAMES[a1])
         ax.set_title(f"along {_NAMES[a]}", fontsize="medium")
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.85)
-    return _finish(fig, title, path)
+    return _finish(fig, title, path, "voxax.plot.silhouettes")
 
 
 def projections(
@@ -323,7 +336,7 @@ def projections(
             ax.set_xlabel(_NAMES[a0])
             ax.set_ylabel(_NAMES[a1])
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.8)
-    return _finish(fig, title, path, dpi=100)
+    return _finish(fig, title, path, "voxax.plot.projections", dpi=100)
 
 
 # --------------------------------------------------------------------------------------
@@ -501,7 +514,7 @@ def mesh(
     if title:
         ax.set_title(title)
     if path is not None:
-        fig.savefig(path, dpi=110)
+        _save(fig, path, "voxax.plot.mesh")
     return fig
 
 
@@ -596,7 +609,7 @@ def gradient_field(
     if title:
         ax.set_title(title)
     if path is not None:
-        fig.savefig(path, dpi=110)
+        _save(fig, path, "voxax.plot.gradient_field")
     return fig
 
 
@@ -615,16 +628,20 @@ def _history_series(source) -> dict[str, np.ndarray]:
     elif hasattr(source, "energy_history"):
         series = {"energy": source.energy_history}
     else:
-        arr = np.asarray(source, dtype=np.float64)
-        if arr.ndim != 1:
-            raise TypeError(
-                "history: expected a MinimizeResult, an app report, a dict of 1D arrays or a 1D "
-                f"array of energies, got {type(source).__name__}"
-            )
+        what = "a MinimizeResult, an app report, a dict of 1D arrays or a 1D array of energies"
+        try:
+            arr = _validate.typed_array("voxax.plot.history", "result_or_history", source, "fiub", what)
+        except TypeError:
+            raise TypeError(f"voxax.plot.history: expected {what}, got {type(source).__name__}") from None
+        if np.ndim(arr) != 1:
+            raise TypeError(f"voxax.plot.history: expected {what}, got {type(source).__name__} of shape {np.shape(arr)}")
         series = {"energy": arr}
     out = {}
     for k, v in series.items():
-        arr = np.asarray(v, dtype=np.float64).reshape(-1)
+        arr = np.asarray(_validate.typed_array("voxax.plot.history", f"series {str(k)!r}", v, "fiub", "a real 1D array"))
+        if arr.ndim > 1:
+            raise ValueError(f"voxax.plot.history: series {str(k)!r} must be 1D, got shape {arr.shape}")
+        arr = arr.astype(np.float64).reshape(-1)
         if arr.size:
             out[str(k)] = arr
     return out
@@ -705,7 +722,7 @@ def history(
         ax.set_ylabel(name, fontsize="small")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("step" if x == "step" else "time (s)")
-    return _finish(fig, title, path)
+    return _finish(fig, title, path, "voxax.plot.history")
 
 
 # --------------------------------------------------------------------------------------
@@ -784,5 +801,7 @@ def mesh_plotly(
     fig.update_layout(scene={"aspectmode": "data", "xaxis_title": "x", "yaxis_title": "y", "zaxis_title": "z"},
                       margin={"l": 0, "r": 0, "t": 40 if title else 0, "b": 0}, title=title)
     if path is not None:
-        fig.write_html(str(path), include_plotlyjs=True)
+        path = _validate.file_path("voxax.plot.mesh_plotly", "path", path)
+        with _validate.writing("voxax.plot.mesh_plotly", path):
+            fig.write_html(path, include_plotlyjs=True)
     return fig

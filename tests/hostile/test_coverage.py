@@ -30,11 +30,7 @@ def _module(path: Path, name: str):
 CALLABLES = _module(HERE.parent / "test_conventions.py", "_conventions_walk").CALLABLES
 
 # Public callables without a hostile case yet, by system.
-PENDING = {
-    # the applications' reports: a run of an application costs 5 to 10 s, too slow for a hostile case
-    "voxax.apps.BandsawReport", "voxax.apps.ImplicitReport", "voxax.apps.MoldingReport", "voxax.apps.Report",
-    "voxax.apps.SelfIntersectionReport", "voxax.apps.TilingReport",
-}
+PENDING: set = set()
 
 
 def _aliases(setup: str) -> dict:

@@ -162,7 +162,7 @@ def optimize_for_bandsaw(
     result = _common.run_minimize(
         energy,
         rest,
-        _common.Run(solver, learning_rate, progress, callback, max_steps),
+        _common.check_run("voxax.apps.optimize_for_bandsaw", solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
     )
     v_final = jnp.asarray(result.y, dtype=dt)

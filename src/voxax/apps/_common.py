@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import operator
+import typing
 import warnings
 from collections.abc import Mapping
 from typing import Any, NamedTuple
@@ -59,7 +61,11 @@ def float_dtype(where: str, dtype=None):
 
 
 def check_resolution(where: str, resolution: int, multiple: int = 1, name: str = "resolution") -> int:
-    return _validate.positive_int(where, name, resolution, minimum=max(2, multiple), multiple=multiple)
+    """Cells per axis of a working grid: an int `>= 2` (a multiple of `multiple`) whose
+    `resolution^3` float64 grid fits in memory (a `MemoryError` before any work)."""
+    out = _validate.positive_int(where, name, resolution, minimum=max(2, multiple), multiple=multiple)
+    _validate.check_allocation(where, 8.0 * float(out) ** 3, f"a {out}^3 grid (`{name}`)")
+    return out
 
 
 def check_positive(where: str, value: float, name: str, allow_zero: bool = False) -> float:
@@ -78,6 +84,7 @@ def check_steps(where: str, arap_weight: float, learning_rate: float, min_step: 
 def working_mesh(where: str, source: Mesh, resolution: int, normalize: bool, max_abs: float, dtype):
     """The `[-1, 1]^3` grid of `resolution` cells, the mesh in its working frame (see
     `prepare`) and the working float dtype: `(grid, work, centre, scale, dtype)`."""
+    normalize = _validate.flag(where, "normalize", normalize)
     grid = Grid.cube(resolution)
     work, centre, scale = prepare(source, normalize, max_abs, grid, where, stacklevel=4)
     return grid, work, centre, scale, float_dtype(where, dtype)
@@ -112,6 +119,58 @@ def history_dict(history: Mapping[str, Any]) -> dict[str, np.ndarray]:
     return {str(k): np.asarray(v) for k, v in dict(history or {}).items()}
 
 
+def _field_value(where: str, name: str, kind, value):
+    """One report field checked against its annotation and converted (`int`, `float`,
+    `bool`, `str`, a real NumPy array, a mapping of names to real arrays)."""
+    if kind is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"{where}: `{name}` must be a bool, got {type(value).__name__}")
+        return bool(value)
+    if kind is int:
+        if isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"{where}: `{name}` must be an int, got bool")
+        try:
+            return int(operator.index(value))
+        except TypeError:
+            raise TypeError(f"{where}: `{name}` must be an int, got {type(value).__name__}") from None
+    if kind is float:
+        if isinstance(value, (bool, np.bool_, str, bytes, complex, np.complexfloating)) or np.ndim(value) != 0:
+            raise TypeError(f"{where}: `{name}` must be a real number, got {type(value).__name__}")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: `{name}` must be a real number, got {type(value).__name__}") from None
+    if kind is str:
+        if not isinstance(value, str):
+            raise TypeError(f"{where}: `{name}` must be a str, got {type(value).__name__}")
+        return value
+    if kind is np.ndarray:
+        return np.asarray(_validate.typed_array(where, name, value, "fiub", "a real array"))
+    # Mapping[str, np.ndarray]: the recorded series
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{where}: `{name}` must be a mapping of names to arrays, got {type(value).__name__}")
+    return {str(k): np.asarray(_validate.typed_array(where, f"{name}[{k!r}]", v, "fiub", "a real array"))
+            for k, v in value.items()}
+
+
+def check_report(report) -> None:
+    """Checks and converts every field of a report dataclass against its annotation, so
+    that a report built by hand with a wrong value fails at construction (one line naming
+    the field) instead of printing or plotting garbage later. Arrays become NumPy arrays;
+    `centre` must be a 3-vector and the histories 1D."""
+    where = f"voxax.apps.{type(report).__name__}"
+    hints = typing.get_type_hints(type(report))
+    for f in dataclasses.fields(report):
+        kind = hints[f.name]
+        kind = kind if kind in (bool, int, float, str, np.ndarray) else Mapping
+        value = _field_value(where, f.name, kind, getattr(report, f.name))
+        if f.name == "centre" and value.shape != (3,):
+            raise ValueError(f"{where}: `centre` must have shape (3,), got {value.shape}")
+        if f.name.endswith("_history") and value.ndim != 1:
+            raise ValueError(f"{where}: `{f.name}` must be 1D, got shape {value.shape}")
+        object.__setattr__(report, f.name, value)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Report(ValueEquality):
     """What an optimization did: the fields shared by every application's report.
@@ -124,7 +183,9 @@ class Report(ValueEquality):
     - `energy`: the final total energy.
     - `resolution`: cells per axis of the `[-1, 1]^3` grid used.
 
-    Reports pickle, deep-copy and compare with `==` by value (arrays entry by entry).
+    Reports pickle, deep-copy and compare with `==` by value (arrays entry by entry). Every
+    field is checked against its type when a report is built (a `TypeError` or
+    `ValueError` naming the field).
     """
 
     energy_history: np.ndarray
@@ -133,6 +194,9 @@ class Report(ValueEquality):
     stop_reason: str
     energy: float
     resolution: int
+
+    def __post_init__(self) -> None:
+        check_report(self)
 
     def summary(self) -> str:
         """A few human-readable lines: every scalar field of the report."""
@@ -155,8 +219,12 @@ class Report(ValueEquality):
         **Arguments:**
 
         - `exclude`: field names to leave out (by default the large `cell` grid of a
-          tiling report).
+          tiling report); a single name may be given as a string.
         """
+        if isinstance(exclude, str):
+            exclude = (exclude,)
+        elif not isinstance(exclude, (tuple, list, set, frozenset)) or not all(isinstance(n, str) for n in exclude):
+            raise TypeError(f"voxax.apps.{type(self).__name__}.to_dict: `exclude` must be a tuple of field names")
 
         def plain(x):
             if isinstance(x, np.ndarray):
@@ -208,13 +276,23 @@ class Run(NamedTuple):
     max_steps: int
 
 
+def check_run(where: str, solver, learning_rate, progress, callback, max_steps) -> Run:
+    """The optimization options of an application, checked: `max_steps` an int `>= 0`,
+    `progress` a bool, `callback` None or callable (the solver is checked by `minimize`)."""
+    if callback is not None and not callable(callback):
+        raise TypeError(f"{where}: `callback` must be None or callable as callback(step, y, info), "
+                        f"got {type(callback).__name__}")
+    return Run(solver, learning_rate, _validate.flag(where, "progress", progress), callback,
+               _validate.positive_int(where, "max_steps", max_steps, minimum=0))
+
+
 def run_minimize(fn, y0, run: Run, *, step_size_fn=None, **stop):
     """Runs `voxax.minimize` on `fn(y, args) -> (energy, aux)` with the options of `run`
     and the given extra stop rules.
 
     Returns `voxax.MinimizeResult` (`y`, `steps`, `stop_reason`, `history`, `energy`).
     """
-    stop["max_steps"] = int(run.max_steps)
+    stop["max_steps"] = run.max_steps
     rules = solve.StopRules(**{k: v for k, v in stop.items() if v is not None})
     kwargs = {} if step_size_fn is None else {"step_size_fn": step_size_fn}
     return solve.minimize(

@@ -11,17 +11,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import energies, metrics
+from .. import _validate, energies, metrics
 from .._grid import Grid
 from .._isosurface import isosurface_fn
+from .._values import ValueEquality
 from .._voxelize import voxelize
-from ._common import as_mesh
+from ._common import as_mesh, check_report
 
 _RULES = ("meshsdf", "theorem1", "level_set")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class ImplicitReport:
+class ImplicitReport(ValueEquality):
     """What [`optimize_implicit`][voxax.apps.optimize_implicit] did.
 
     - `loss_history`: `(steps,)` float, the silhouette loss at each step (before its update).
@@ -30,6 +31,9 @@ class ImplicitReport:
     - `steps`: steps taken; `stop_reason`: `"max_steps"` or `"target_euler"`.
     - `loss`, `euler`: loss and Euler characteristic of the mesh of the returned parameters.
     - `seconds`: wall time.
+
+    Reports pickle and compare with `==` by value; every field is checked against its type
+    when a report is built.
     """
 
     loss_history: np.ndarray
@@ -41,13 +45,17 @@ class ImplicitReport:
     euler: int
     seconds: float
 
+    def __post_init__(self) -> None:
+        check_report(self)
+
     def summary(self) -> str:
         """A few human-readable lines."""
         chi = self.euler_history
-        changes = [f"{int(chi[0])}@0"] + [f"{int(c)}@{i}" for i, c in enumerate(chi) if i and c != chi[i - 1]]
+        changes = [f"{int(c)}@{i}" for i, c in enumerate(chi) if i == 0 or c != chi[i - 1]]
+        start = f"{self.loss_history[0]:.4g} -> " if self.loss_history.size else ""
         return (
-            f"ImplicitReport: {self.steps} steps ({self.stop_reason}), loss {self.loss_history[0]:.4g} -> "
-            f"{self.loss:.4g}, Euler characteristic {' -> '.join(changes)} -> {self.euler}, {self.seconds:.1f} s"
+            f"ImplicitReport: {self.steps} steps ({self.stop_reason}), loss {start}{self.loss:.4g}, "
+            f"Euler characteristic {' -> '.join(changes + [str(self.euler)])}, {self.seconds:.1f} s"
         )
 
 
@@ -57,7 +65,9 @@ def _bucket(n: int) -> int:
 
 def _target_silhouettes(target, grid: Grid, w: float):
     if isinstance(target, (tuple, list)) and len(target) == 3 and all(np.ndim(t) == 2 for t in target):
-        sil = tuple(jnp.asarray(t) for t in target)
+        sil = tuple(jnp.asarray(_validate.finite_values("voxax.apps.optimize_implicit", "target",
+                                                        _validate.typed_array("voxax.apps.optimize_implicit", "target", t)))
+                    for t in target)
     else:
         m = as_mesh("voxax.apps.optimize_implicit", target)
         W = voxelize(jnp.asarray(m.vertices, jnp.result_type(float)), jnp.asarray(m.faces), grid)
@@ -129,8 +139,14 @@ def optimize_implicit(
         raise ValueError(f"{name}: `rule` must be one of {_RULES}, got {rule!r}")
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"{name}: `steps` must be a positive int, got {steps!r}")
-    if not (np.isfinite(learning_rate) and learning_rate > 0):
-        raise ValueError(f"{name}: `learning_rate` must be positive, got {learning_rate!r}")
+    learning_rate = _validate.positive_float(name, "learning_rate", learning_rate)
+    w = _validate.positive_float(name, "w", w)
+    if target_euler is not None:
+        target_euler = _validate.positive_int(name, "target_euler", target_euler, minimum=-(2**62))
+    if callback is not None and not callable(callback):
+        raise TypeError(f"{name}: `callback` must be None or callable as callback(step, params, iso, loss)")
+    for leaf in jax.tree_util.tree_leaves(params):
+        _validate.typed_array(name, "params", leaf, "fiu", "a pytree of real arrays")
     sil = _target_silhouettes(target, grid, w)
     # Strong (not weakly typed) float leaves, so that the compiled step is not retraced.
     params = jax.tree_util.tree_map(
@@ -166,6 +182,9 @@ def optimize_implicit(
         if mesh.n_faces == 0:
             raise ValueError(f"{name}: the iso-surface is empty at step {step}; start from parameters with a surface")
         value = float(value)
+        if not np.isfinite(value):
+            raise ValueError(f"{name}: the loss is not finite at step {step} (NaN or Inf in the field's values "
+                             "or its gradient); start from other parameters or lower `learning_rate`")
         chi = metrics.euler_characteristic(mesh)
         losses.append(value)
         chis.append(chi)

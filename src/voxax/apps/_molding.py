@@ -121,7 +121,7 @@ def optimize_for_molding(
     result = _common.run_minimize(
         energy,
         rest,
-        _common.Run(solver, learning_rate, progress, callback, max_steps),
+        _common.check_run(where, solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
     )
     v_final = jnp.asarray(result.y, dtype=dt)

@@ -228,12 +228,12 @@ def resolve_self_intersections(
     resolution = _common.check_resolution("voxax.apps.resolve_self_intersections", resolution)
     eps = _common.check_positive("voxax.apps.resolve_self_intersections", eps, "eps", allow_zero=True)
     alpha, learning_rate, _ = _common.check_steps("voxax.apps.resolve_self_intersections", arap_weight, learning_rate)
-    beta = _common.check_positive("voxax.apps.resolve_self_intersections", volume_weight, "volume_weight", allow_zero=True) if keep_volume else 0.0
-    max_rounds = int(max_rounds)
-    round_steps = int(round_steps)
+    max_rounds = _validate.positive_int("voxax.apps.resolve_self_intersections", "max_rounds", max_rounds, minimum=0)
+    round_steps = _validate.positive_int("voxax.apps.resolve_self_intersections", "round_steps", round_steps)
+    keep_volume = _validate.flag("voxax.apps.resolve_self_intersections", "keep_volume", keep_volume)
+    refine = _validate.flag("voxax.apps.resolve_self_intersections", "refine", refine)
     local_cells = _common.check_resolution("voxax.apps.resolve_self_intersections", local_cells, name="local_cells")
-    if max_rounds < 0 or round_steps < 1:
-        raise ValueError(f"voxax.apps.resolve_self_intersections: need max_rounds >= 0 and round_steps >= 1, got {max_rounds}, {round_steps}")
+    beta = _common.check_positive("voxax.apps.resolve_self_intersections", volume_weight, "volume_weight", allow_zero=True) if keep_volume else 0.0
     if time_budget is not None:
         time_budget = _common.check_positive("voxax.apps.resolve_self_intersections", time_budget, "time_budget")
     if volume_tolerance is not None:
@@ -284,7 +284,7 @@ def resolve_self_intersections(
     result = _common.run_minimize(
         energy,
         rest,
-        _common.Run(solver, learning_rate, progress, callback, max_steps),
+        _common.check_run("voxax.apps.resolve_self_intersections", solver, learning_rate, progress, callback, max_steps),
         max_w_threshold=threshold,
     )
     v_final = jnp.asarray(result.y, dtype=dt)

@@ -157,7 +157,10 @@ def _counts(instances, k: int) -> list[int]:
         if n < k:
             raise ValueError(f"voxax.apps.optimize_tiling: `instances` ({n}) must be at least the number of meshes ({k})")
         return [n // k + (1 if i < n % k else 0) for i in range(k)]
-    counts = [int(c) for c in instances]
+    if isinstance(instances, (str, bytes)) or not hasattr(instances, "__iter__"):
+        raise TypeError(f"voxax.apps.optimize_tiling: `instances` must be an int or a sequence of ints, "
+                        f"got {type(instances).__name__}")
+    counts = [_validate.positive_int("voxax.apps.optimize_tiling", "instances", c, minimum=-(2**62)) for c in instances]
     if len(counts) != k:
         raise ValueError(f"voxax.apps.optimize_tiling: `instances` gives {len(counts)} counts for {k} meshes")
     if any(c < 1 for c in counts):
@@ -359,6 +362,8 @@ def optimize_tiling(
     if isinstance(blocks, bool) or not isinstance(blocks, (int, np.integer)) or blocks < 1:
         raise ValueError(f"voxax.apps.optimize_tiling: `blocks` must be a positive int, got {blocks!r}")
     blocks = int(blocks)
+    fill_volume = _validate.flag("voxax.apps.optimize_tiling", "fill_volume", fill_volume)
+    deform = _validate.flag("voxax.apps.optimize_tiling", "deform", deform)
     key = _validate.key_or_seed("voxax.apps.optimize_tiling", key, seed)
     resolution = _common.check_resolution("voxax.apps.optimize_tiling", resolution, blocks)
     alpha, learning_rate, min_step = _common.check_steps("voxax.apps.optimize_tiling", arap_weight, learning_rate, min_step)
@@ -450,7 +455,7 @@ def optimize_tiling(
     result = _common.run_minimize(
         energy,
         y0,
-        _common.Run(solver, learning_rate, progress, callback, max_steps),
+        _common.check_run("voxax.apps.optimize_tiling", solver, learning_rate, progress, callback, max_steps),
         min_step=min_step,
         step_size_fn=vertex_move,
     )
