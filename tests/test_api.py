@@ -387,7 +387,9 @@ def _filled(cls, i):
         "str": "max_steps",
         "bool": True,
     }
-    return cls(**{f.name: values[f.type] for f in dataclasses.fields(cls)})
+    special = {"centre": np.arange(3.0) + i}  # reports check that centres are 3-vectors and histories 1D
+    return cls(**{f.name: special.get(f.name, np.arange(4.0) + i if f.name.endswith("_history") else values[f.type])
+                  for f in dataclasses.fields(cls)})
 
 
 @pytest.fixture(scope="module")

@@ -108,8 +108,15 @@ class Grid:
         (64, 64, 64)
         ```
         """
+        from . import _validate
+
+        where = "voxax.Grid.cube"
+        if isinstance(n, (str, bytes)) or not (isinstance(n, (int, np.integer)) or hasattr(n, "__iter__")):
+            raise TypeError(f"{where}: `n` must be an int or a sequence of ints, got {type(n).__name__}")
+        if not isinstance(n, (int, np.integer)):
+            n = tuple(_validate.positive_int(where, "n", s) for s in n)
         shape = _broadcast_shape(n, dim)
-        h = float(half_width)
+        h = _validate.positive_float(where, "half_width", half_width)
         return cls(lower=(-h,) * dim, upper=(h,) * dim, shape=shape)
 
     @classmethod

@@ -294,8 +294,10 @@ def key(where: str, value):
     import jax
     import jax.numpy as jnp
 
-    if value is None or isinstance(value, (bool, int, float, np.integer, np.floating)):
+    if value is None or isinstance(value, (bool, int, float, np.integer, np.floating, str, bytes)):
         raise TypeError(f"{where}: `key` must be a JAX PRNG key, e.g. jax.random.key(0), not {type(value).__name__}")
+    if not hasattr(value, "dtype"):
+        value = typed_array(where, "key", value, "u", "a JAX PRNG key, e.g. jax.random.key(0)")
     value = value if isinstance(value, jax.Array) else jnp.asarray(value)
     typed = jnp.issubdtype(value.dtype, jax.dtypes.prng_key)
     if not typed and not (value.dtype == jnp.uint32 and value.shape == (2,)):
@@ -324,8 +326,12 @@ def float_dtype(where: str, dtype=None) -> np.dtype:
     return dtype
 
 
-def positive_int(where: str, name: str, value, minimum: int = 1, multiple: int = 1) -> int:
-    """Checks an integer argument `>= minimum` (and a multiple of `multiple`); returns it as int."""
+def positive_int(where: str, name: str, value, minimum: int = 1, multiple: int = 1, *, maximum: int | None = None,
+                 bytes_each: float = 0.0) -> int:
+    """Checks an integer argument `>= minimum` (and a multiple of `multiple`, at most
+    `maximum`); returns it as int. With `bytes_each`, a count whose `count * bytes_each`
+    bytes exceed the memory available gets a `MemoryError` (`check_allocation`) before
+    anything is allocated."""
     if isinstance(value, bool):
         raise TypeError(f"{where}: `{name}` must be an int, got bool")
     try:
@@ -336,6 +342,10 @@ def positive_int(where: str, name: str, value, minimum: int = 1, multiple: int =
         raise ValueError(f"{where}: `{name}` must be at least {minimum}, got {out}")
     if out % multiple:
         raise ValueError(f"{where}: `{name}` must be a multiple of {multiple}, got {out}")
+    if maximum is not None and out > maximum:
+        raise ValueError(f"{where}: `{name}` must be at most {maximum}, got {out}")
+    if bytes_each:
+        check_allocation(where, float(out) * bytes_each, f"`{name}` = {out}", f"pass a smaller `{name}`")
     return int(out)
 
 
@@ -433,6 +443,9 @@ def ray_interval(where: str, t_min, t_max) -> tuple:
     returns it as floats."""
     out = []
     for name, t in (("t_min", t_min), ("t_max", t_max)):
+        if not is_concrete(t):
+            raise TypeError(f"{where}: `{name}` must be a concrete number (it bounds the kernel's search), "
+                            "not a traced value")
         if isinstance(t, (str, bytes, bool)) or not isinstance(t, (int, float, np.integer, np.floating)):
             if not (hasattr(t, "shape") and np.shape(t) == () and np.dtype(t.dtype).kind in "fiu"):
                 raise TypeError(f"{where}: `{name}` must be a number, got {type(t).__name__}")
@@ -477,8 +490,8 @@ def key_or_seed(where: str, key, seed=None, default=0):
 def _int_key(where: str, value) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"{where}: `key` must be an int or a JAX PRNG key, got {type(value).__name__}")
-    if value < 0:
-        raise ValueError(f"{where}: `key` must be a non-negative int or a JAX PRNG key, got {value}")
+    if not 0 <= value <= _INT64[1]:
+        raise ValueError(f"{where}: `key` must be an int in [0, 2^63) or a JAX PRNG key, got {value}")
     return int(value)
 
 
@@ -572,14 +585,14 @@ def available_memory() -> int:
         return 1 << 62
 
 
-def check_allocation(where: str, nbytes: float, what: str) -> None:
+def check_allocation(where: str, nbytes: float, what: str, hint: str = "use a coarser grid") -> None:
     """A `MemoryError` before allocating `nbytes` for `what` when they exceed the memory
     available."""
     available = available_memory()
     if nbytes > available:
         raise MemoryError(
             f"{where}: {what} needs about {nbytes / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB "
-            "of memory available; use a coarser grid"
+            f"of memory available; {hint}"
         )
 
 
@@ -624,3 +637,84 @@ def flag(where: str, name: str, value) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{where}: `{name}` must be True or False, got {type(value).__name__}")
     return bool(value)
+
+
+_INT64 = (-(2**63), 2**63 - 1)
+
+
+def real_value(where: str, name: str, value, kinds: str = "fiub", sequences: bool = True):
+    """Checks a number or array argument that JAX will trace (a weight, a radius, a grid):
+    a NumPy or JAX array or tracer of a dtype in `kinds`, or a Python number (not complex;
+    an int within int64), or a nested list or tuple of them. Strings, None, objects and
+    complex values get a `TypeError` naming the argument here, instead of JAX's message
+    from inside the trace (lists and tuples too with `sequences=False`, for a value used
+    as is). Returns `value` unchanged."""
+    what = "a real number or array"
+    if hasattr(value, "dtype"):
+        if np.dtype(value.dtype).kind not in kinds:
+            raise TypeError(f"{where}: `{name}` must be {what}, got {value.dtype}")
+        return value
+    if isinstance(value, bool):
+        if "b" not in kinds:
+            raise TypeError(f"{where}: `{name}` must be {what}, got bool")
+        return value
+    if isinstance(value, int):
+        if not _INT64[0] <= value <= _INT64[1]:
+            raise ValueError(f"{where}: `{name}` must fit in int64, got {value}")
+        return value
+    if isinstance(value, float):
+        return value
+    if isinstance(value, (list, tuple)) and value and sequences:
+        for item in value:
+            real_value(where, name, item, kinds)
+        return value
+    raise TypeError(f"{where}: `{name}` must be {what}, got {type(value).__name__}")
+
+
+def checked_jit(where: str, static_argnames: tuple = ()):
+    """`jax.jit` with its traced arguments checked first, outside the trace, by
+    `real_value` (arguments whose default is None may be None; pytrees of arrays, such as
+    a `Grid` given as static, are left to the function). So that `f(W, w="3")` fails
+    with `voxax.<ns>.<fn>: `w` must be a real number or array` rather than JAX's message
+    about abstract arrays."""
+    import functools
+    import inspect
+
+    def decorate(fn):
+        import jax
+
+        jitted = jax.jit(fn, static_argnames=static_argnames)
+        signature = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            try:
+                bound = signature.bind(*args, **kwargs)
+            except TypeError as err:
+                raise TypeError(f"{where}: {err}") from None
+            for name, value in bound.arguments.items():
+                param = signature.parameters[name]
+                if name in static_argnames:
+                    try:
+                        hash(value)
+                    except TypeError:
+                        raise TypeError(f"{where}: `{name}` must be a Python int, float, bool or str (it is "
+                                        f"static), got {type(value).__name__}") from None
+                    continue
+                if value is None and param.default is None:
+                    continue
+                if param.kind is inspect.Parameter.VAR_POSITIONAL:
+                    for item in value:
+                        real_value(where, name, item)
+                elif isinstance(value, (dict,)) or hasattr(value, "tree_flatten"):
+                    continue
+                else:
+                    real_value(where, name, value)
+                    if isinstance(value, (list, tuple)):  # nested numbers: one array, not a pytree of scalars
+                        bound.arguments[name] = np.asarray(value)
+            return jitted(*bound.args, **bound.kwargs)
+
+        wrapper.jitted = jitted
+        return wrapper
+
+    return decorate

@@ -128,7 +128,7 @@ def polyline(curve: Callable, params, n: int) -> Curve:
 def _polyline(where: str, curve: Callable, params, n) -> Curve:
     if not callable(curve):
         raise TypeError(f"{where}: `curve` must be a function curve(params, t), got {type(curve).__name__}")
-    n = _validate.positive_int(where, "n", n, minimum=3)
+    n = _validate.positive_int(where, "n", n, minimum=3, bytes_each=256.0)
     t = jnp.arange(n) / n
     return Curve(curve(params, t), _ring(n))
 

@@ -166,7 +166,7 @@ def icosphere(
     >>> icosphere(1).n_faces
     80
     """
-    subdivisions = _validate.positive_int("voxax.data.icosphere", "subdivisions", subdivisions, minimum=0)
+    subdivisions = _validate.positive_int("voxax.data.icosphere", "subdivisions", subdivisions, minimum=0, maximum=12)
     radius = _validate.positive_float("voxax.data.icosphere", "radius", radius)
     phi = (1.0 + math.sqrt(5.0)) / 2.0
     vertices = np.array(
@@ -232,6 +232,12 @@ def torus(
     >>> torus(n_major=8, n_minor=4).n_faces
     64
     """
+    major = _validate.finite_number("voxax.data.torus", "major", major)
+    minor = _validate.finite_number("voxax.data.torus", "minor", minor)
+    n_major = _validate.positive_int("voxax.data.torus", "n_major", n_major, minimum=3)
+    n_minor = _validate.positive_int("voxax.data.torus", "n_minor", n_minor, minimum=3)
+    _validate.check_allocation("voxax.data.torus", 256.0 * n_major * n_minor, f"a {n_major} x {n_minor} torus",
+                               "pass smaller `n_major`, `n_minor`")
     if not 0 < minor < major:
         raise ValueError(f"voxax.data.torus: `minor` and `major` must satisfy 0 < minor < major, got minor={minor}, major={major}")
     u = 2 * np.pi * np.arange(int(n_major)) / int(n_major)
@@ -536,7 +542,8 @@ def large(n_faces_target: int = 100_000, max_abs: float = 0.75) -> Mesh:
     >>> large(10_000).n_faces >= 10_000
     True
     """
-    target = max(int(n_faces_target), 64)
+    target = max(_validate.positive_int("voxax.data.large", "n_faces_target", n_faces_target, minimum=0,
+                                        bytes_each=256.0), 64)
     tube_r = 0.4
     length = 28.8263  # length of the trefoil centre line below
     aspect = length / (2 * np.pi * tube_r)  # n_along / n_around for square quads

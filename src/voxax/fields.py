@@ -112,6 +112,7 @@ def sphere(points, radius=1.0, center=0.0):
     3.0
     """
     p = _points("voxax.fields.sphere", points)
+    _validate.real_value("voxax.fields.sphere", "radius", radius, "fiu", sequences=False)
     c = _vector("voxax.fields.sphere", center, p.shape[-1], "center", p.dtype)
     return _safe_norm(p - c) - radius
 
@@ -166,6 +167,8 @@ def torus(points, major_radius=0.5, minor_radius=0.2, center=0.0, axis="z"):
     -0.2
     """
     p = _points("voxax.fields.torus", points, 3)
+    _validate.real_value("voxax.fields.torus", "major_radius", major_radius, "fiu", sequences=False)
+    _validate.real_value("voxax.fields.torus", "minor_radius", minor_radius, "fiu", sequences=False)
     if axis not in _AXES:
         raise ValueError(f"voxax.fields.torus: `axis` must be 'x', 'y' or 'z', got {axis!r}")
     p = p - _vector("voxax.fields.torus", center, 3, "center", p.dtype)
@@ -197,6 +200,8 @@ def gyroid(points, period=1.0, level=0.0):
     >>> float(gyroid(jnp.zeros(3)))
     0.0
     """
+    _validate.real_value("voxax.fields.gyroid", "period", period, "fiu", sequences=False)
+    _validate.real_value("voxax.fields.gyroid", "level", level, "fiu", sequences=False)
     p = _points("voxax.fields.gyroid", points, 3) * (2 * math.pi / period)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     return (
@@ -223,9 +228,7 @@ def chebyshev_polynomial(x, degree: int):
     >>> chebyshev_polynomial(jnp.array([0.5, 1.0]), 8).tolist()  # 128x^8 - 256x^6 + 160x^4 - 32x^2 + 1
     [-0.5, 1.0]
     """
-    degree = int(degree)
-    if degree < 0:
-        raise ValueError(f"voxax.fields.chebyshev_polynomial: `degree` must be >= 0, got {degree}")
+    degree = _validate.positive_int("voxax.fields.chebyshev_polynomial", "degree", degree, minimum=0, maximum=10_000)
     x = jnp.asarray(x)
     prev, cur = jnp.ones_like(x), x
     if degree == 0:
@@ -259,6 +262,7 @@ def chebyshev(points, degree: int = 8, level=0.0):
     3.0
     """
     p = _points("voxax.fields.chebyshev", points)
+    _validate.real_value("voxax.fields.chebyshev", "level", level, "fiu", sequences=False)
     return jnp.sum(chebyshev_polynomial(p, degree), axis=-1) - level
 
 
@@ -435,6 +439,8 @@ class Siren(eqx.Module):
         where = "voxax.fields.Siren"
         in_size, out_size, width, depth = (_validate.positive_int(where, name, value) for name, value in (
             ("in_size", in_size), ("out_size", out_size), ("width", width), ("depth", depth)))
+        _validate.check_allocation(where, 8.0 * depth * (width + 1) * float(width + in_size + out_size),
+                                   f"a Siren of depth {depth} and width {width}", "pass a smaller `depth` or `width`")
         key = _validate.key(where, key)
         omega_0 = _validate.positive_float(where, "omega_0", omega_0)
         first_omega_0 = _validate.positive_float(where, "first_omega_0", first_omega_0)
@@ -526,6 +532,10 @@ class DeepSDF(eqx.Module):
             ("n_shapes", n_shapes), ("width", width), ("depth", depth)))
         latent_size = _validate.positive_int(where, "latent_size", latent_size, minimum=0)
         dim = _validate.positive_int(where, "dim", dim)
+        _validate.check_allocation(where, 8.0 * (n_shapes * float(latent_size) + depth * (width + 1) *
+                                                 float(width + latent_size + dim)),
+                                   f"a DeepSDF of {n_shapes} shapes, depth {depth} and width {width}",
+                                   "pass smaller sizes")
         if skip is not None:
             skip = _validate.positive_int(where, "skip", skip)
             if skip >= depth:

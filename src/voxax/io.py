@@ -177,7 +177,11 @@ def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False
     """
     max_abs = _validate.positive_float("voxax.io.normalize", "max_abs", max_abs)
     m = mesh if isinstance(mesh, Mesh) else Mesh(*_validate.mesh_like("voxax.io.normalize", mesh))
-    vertices, centre, scale = fit(m.vertices, float(max_abs), m.faces)
+    with np.errstate(over="ignore", invalid="ignore"):  # an underflowing extent is refused just below
+        vertices, centre, scale = fit(m.vertices, float(max_abs), m.faces)
+    if not (np.isfinite(scale) and np.isfinite(np.asarray(vertices)).all()):
+        raise ValueError(f"voxax.io.normalize: the mesh is too small to scale to `max_abs` {max_abs:g} (its extent "
+                         f"underflows: {float(np.ptp(np.asarray(m.vertices, np.float64))):.3g}); scale it first")
     out = Mesh(vertices, m.faces, m.info)
     return (out, centre, scale) if return_transform else out
 

@@ -132,6 +132,7 @@ def sample_surface(mesh, n: int, key=None, *, seed=None) -> SurfaceSamples:
     key = _validate.key_or_seed(where, key, seed)
     m = _mesh(mesh, where=where)
     n = _validate.positive_int(where, "n", n, minimum=0)
+    _validate.check_allocation(where, 120.0 * n, f"{n} surface samples", "use fewer samples")
     a, b, c, nrm, norm = _face_geometry(m)
     area = 0.5 * norm
     total = float(area.sum())

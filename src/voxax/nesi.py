@@ -262,7 +262,7 @@ def _training_data(where, esi, vertices, faces, n_samples, grazing, ray_points, 
     d0, hfa = _axes(where, esi)
     vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     mesh = _esi.closed_mesh(where, vertices, faces)
-    n_samples = _validate.positive_int(where, "n_samples", n_samples)
+    n_samples = _validate.positive_int(where, "n_samples", n_samples, bytes_each=2048.0)
     ray_points = _validate.positive_int(where, "ray_points", ray_points)
     grazing = _real(where, "grazing", grazing)
     if grazing > 180:

@@ -160,8 +160,7 @@ def slices(
         raise ValueError(f"voxax.plot.slices: `W` has shape {W.shape} but the grid has shape {tuple(grid.shape)}")
     if axis is not None and (W.ndim != 3 or axis not in (0, 1, 2)):
         raise ValueError(f"voxax.plot.slices: `axis` must be None or 0, 1, 2 for a 3D grid, got {axis!r}")
-    if int(count) < 1:
-        raise ValueError(f"voxax.plot.slices: `count` must be >= 1, got {count}")
+    count = _validate.positive_int("voxax.plot.slices", "count", count, maximum=max(W.shape))
     limit = _symmetric_limit(W, vmax)
     if W.ndim == 3 and axis is None:
         extents = []

@@ -113,6 +113,13 @@ CASES = [
      "n = NET(); c = nesi.param_count(n); assert isinstance(n, nesi.NESI) and c == sum("
      "x.size for x in jax.tree_util.tree_leaves(n) if hasattr(x, 'size') and jnp.issubdtype(x.dtype, jnp.floating)), c",
      None, ""),
+    ("esi.fibonacci_sphere", "2^40 directions", "esi.fibonacci_sphere(2**40)", "MemoryError",
+     "voxax.esi.fibonacci_sphere: `n` = 1099511627776"),
+    ("esi.candidates", "2^40 DHF directions", "esi.candidates(2**40)", "MemoryError", "voxax.esi.candidates: `n_dhf`"),
+    ("esi.energy", "2^40 samples", "esi.energy(AX, CUBE, n_samples=2**40, resolution=8)", "MemoryError",
+     "voxax.esi.energy: `n_samples`"),
+    ("nesi.training_data", "2^40 samples", "nesi.training_data(AX, CUBE, n_samples=2**40)", "MemoryError",
+     "voxax.nesi.training_data: `n_samples`"),
 ]
 
 outcomes, test_hostile_input = table(CASES, ESI_SETUP)

@@ -53,6 +53,8 @@ CASES = [
      "out of range"),
     ("io.is_watertight", "open and closed (oracle)",
      "assert voxax.io.is_watertight(V, F) and not voxax.io.is_watertight(V, F[:-1])", None, ""),
+    ("io.normalize", "a mesh too small to scale (subnormal)", "voxax.io.normalize((V * 1e-310, F))", "ValueError",
+     "voxax.io.normalize: the mesh is too small to scale"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

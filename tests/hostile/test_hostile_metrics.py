@@ -56,6 +56,10 @@ CASES = [
      "out of range"),
     ("metrics.manifold_report", "a sphere (oracle)",
      f"r = {M}.manifold_report(BALL); assert isinstance(r, {M}.ManifoldReport) and r.closed and r.genus == 0", None, ""),
+    ("metrics", "sample_surface of 2^40 points", "voxax.metrics.sample_surface(BALL, 2**40)", "MemoryError",
+     "voxax.metrics.sample_surface: 1099511627776 surface samples"),
+    ("metrics", "sample_surface with the key '3'", "voxax.metrics.sample_surface(BALL, 5, '3')", "TypeError",
+     "voxax.metrics.sample_surface: `key`"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

@@ -115,6 +115,33 @@ CASES = [
      "from jax import export; export.export(jax.jit(lambda v: voxax.winding_number(v, F, P)),"
      " disabled_checks=voxax.export_safety_checks())(jax.ShapeDtypeStruct(export.symbolic_shape('n, 3'), jnp.float64))",
      "ValueError", "symbolic shapes"),
+    # found by fuzzing: non-numeric weights, static arguments and sizes get one line naming them
+    ("energies", "mellowmax with w '3'", f"{E}.mellowmax(jnp.ones(3), '3')", "TypeError",
+     "voxax.energies.mellowmax: `w` must be a real number or array"),
+    ("energies", "silhouettes with w None", f"{E}.silhouettes({W}, None)", "TypeError", "voxax.energies.silhouettes: `w`"),
+    ("energies", "volume of a string", f"{E}.volume('3', G)", "TypeError", "voxax.energies.volume: `W`"),
+    ("energies", "arap of string vertices", f"{E}.arap(V.astype(str), V, F)", "TypeError",
+     "voxax.energies.arap: `vertices`"),
+    ("energies", "cotangent_weights of float faces", f"{E}.cotangent_weights(V, F.astype(float))", "TypeError",
+     "voxax.energies.cotangent_weights: `faces`"),
+    ("energies", "fold_periodic with blocks [3]", f"{E}.fold_periodic({W}, blocks=[3])", "TypeError",
+     "voxax.energies.fold_periodic: `blocks`"),
+    ("energies", "mellowmax of a nested list (oracle)",
+     f"m = float({E}.mellowmax([[0.0, 1.0]], w=1e4)[0]); assert abs(m - (1 - np.log(2) / 1e4)) < 1e-9, m", None, ""),
+    ("fields", "sphere of radius '3'", f"{FL}.sphere(P, '3')", "TypeError", "voxax.fields.sphere: `radius`"),
+    ("fields", "sphere of radius [1]", f"{FL}.sphere(P, [1])", "TypeError", "voxax.fields.sphere: `radius`"),
+    ("fields", "gyroid of period None", f"{FL}.gyroid(P, None)", "TypeError", "voxax.fields.gyroid: `period`"),
+    ("fields", "chebyshev degree 1e80", f"{FL}.chebyshev_polynomial(jnp.zeros(3), 1e80)", "TypeError", "`degree`"),
+    ("fields", "chebyshev degree 2^31", f"{FL}.chebyshev_polynomial(jnp.zeros(3), 2**31)", "ValueError",
+     "`degree` must be at most 10000"),
+    ("fields", "Siren of depth 2^40", f"{FL}.Siren(depth=2**40, key=jax.random.key(0))", "MemoryError",
+     "voxax.fields.Siren: a Siren of depth"),
+    ("fields", "DeepSDF of 2^40 shapes", f"{FL}.DeepSDF(2**40, key=jax.random.key(0))", "MemoryError",
+     "voxax.fields.DeepSDF"),
+    ("data", "icosphere of 2^31 subdivisions", f"{D}.icosphere(2**31)", "ValueError", "`subdivisions` must be at most 12"),
+    ("data", "a large mesh of 2^40 faces", f"{D}.large(2**40)", "MemoryError", "voxax.data.large: `n_faces_target`"),
+    ("data", "a large mesh of 2.5 faces", f"{D}.large(2.5)", "TypeError", "voxax.data.large: `n_faces_target` must be an int"),
+    ("data", "a torus of major radius '3'", f"{D}.torus(major='3')", "TypeError", "voxax.data.torus: `major`"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

@@ -149,6 +149,19 @@ CASES = [
     ("nearest_neighbors", "jit brute force (oracle)",
      BRUTE_KNN.format(s="1.0") + "d, i = jax.jit(lambda x, y: voxax.nearest_neighbors(x, y, k=4))(X, Y);"
      "assert (np.asarray(i) == order).all()", None, ""),
+    # found by fuzzing: the kernel's own messages and `threads` name the function; traced intervals
+    ("spatial", "closest_points of subnormal vertices", "voxax.closest_points((V * 1e-310, F), P)", "ValueError",
+     "voxax.closest_points: vertices are all below 1e-75"),
+    ("spatial", "a BVH of subnormal vertices", "voxax.BVH(V * 1e-310, F)", "ValueError", "voxax.BVH: vertices are all below"),
+    ("spatial", "first_hits with 0 threads", "voxax.first_hits(BALL, P, P + 1, threads=0)", "ValueError",
+     "voxax.first_hits: `threads` must be >= 1"),
+    ("spatial", "closest_points with 2.5 threads", "voxax.closest_points(BALL, P, threads=2.5)", "TypeError",
+     "voxax.closest_points: `threads` must be an int"),
+    ("spatial", "winding_number with '2' threads", "voxax.winding_number(V, F, P, threads='2')", "TypeError",
+     "voxax.winding_number: `threads` must be an int"),
+    ("spatial", "first_hits with a traced t_max",
+     "jax.jit(lambda s: voxax.first_hits(BALL, P, P + 1, t_max=s).t)(1.0)", "TypeError",
+     "voxax.first_hits: `t_max` must be a concrete number"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

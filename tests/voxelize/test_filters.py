@@ -203,8 +203,10 @@ def test_box_filter_windows_batches_and_errors():
         box_filter(W[None], 3)
     with pytest.raises(ValueError, match="factor"):
         box_filter(V, 0)
-    with pytest.raises(ValueError, match="factor"):
+    with pytest.raises(TypeError, match="`factor` must be an int"):
         box_filter(V, 1.5)
+    with pytest.raises(ValueError, match="`factor` must be at most"):
+        box_filter(V, 2**31)  # a box wider than twice the grid: refused, not a reduction that never ends
 
 
 def test_batches_dtypes_and_bad_input():

@@ -117,6 +117,8 @@ def isosurface_fn(
         )
     if rule not in _RULES:
         raise ValueError(f"voxax.{name}: `rule` must be one of {_RULES}, got {rule!r}")
+    for leaf in jax.tree_util.tree_leaves(params):  # the leaves are differentiated: numbers or arrays
+        _validate.real_value(f"voxax.{name}", "params", leaf, sequences=False)
     level = _check_level(level, name)
     inside = _check_inside(inside, name)
     if not isinstance(grid, Grid):

@@ -131,8 +131,7 @@ def least_squares(
         raise TypeError(
             f"voxax.least_squares: `solver` must be a name or an optimistix least-squares solver, got {type(solver).__name__}"
         )
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"voxax.least_squares: `max_steps` must be a positive int, got {max_steps!r}")
+    max_steps = _validate.positive_int("voxax.least_squares", "max_steps", max_steps, maximum=2**63 - 1)
     start = time.perf_counter()
     sol = optx.least_squares(residual_fn, solver, y0, args=args, max_steps=max_steps, throw=throw)
     value = jax.block_until_ready(sol.value)

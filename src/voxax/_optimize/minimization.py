@@ -208,6 +208,8 @@ def _make_solver(solver, learning_rate):
     if isinstance(solver, str):
         name = solver.lower()
         if name in ("adam", "sgd"):
+            if learning_rate is not None and not callable(learning_rate):  # a number, or an optax schedule
+                learning_rate = _validate.positive_float("voxax.minimize", "learning_rate", learning_rate)
             return "optax", _named_optax(name, learning_rate)
         if name == "lbfgsb":
             return "lbfgsb", None

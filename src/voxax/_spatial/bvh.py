@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _kernels, _validate
+from .. import _validate
 from .._kernels import spatial as kernels
 from .._mesh import Mesh
 
@@ -42,7 +42,6 @@ __all__ = [
     "first_hits",
 ]
 
-_threads = _kernels.threads
 
 
 def real_vertices(where: str, x):
@@ -144,7 +143,10 @@ class BVH:
             raise ValueError(f"{where}: needs a 3D triangle mesh, got a 2D polyline")
         v = as_coords(mesh.vertices, "vertices", where)
         f = np.ascontiguousarray(mesh.faces, dtype=np.int32)
-        handle = kernels.bvh_build(v, f)
+        try:
+            handle = kernels.bvh_build(v, f)
+        except ValueError as err:  # the kernel's own checks (coordinates all below 1e-75): name the caller
+            raise ValueError(str(err).replace("voxax: ", f"{where}: ", 1)) from None
         self._handle = handle
         self._finalizer = weakref.finalize(self, kernels.bvh_free, handle)
         self.mesh = mesh
@@ -185,7 +187,7 @@ class BVH:
         p = p.reshape(-1, 3)
         cap = (np.inf if max_distance is None or (isinstance(max_distance, (int, float)) and max_distance == np.inf)
                else _validate.positive_float(where, "max_distance", max_distance, True))  # inf: no limit
-        dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _threads(threads))
+        dist, face, bary, point = kernels.bvh_closest(self._handle, p, cap, _validate.host_threads(where, threads))
         return ClosestPoints(
             dist.reshape(lead),
             face.reshape(lead),
@@ -207,7 +209,8 @@ class BVH:
 
     def _first(self, origins, directions, t_min, t_max, any_hit, threads, where):
         o, d, lead, t_min, t_max = self._rays(origins, directions, t_min, t_max, where)
-        t, face, bary, sign = kernels.bvh_first_hits(self._handle, o, d, t_min, t_max, any_hit, _threads(threads))
+        t, face, bary, sign = kernels.bvh_first_hits(self._handle, o, d, t_min, t_max, any_hit,
+                                                 _validate.host_threads(where, threads))
         return RayHits(
             t.reshape(lead),
             face.reshape(lead),
@@ -276,7 +279,8 @@ class BVH:
     def _all(self, origins, directions, t_min, t_max, threads, where: str) -> AllHits:
         o, d, _, t_min, t_max = self._rays(origins, directions, t_min, t_max, where)
         n = len(o)
-        counts, t, face, bary, sign = kernels.bvh_all_hits(self._handle, o, d, t_min, t_max, _threads(threads))
+        counts, t, face, bary, sign = kernels.bvh_all_hits(self._handle, o, d, t_min, t_max,
+                                                              _validate.host_threads(where, threads))
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         ray = np.repeat(np.arange(n, dtype=np.int64), counts)
         return AllHits(offsets, ray, t, face, bary, sign)

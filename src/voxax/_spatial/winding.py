@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _kernels, _validate
+from .. import _validate
 from .._constants import PAIR_BUDGET
 from .._kernels import spatial as kernels
 
@@ -185,7 +185,7 @@ def winding_number(
     if points is None:
         raise TypeError(f"{where}: missing `points`")
     points = _validate.coordinates(where, "points", points, d)
-    nthreads = _kernels.threads(threads)
+    nthreads = _validate.host_threads("voxax.winding_number", threads)
     pdtype = points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else vertices.dtype
     dtype = jax.dtypes.canonicalize_dtype(np.result_type(vertices.dtype, pdtype))
     batch = tuple(np.broadcast_shapes(vertices.shape[:-2], faces.shape[:-2]))

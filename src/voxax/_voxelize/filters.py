@@ -95,9 +95,7 @@ class Box:
     radius: float = 0.5
 
     def __post_init__(self):
-        r = float(self.radius)
-        if not (math.isfinite(r) and r > 0):
-            raise ValueError(f"voxax.Box: radius must be a positive number of voxels, got {self.radius!r}")
+        r = _validate.positive_float("voxax.Box", "radius", self.radius)
         object.__setattr__(self, "radius", r)
 
     @property
@@ -138,11 +136,8 @@ class Gaussian:
     truncate: float = 3.0
 
     def __post_init__(self):
-        s, t = float(self.sigma), float(self.truncate)
-        if not (math.isfinite(s) and s > 0):
-            raise ValueError(f"voxax.Gaussian: sigma must be a positive number of voxels, got {self.sigma!r}")
-        if not (math.isfinite(t) and t > 0):
-            raise ValueError(f"voxax.Gaussian: truncate must be positive, got {self.truncate!r}")
+        s = _validate.positive_float("voxax.Gaussian", "sigma", self.sigma)
+        t = _validate.positive_float("voxax.Gaussian", "truncate", self.truncate)
         object.__setattr__(self, "sigma", s)
         object.__setattr__(self, "truncate", t)
 
@@ -455,6 +450,7 @@ def mc_settings(grid, kernel, samples, strata, surface_samples, where="voxax.vox
     surface_samples = _validate.positive_int(where, "surface_samples", surface_samples)
     m = _int_root(samples, d) if strata is None else _validate.positive_int(where, "strata", strata)
     per = -(-samples // m**d)
+    _validate.check_allocation(where, 16.0 * d * per * float(m) ** d, f"a table of {per * m**d} samples", "use fewer samples")
     if d == 3:
         r = _int_root(surface_samples, 2)
         if r * r < surface_samples:
@@ -635,18 +631,18 @@ def box_filter(W, factor: int, *, dim: int | None = None) -> jax.Array:
 
     An array of W's shape and dtype.
     """
-    W = jnp.asarray(W)
-    if not jnp.issubdtype(W.dtype, jnp.floating):
-        raise TypeError(f"voxax.box_filter: W must be a float array, got {W.dtype}")
-    if isinstance(factor, (bool, float)) or int(factor) != factor or int(factor) < 1:
-        raise ValueError(f"voxax.box_filter: factor must be an integer >= 1, got {factor!r}")
-    s = int(factor)
+    W = jnp.asarray(_validate.typed_array("voxax.box_filter", "W", W, "f", "a float array"))
+    s = _validate.positive_int("voxax.box_filter", "factor", factor)
     if dim is None:
         if W.ndim not in (2, 3):
             raise ValueError(f"voxax.box_filter: cannot tell the grid axes of a {W.ndim}-D array; pass dim=2 or dim=3")
         dim = W.ndim
     if dim not in (2, 3) or W.ndim < dim:
         raise ValueError(f"voxax.box_filter: dim must be 2 or 3 and at most W.ndim, got dim={dim}, W.ndim={W.ndim}")
+    widest = max(W.shape[W.ndim - dim:], default=0)
+    if s > 2 * widest + 1:  # a wider box covers the whole grid from every voxel: only its cost grows
+        raise ValueError(f"voxax.box_filter: `factor` must be at most 2 * {widest} + 1 (twice the largest grid axis, "
+                         f"plus one), got {s}")
     if s == 1:
         return W
     nb = W.ndim - dim

@@ -439,8 +439,9 @@ def sparse_capacity(vertices=None, faces=None, grid: Grid | None = None) -> tupl
     hi = np.asarray(grid.upper, np.float64)
     h = np.asarray(grid.spacing, np.float64)
     batch = np.broadcast_shapes(V.shape[:-2], F.shape[:-2])
-    Vb = np.broadcast_to(V, batch + V.shape[-2:]).reshape((-1,) + V.shape[-2:])
-    Fb = np.broadcast_to(F, batch + F.shape[-2:]).reshape((-1,) + F.shape[-2:])
+    nb = int(np.prod(batch, dtype=np.int64))  # not -1: a reshape cannot infer it next to an axis of 0
+    Vb = np.broadcast_to(V, batch + V.shape[-2:]).reshape((nb,) + V.shape[-2:])
+    Fb = np.broadcast_to(F, batch + F.shape[-2:]).reshape((nb,) + F.shape[-2:])
     best = (0, 0)
     for Vi, Fi in zip(Vb, Fb):
         P = (np.clip(Vi, lo, hi) - lo) / h  # cell units, clamped to the grid's box

@@ -19,7 +19,7 @@ _PREV = np.array([2, 0, 1])
 
 
 def _check_mesh(vertices, faces, name):
-    _validate.mesh(name, vertices, faces, batch=True, faces_dim=3, finite=False)
+    _validate.mesh(f"voxax.energies.{name}", vertices, faces, batch=True, faces_dim=3, finite=False)
 
 
 def _batch(fn, signature, *args):
@@ -40,7 +40,7 @@ def _edges(vertices, faces):
     return corners[:, _PREV] - corners[:, _NEXT]
 
 
-@functools.partial(jax.jit, static_argnames=("min_weight", "max_weight"))
+@_validate.checked_jit("voxax.energies.cotangent_weights", static_argnames=("min_weight", "max_weight"))
 def cotangent_weights(vertices, faces, min_weight: float = 1e-4, max_weight: float = 1e4):
     """Per-triangle cotangent weights of a mesh, robust to obtuse and degenerate triangles.
 
@@ -104,7 +104,7 @@ def _covariances(vertices, rest_vertices, faces, weights):
     return S.at[faces].add(jnp.broadcast_to(M[:, None], (faces.shape[0], 3, d, d)))
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.arap_rotations", static_argnames=())
 def arap_rotations(vertices, rest_vertices, faces, weights=None):
     """The best-fitting rotation of every vertex cell (spokes and rims), by SVD.
 
@@ -163,7 +163,7 @@ def _arap_rotations(vertices, rest_vertices, faces, weights):
     return jax.lax.stop_gradient(R)
 
 
-@functools.partial(jax.jit, static_argnames=("normalize",))
+@_validate.checked_jit("voxax.energies.arap", static_argnames=("normalize",))
 def arap(vertices, rest_vertices, faces, weights=None, *, rotations=None, normalize: bool = True):
     """The as-rigid-as-possible deformation energy (spokes and rims, cotangent weights).
 

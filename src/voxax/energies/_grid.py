@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
@@ -25,7 +24,7 @@ def _grid(where: str, W, name: str = "W", rank: int = 3):
     return _validate.finite_values(where, name, W)
 
 
-@functools.partial(jax.jit, static_argnames=("axis",))
+@_validate.checked_jit("voxax.energies.mellowmax", static_argnames=("axis",))
 def mellowmax(x, w: float = 1000.0, axis: int = -1):
     r"""A smooth maximum: the mellowmax operator of Asadi and Littman (2017).
 
@@ -65,7 +64,7 @@ def mellowmax(x, w: float = 1000.0, axis: int = -1):
     return jnp.squeeze(m, axis=axis) + (lse - math.log(n)) / w
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.silhouettes", static_argnames=())
 def silhouettes(W, w: float = 1000.0):
     """The three soft silhouettes of a voxel grid: mellowmax along x, y and z.
 
@@ -98,7 +97,7 @@ def _silhouettes(W, w):
     return mellowmax(W, w, axis=-3), mellowmax(W, w, axis=-2), mellowmax(W, w, axis=-1)
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.cut_shape", static_argnames=())
 def cut_shape(W, w: float = 1000.0):
     """The soft bandsaw cut shape: the three silhouettes extruded and intersected.
 
@@ -132,7 +131,7 @@ def _cut_shape(W, w):
     return Sx[..., None, :, :] * Sy[..., :, None, :] * Sz[..., :, :, None]
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.bandsaw_cut", static_argnames=())
 def bandsaw_cut(W, w: float = 1000.0):
     """The bandsaw cut energy `E_cut = mean((S - W)^2)` with `S = cut_shape(W, w)`.
 
@@ -169,7 +168,7 @@ def bandsaw_cut(W, w: float = 1000.0):
 bandsaw = bandsaw_cut
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.self_intersection", static_argnames=())
 def self_intersection(W, eps: float = 1e-3):
     """The self-intersection energy `E_sect` (paper, Sec. 4.2).
 
@@ -200,7 +199,7 @@ def self_intersection(W, eps: float = 1e-3):
     return jnp.sum(jnp.where(W > 1.0 + eps, W * W, 0.0)) / W.size
 
 
-@functools.partial(jax.jit, static_argnames=("blocks",))
+@_validate.checked_jit("voxax.energies.fold_periodic", static_argnames=("blocks",))
 def fold_periodic(W, blocks: int = 3):
     """Folds a grid into one periodic cell: cut it into `blocks^3` blocks and sum them.
 
@@ -241,7 +240,7 @@ def _fold(W, blocks, where: str, name: str = "W"):
     return W.sum(axis=(0, 1, 3, 5))
 
 
-@functools.partial(jax.jit, static_argnames=("blocks", "normalize"))
+@_validate.checked_jit("voxax.energies.tiling", static_argnames=("blocks", "normalize"))
 def tiling(W_instances, blocks: int = 3, normalize: bool = False):
     """The space-filling energy `E_fill = sum((cell - 1)^2)` (paper, Sec. 4.4).
 
@@ -281,7 +280,7 @@ def tiling(W_instances, blocks: int = 3, normalize: bool = False):
     return e / cell.size if normalize else e
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
+@_validate.checked_jit("voxax.energies.volume", static_argnames=("grid",))
 def volume(W, grid):
     """The volume enclosed by the surface: `W.sum() * grid.voxel_volume`.
 
@@ -317,7 +316,7 @@ def volume(W, grid):
     return W.sum(axis=tuple(range(W.ndim - d, W.ndim))) * grid.voxel_volume
 
 
-@jax.jit
+@_validate.checked_jit("voxax.energies.interpenetration", static_argnames=())
 def interpenetration(W_a, W_b):
     """The overlap between two shapes voxelized on the same grid.
 

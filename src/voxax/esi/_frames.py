@@ -225,7 +225,7 @@ def bounding_sphere(mesh: Mesh) -> tuple[np.ndarray, float]:
 def fibonacci_sphere(n: int, *, hemisphere: bool = False) -> np.ndarray:
     """`n` spherical Fibonacci points `(n, 3)` float64 on the unit sphere (or the upper
     half sphere `z > 0` with `hemisphere=True`), evenly spread by the golden angle."""
-    n = _validate.positive_int("voxax.esi.fibonacci_sphere", "n", n, minimum=0)
+    n = _validate.positive_int("voxax.esi.fibonacci_sphere", "n", n, minimum=0, bytes_each=96.0)
     i = np.arange(n, dtype=np.float64)
     z = 1.0 - (i + 0.5) / n if hemisphere else 1.0 - 2.0 * (i + 0.5) / max(n, 1)
     phi = i * math.pi * (3.0 - math.sqrt(5.0))
@@ -261,8 +261,8 @@ def candidates(n_dhf: int = 50, n_hf: int = 80) -> Candidates:
     ((13, 3), (18, 3))
     """
     where = "voxax.esi.candidates"
-    n_dhf = _validate.positive_int(where, "n_dhf", n_dhf, minimum=0)
-    n_hf = _validate.positive_int(where, "n_hf", n_hf, minimum=0)
+    n_dhf = _validate.positive_int(where, "n_dhf", n_dhf, minimum=0, bytes_each=192.0)
+    n_hf = _validate.positive_int(where, "n_hf", n_hf, minimum=0, bytes_each=192.0)
     eye = np.eye(3)
     dhf = np.concatenate([eye, fibonacci_sphere(n_dhf, hemisphere=True)])
     hf = np.concatenate([np.stack([eye[0], -eye[0], eye[1], -eye[1], eye[2], -eye[2]]), fibonacci_sphere(n_hf)])

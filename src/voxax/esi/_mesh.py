@@ -259,6 +259,7 @@ def _energy_terms(where, esi, vertices, faces, n_samples, resolution, eps1, eps2
     vertices, faces, _ = _validate.unpack_mesh(where, vertices, faces)
     eps1, eps2, angle = _check_energy_settings(where, eps1, eps2, angle)
     key = _validate.key_or_seed(where, key, seed)
+    n_samples = _validate.positive_int(where, "n_samples", n_samples, bytes_each=512.0)
     prob, dk, hk = _prepare(where, vertices, faces, [d0], hfa, resolution, n_samples, key, threads)
     t = prob.energy([dk[0][0], dk[0][1], *hk], eps1, eps2, angle)
     return EnergyTerms(float(t["E"]), float(t["dist"]), float(t["cd_st"]), float(t["cd_ts"]), float(t["mu"]))
