@@ -671,12 +671,13 @@ def real_value(where: str, name: str, value, kinds: str = "fiub", sequences: boo
     raise TypeError(f"{where}: `{name}` must be {what}, got {type(value).__name__}")
 
 
-def checked_jit(where: str, static_argnames: tuple = ()):
+def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = ()):
     """`jax.jit` with its traced arguments checked first, outside the trace, by
     `real_value` (arguments whose default is None may be None; pytrees of arrays, such as
     a `Grid` given as static, are left to the function). So that `f(W, w="3")` fails
     with `voxax.<ns>.<fn>: `w` must be a real number or array` rather than JAX's message
-    about abstract arrays."""
+    about abstract arrays. The arguments named in `positive` (a sharpness, a width) must
+    moreover be `> 0` and finite when given as concrete scalars (`positive_float`)."""
     import functools
     import inspect
 
@@ -710,6 +711,8 @@ def checked_jit(where: str, static_argnames: tuple = ()):
                     continue
                 else:
                     real_value(where, name, value)
+                    if name in positive and is_concrete(value) and np.ndim(value) == 0:
+                        positive_float(where, name, value)
                     if isinstance(value, (list, tuple)):  # nested numbers: one array, not a pytree of scalars
                         bound.arguments[name] = np.asarray(value)
             return jitted(*bound.args, **bound.kwargs)

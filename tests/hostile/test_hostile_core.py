@@ -260,6 +260,12 @@ CASES = [
      "voxax.plot.slices: `count` must be an int"),
     ("curves", "a circle of 2^40 points", "voxax.curves.circle(np.zeros(2), 0.5, 2**40)", "MemoryError",
      "voxax.curves.circle: `n` = 1099511627776 needs"),
+    ("voxelize", "voxelize_mc of Inf vertices under jit",
+     "jax.jit(lambda v: voxax.voxelize_mc(v, F, G, voxax.Box(), jax.random.key(0), samples=4))(jnp.asarray(V) + jnp.inf)"
+     ".block_until_ready()", "JaxRuntimeError", "voxax.voxelize_mc: `vertices` must be finite"),
+    ("voxelize", "voxelize_mc of NaN vertices under jit",
+     "jax.jit(lambda v: voxax.voxelize_mc(v, F, G, voxax.Box(), jax.random.key(0), samples=4))(jnp.asarray(VNAN))"
+     ".block_until_ready()", "JaxRuntimeError", "voxax.voxelize_mc: `vertices` must be finite"),
 ]
 
 

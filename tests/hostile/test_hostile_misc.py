@@ -142,6 +142,17 @@ CASES = [
     ("data", "a large mesh of 2^40 faces", f"{D}.large(2**40)", "MemoryError", "voxax.data.large: `n_faces_target`"),
     ("data", "a large mesh of 2.5 faces", f"{D}.large(2.5)", "TypeError", "voxax.data.large: `n_faces_target` must be an int"),
     ("data", "a torus of major radius '3'", f"{D}.torus(major='3')", "TypeError", "voxax.data.torus: `major`"),
+    ("energies", "mellowmax with w 0 (a division by zero)", f"{E}.mellowmax(jnp.ones(3), 0)", "ValueError",
+     "voxax.energies.mellowmax: `w` must be > 0 and finite"),
+    ("energies", "silhouettes with w inf", f"{E}.silhouettes({W}, float('inf'))", "ValueError",
+     "voxax.energies.silhouettes: `w` must be > 0"),
+    ("energies", "mellowmax with a traced NaN w",
+     f"jax.jit(lambda s: {E}.mellowmax(jnp.ones(3), s))(jnp.nan).block_until_ready()", "JaxRuntimeError",
+     "voxax.energies.mellowmax: `w` must be finite"),
+    ("energies", "mellowmax differentiated in w under jit (oracle)",
+     f"g = float(jax.jit(jax.grad(lambda w: {E}.mellowmax(jnp.array([0.0, 1.0]), w)))(10.0));"
+     "x = np.array([0.0, 1.0]); f = lambda w: np.log(np.mean(np.exp(w * x))) / w;"
+     "assert abs(g - (f(10.0 + 1e-6) - f(10.0 - 1e-6)) / 2e-6) < 1e-6, g", None, ""),
 ]
 
 outcomes, test_hostile_input = table(CASES)

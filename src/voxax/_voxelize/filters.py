@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
-from .._constants import PAIR_BUDGET
+from .._constants import MAX_ABS_COORDINATE, PAIR_BUDGET
 from .._grid import Grid
 from .._spatial.winding import winding_flat
 
@@ -461,7 +461,8 @@ def mc_settings(grid, kernel, samples, strata, surface_samples, where="voxax.vox
 
 def _mesh_in(where, vertices, faces, grid):
     vertices, faces = _validate.mesh(where, vertices, faces, dim=grid.dim, batch=True)
-    vertices = jnp.asarray(vertices)
+    # concrete values are checked above; traced ones by the value-check kernel (NaN, Inf, > 1e75)
+    vertices = _validate.finite_values(where, "vertices", jnp.asarray(vertices), MAX_ABS_COORDINATE)
     return vertices, jnp.asarray(np.asarray(faces, np.int32) if _validate.is_concrete(faces) else faces, jnp.int32)
 
 

@@ -24,7 +24,7 @@ def _grid(where: str, W, name: str = "W", rank: int = 3):
     return _validate.finite_values(where, name, W)
 
 
-@_validate.checked_jit("voxax.energies.mellowmax", static_argnames=("axis",))
+@_validate.checked_jit("voxax.energies.mellowmax", static_argnames=("axis",), positive=("w",))
 def mellowmax(x, w: float = 1000.0, axis: int = -1):
     r"""A smooth maximum: the mellowmax operator of Asadi and Littman (2017).
 
@@ -60,11 +60,12 @@ def mellowmax(x, w: float = 1000.0, axis: int = -1):
     m = jax.lax.stop_gradient(jnp.max(x, axis=axis, keepdims=True))
     # Guard against -inf/inf maxima (all entries -inf): keep the shift finite.
     m = jnp.where(jnp.isfinite(m), m, 0.0)
+    w = _validate.finite_values("voxax.energies.mellowmax", "w", jnp.asarray(w, x.dtype))  # traced: the kernel check
     lse = jax.nn.logsumexp(w * (x - m), axis=axis)
     return jnp.squeeze(m, axis=axis) + (lse - math.log(n)) / w
 
 
-@_validate.checked_jit("voxax.energies.silhouettes", static_argnames=())
+@_validate.checked_jit("voxax.energies.silhouettes", static_argnames=(), positive=("w",))
 def silhouettes(W, w: float = 1000.0):
     """The three soft silhouettes of a voxel grid: mellowmax along x, y and z.
 
@@ -97,7 +98,7 @@ def _silhouettes(W, w):
     return mellowmax(W, w, axis=-3), mellowmax(W, w, axis=-2), mellowmax(W, w, axis=-1)
 
 
-@_validate.checked_jit("voxax.energies.cut_shape", static_argnames=())
+@_validate.checked_jit("voxax.energies.cut_shape", static_argnames=(), positive=("w",))
 def cut_shape(W, w: float = 1000.0):
     """The soft bandsaw cut shape: the three silhouettes extruded and intersected.
 
@@ -131,7 +132,7 @@ def _cut_shape(W, w):
     return Sx[..., None, :, :] * Sy[..., :, None, :] * Sz[..., :, :, None]
 
 
-@_validate.checked_jit("voxax.energies.bandsaw_cut", static_argnames=())
+@_validate.checked_jit("voxax.energies.bandsaw_cut", static_argnames=(), positive=("w",))
 def bandsaw_cut(W, w: float = 1000.0):
     """The bandsaw cut energy `E_cut = mean((S - W)^2)` with `S = cut_shape(W, w)`.
 
