@@ -59,8 +59,8 @@ class Grid:
         upper = _as_float_tuple(self.upper, "upper")
         try:
             shape = tuple(int(operator_index(s)) for s in np.asarray(self.shape).reshape(-1))
-        except TypeError as err:
-            raise TypeError(f"voxax.Grid: `shape` must be a sequence of integers, got {self.shape!r}") from err
+        except (TypeError, ValueError):  # ValueError: a ragged sequence such as ([1], 2, 2)
+            raise TypeError(f"voxax.Grid: `shape` must be a sequence of integers, got {self.shape!r}") from None
         d = len(shape)
         if d not in (2, 3):
             raise ValueError(f"voxax.Grid: only 2D and 3D grids are supported, got shape {shape}")

@@ -228,6 +228,8 @@ CASES = [
     ("grid", "a cube of 2.5 cells", "voxax.Grid.cube(2.5)", "TypeError", "voxax.Grid.cube: `n` must be an int"),
     ("grid", "a cube of '3' cells", "voxax.Grid.cube('3')", "TypeError", "voxax.Grid.cube: `n`"),
     ("grid", "a cube of half width None", "voxax.Grid.cube(4, half_width=None)", "TypeError", "`half_width`"),
+    ("grid", "a ragged shape", "voxax.Grid((0, 0, 0), (1, 1, 1), ([1], 2, 2))", "TypeError",
+     "voxax.Grid: `shape` must be a sequence of integers"),
     ("voxelize", "box_filter by 2^31", "voxax.box_filter(np.zeros((6, 6, 6)), 2**31)", "ValueError",
      "voxax.box_filter: `factor` must be at most"),
     ("voxelize", "box_filter by None", "voxax.box_filter(np.zeros((6, 6, 6)), None)", "TypeError",
