@@ -118,11 +118,15 @@ std::vector<int64_t> cell_slots(const double* X, int64_t n) {
   return slot;
 }
 
-// A ray's result as traced (in slot order), before it goes to the output arrays.
-struct SlotHit {
-  double t, bary[3];
-  int32_t face;
-  int8_t sign;
+// A slot: a ray (origin, direction) until it is traced, then its result, which goes to
+// the output arrays from there (one array for both halves the memory to clear).
+union Slot {
+  double ray[6];
+  struct Hit {
+    double t, bary[3];
+    int32_t face;
+    int8_t sign;
+  } hit;
 };
 
 // An uninitialised array from LargeAlloc (every element is written before it is read).
@@ -239,8 +243,7 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
     // Blocks of at most 2^20 rays bound the memory of the rays and results in slot order.
     constexpr int64_t kBlock = int64_t(1) << 20;
     const int64_t cap = std::min(n, kBlock);
-    Scratch<double> od(6 * cap);
-    Scratch<SlotHit> res(cap);
+    Scratch<Slot> slots(cap);
     for (int64_t b0 = 0; b0 < n; b0 += kBlock) {
       const int64_t m = std::min(kBlock, n - b0);
       const double* Ob = O + 3 * b0;
@@ -249,23 +252,24 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
       voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t i = b; i < e; ++i)
           for (int a = 0; a < 3; ++a) {
-            od[6 * slot[i] + a] = Ob[3 * i + a];
-            od[6 * slot[i] + 3 + a] = Db[3 * i + a];
+            slots[slot[i]].ray[a] = Ob[3 * i + a];
+            slots[slot[i]].ray[3 + a] = Db[3 * i + a];
           }
       });
       voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t j = b; j < e; ++j) {
-          const double* r = &od[6 * j];
+          const double* r = slots[j].ray;
           const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
           RayHit h;
           const bool found = bvh->first_hit(ray, any != 0, &h);
-          SlotHit& o = res[j];
+          Slot::Hit o;
           voxax::spatial::store_hit(found, h, 0, &o.t, &o.face, o.bary, &o.sign);
+          slots[j].hit = o;
         }
       });
       voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t i = b; i < e; ++i) {
-          const SlotHit& o = res[slot[i]];
+          const Slot::Hit& o = slots[slot[i]].hit;
           t[b0 + i] = o.t;
           face[b0 + i] = o.face;
           sign[b0 + i] = o.sign;
