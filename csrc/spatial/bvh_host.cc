@@ -102,18 +102,19 @@ std::vector<int64_t> spatial_order(const double* X, int64_t n) {
 // passes in the rays' order that each advance 4096 sequential streams (a few hundred KiB
 // of open cache lines), where tracing the rays in a finer order read each ray and wrote
 // each result at a scattered place; the cells keep consecutive rays close in space.
-std::vector<int64_t> cell_slots(const double* X, int64_t n) {
+// n < 2^31 (a block of rays).
+std::vector<int32_t> cell_slots(const double* X, int64_t n) {
   constexpr int kBits = 4;
   const std::vector<uint32_t> key = morton_keys(X, n, kBits);
-  std::vector<int64_t> start(size_t(1) << (3 * kBits), 0);
+  std::vector<int32_t> start(size_t(1) << (3 * kBits), 0);
   for (int64_t i = 0; i < n; ++i) ++start[key[i]];
-  int64_t at = 0;
+  int32_t at = 0;
   for (auto& s : start) {
-    const int64_t c = s;
+    const int32_t c = s;
     s = at;
     at += c;
   }
-  std::vector<int64_t> slot(n);
+  std::vector<int32_t> slot(n);
   for (int64_t i = 0; i < n; ++i) slot[i] = start[key[i]]++;
   return slot;
 }
@@ -248,7 +249,7 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
       const int64_t m = std::min(kBlock, n - b0);
       const double* Ob = O + 3 * b0;
       const double* Db = D + 3 * b0;
-      const std::vector<int64_t> slot = cell_slots(Ob, m);
+      const std::vector<int32_t> slot = cell_slots(Ob, m);
       voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t i = b; i < e; ++i)
           for (int a = 0; a < 3; ++a) {
