@@ -37,11 +37,6 @@ using voxax::spatial::RayHit;
 constexpr int64_t kChunk = 256;  // queries per task: fixed, so results do not depend on threads
 constexpr int64_t kMoveChunk = 1 << 14;  // rays per task of moving rays and results
 
-// The query order: queries sorted along a Morton curve over their bounding box
-// (10 bits per axis; ties by index), so that consecutive queries are close in
-// space. Results are written back by index, and each query's answer does not
-// depend on the order. A stable radix sort (three passes of 10 bits) keeps this
-// serial step at a few per cent of the queries' time.
 // The Morton keys of n >= 1 points over their bounding box, `bits` (at most 10) per axis.
 std::vector<uint32_t> morton_keys(const double* X, int64_t n, int bits) {
   double lo[3] = {X[0], X[1], X[2]}, hi[3] = {X[0], X[1], X[2]};
@@ -73,6 +68,11 @@ std::vector<uint32_t> morton_keys(const double* X, int64_t n, int bits) {
   return key;
 }
 
+// The order of closest-point queries: sorted along a Morton curve over their bounding box
+// (10 bits per axis; ties by index), so that consecutive queries are close in space.
+// Results are written back by index, and each query's answer does not depend on the order.
+// A stable radix sort (three passes of 10 bits) keeps this serial step at a few per cent
+// of the queries' time.
 std::vector<int64_t> spatial_order(const double* X, int64_t n) {
   std::vector<int64_t> order(n);
   for (int64_t i = 0; i < n; ++i) order[i] = i;
