@@ -35,16 +35,10 @@ using voxax::spatial::Bvh;
 using voxax::spatial::RayHit;
 
 constexpr int64_t kChunk = 256;  // queries per task: fixed, so results do not depend on threads
+constexpr int64_t kMoveChunk = 1 << 14;  // rays per task of moving rays and results
 
-// The query order: queries sorted along a Morton curve over their bounding box
-// (10 bits per axis; ties by index), so that consecutive queries are close in
-// space. Results are written back by index, and each query's answer does not
-// depend on the order. A stable radix sort (three passes of 10 bits) keeps this
-// serial step at a few per cent of the queries' time.
-std::vector<int64_t> spatial_order(const double* X, int64_t n) {
-  std::vector<int64_t> order(n);
-  for (int64_t i = 0; i < n; ++i) order[i] = i;
-  if (n < 2) return order;
+// The Morton keys of n >= 1 points over their bounding box, `bits` (at most 10) per axis.
+std::vector<uint32_t> morton_keys(const double* X, int64_t n, int bits) {
   double lo[3] = {X[0], X[1], X[2]}, hi[3] = {X[0], X[1], X[2]};
   for (int64_t i = 1; i < n; ++i)
     for (int a = 0; a < 3; ++a) {
@@ -59,17 +53,31 @@ std::vector<int64_t> spatial_order(const double* X, int64_t n) {
     x = (x | x << 2) & 0x09249249u;
     return x;
   };
+  const double top = static_cast<double>((1 << bits) - 1);
   double scale[3];
-  for (int a = 0; a < 3; ++a) scale[a] = hi[a] > lo[a] ? 1023.0 / (hi[a] - lo[a]) : 0.0;
+  for (int a = 0; a < 3; ++a) scale[a] = hi[a] > lo[a] ? top / (hi[a] - lo[a]) : 0.0;
   std::vector<uint32_t> key(n);
   for (int64_t i = 0; i < n; ++i) {
     uint32_t k = 0;
     for (int a = 0; a < 3; ++a) {
-      const double u = std::min(1023.0, std::max(0.0, (X[3 * i + a] - lo[a]) * scale[a]));
+      const double u = std::min(top, std::max(0.0, (X[3 * i + a] - lo[a]) * scale[a]));
       k |= spread(static_cast<uint32_t>(u)) << a;
     }
     key[i] = k;
   }
+  return key;
+}
+
+// The order of closest-point queries: sorted along a Morton curve over their bounding box
+// (10 bits per axis; ties by index), so that consecutive queries are close in space.
+// Results are written back by index, and each query's answer does not depend on the order.
+// A stable radix sort (three passes of 10 bits) keeps this serial step at a few per cent
+// of the queries' time.
+std::vector<int64_t> spatial_order(const double* X, int64_t n) {
+  std::vector<int64_t> order(n);
+  for (int64_t i = 0; i < n; ++i) order[i] = i;
+  if (n < 2) return order;
+  std::vector<uint32_t> key = morton_keys(X, n, 10);
   std::vector<int64_t> tmp(n);
   std::vector<uint32_t> tmp_key(n);
   std::vector<int64_t> count(1025);
@@ -87,6 +95,53 @@ std::vector<int64_t> spatial_order(const double* X, int64_t n) {
   }
   return order;
 }
+
+// The rays' places in the order of their origins' cells (a Morton curve over 16^3 cells
+// of their bounding box, rays of a cell in their own order): slot[i] for ray i, from a
+// stable counting sort. Moving the rays to their slots and the results back are two
+// passes in the rays' order that each advance 4096 sequential streams (a few hundred KiB
+// of open cache lines), where tracing the rays in a finer order read each ray and wrote
+// each result at a scattered place; the cells keep consecutive rays close in space.
+// n < 2^31 (a block of rays).
+std::vector<int32_t> cell_slots(const double* X, int64_t n) {
+  constexpr int kBits = 4;
+  const std::vector<uint32_t> key = morton_keys(X, n, kBits);
+  std::vector<int32_t> start(size_t(1) << (3 * kBits), 0);
+  for (int64_t i = 0; i < n; ++i) ++start[key[i]];
+  int32_t at = 0;
+  for (auto& s : start) {
+    const int32_t c = s;
+    s = at;
+    at += c;
+  }
+  std::vector<int32_t> slot(n);
+  for (int64_t i = 0; i < n; ++i) slot[i] = start[key[i]]++;
+  return slot;
+}
+
+// A slot: a ray (origin, direction) until it is traced, then its result, which goes to
+// the output arrays from there (one array for both halves the memory to clear).
+union Slot {
+  double ray[6];
+  struct Hit {
+    double t, bary[3];
+    int32_t face;
+    int8_t sign;
+  } hit;
+};
+
+// An uninitialised array from LargeAlloc (every element is written before it is read).
+template <typename T>
+struct Scratch {
+  explicit Scratch(int64_t n) : size(static_cast<size_t>(n)), p(alloc().allocate(size)) {}
+  ~Scratch() { alloc().deallocate(p, size); }
+  Scratch(const Scratch&) = delete;
+  Scratch& operator=(const Scratch&) = delete;
+  T& operator[](int64_t i) { return p[i]; }
+  static voxax::spatial::LargeAlloc<T> alloc() { return {}; }
+  size_t size;
+  T* p;
+};
 
 struct Hits {
   std::vector<RayHit> hits;
@@ -186,29 +241,43 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
       return false;
     }
     if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
-    const std::vector<int64_t> order = spatial_order(O, n);
-    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-      // The chunk's rays are scattered in memory: gathered first (independent loads, which
-      // the processor overlaps) rather than one cache miss per ray inside the traversal.
-      double od[6 * kChunk];
-      for (int64_t j = b; j < e; ++j)
-        for (int a = 0; a < 3; ++a) {
-          od[6 * (j - b) + a] = O[3 * order[j] + a];
-          od[6 * (j - b) + 3 + a] = D[3 * order[j] + a];
+    // Blocks of at most 2^20 rays bound the memory of the rays and results in slot order.
+    constexpr int64_t kBlock = int64_t(1) << 20;
+    const int64_t cap = std::min(n, kBlock);
+    Scratch<Slot> slots(cap);
+    for (int64_t b0 = 0; b0 < n; b0 += kBlock) {
+      const int64_t m = std::min(kBlock, n - b0);
+      const double* Ob = O + 3 * b0;
+      const double* Db = D + 3 * b0;
+      const std::vector<int32_t> slot = cell_slots(Ob, m);
+      voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        for (int64_t i = b; i < e; ++i)
+          for (int a = 0; a < 3; ++a) {
+            slots[slot[i]].ray[a] = Ob[3 * i + a];
+            slots[slot[i]].ray[3 + a] = Db[3 * i + a];
+          }
+      });
+      voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        for (int64_t j = b; j < e; ++j) {
+          const double* r = slots[j].ray;
+          const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
+          RayHit h;
+          const bool found = bvh->first_hit(ray, any != 0, &h);
+          Slot::Hit o;
+          voxax::spatial::store_hit(found, h, 0, &o.t, &o.face, o.bary, &o.sign);
+          slots[j].hit = o;
         }
-      // The results are written after the chunk's traversals: the outputs of a ray lie in
-      // four scattered cache lines, and a burst of independent stores overlaps their misses
-      // where stores between traversals filled the store buffer.
-      RayHit hits[kChunk];
-      bool found[kChunk];
-      for (int64_t j = b; j < e; ++j) {
-        const double* r = od + 6 * (j - b);
-        const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
-        found[j - b] = bvh->first_hit(ray, any != 0, &hits[j - b]);
-      }
-      for (int64_t j = b; j < e; ++j)
-        voxax::spatial::store_hit(found[j - b], hits[j - b], order[j], t, face, bary, sign);
-    });
+      });
+      voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        for (int64_t i = b; i < e; ++i) {
+          const Slot::Hit& o = slots[slot[i]].hit;
+          t[b0 + i] = o.t;
+          face[b0 + i] = o.face;
+          sign[b0 + i] = o.sign;
+          for (int a = 0; a < 3; ++a) bary[3 * (b0 + i) + a] = o.bary[a];
+        }
+      });
+    }
     return true;
   });
 }

@@ -219,7 +219,7 @@ def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
 
 def test_first_hits_of_a_large_mesh_vs_brute_force():
     # 40k faces: the triangles (over 2 MiB) take the huge-page allocation; 600 rays span
-    # three chunks of results (the last one partial), written after their traversals
+    # three chunks of rays (the last one partial)
     mesh = data.large(40_000)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     rng = np.random.default_rng(7)
@@ -286,6 +286,27 @@ def test_rays_on_a_closed_mesh_have_matching_crossings():
     assert set(np.unique(w)) <= {0.0, 1.0}
     ref = np.asarray(voxax.winding_number(m.vertices, m.faces, o[:300]))
     np.testing.assert_array_equal(w[:300], np.round(ref))
+
+
+def test_first_hits_over_two_blocks_of_rays():
+    # rays are traced in blocks of 2^20 (each moved to slots by its origins' cells and back):
+    # a ray's answer is the same in a call of 2^20 + 1500 rays as alone in a small one, and
+    # the brute force's
+    rng = np.random.default_rng(11)
+    V, F = random_soup(rng, nf=60, degenerate=5)
+    bvh = voxax.BVH(V, F)
+    n = (1 << 20) + 1500
+    o = rng.uniform(-1.2, 1.2, (n, 3))
+    d = rng.normal(size=(n, 3))
+    full = bvh.first_hits(o, d, threads=2)
+    pick = np.concatenate([rng.choice(1 << 20, 300, replace=False), np.arange(1 << 20, n)])
+    part = bvh.first_hits(o[pick], d[pick], threads=1)
+    for x, y in zip(full, part):
+        assert np.array_equal(x[pick], y)
+    for k, (t, f) in zip(pick[::10], brute_hits(o[pick[::10]], d[pick[::10]], V, F)):
+        assert full.face[k] == (f[0] if len(t) else -1)
+        if len(t):
+            np.testing.assert_allclose(full.t[k], t[0], rtol=1e-10)
 
 
 def test_determinism_across_threads():
