@@ -409,9 +409,11 @@ def euler_characteristic(faces: np.ndarray) -> int:
     """`V - E + F` of a triangulation (its vertices: those its faces use)."""
     if len(faces) == 0:
         return 0
+    from ..metrics import _unique_rows
+
     f = np.asarray(faces, np.int64)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return int(len(np.unique(f)) - len(np.unique(e, axis=0)) + len(f))
+    return int(len(np.unique(f)) - len(_unique_rows(e)) + len(f))
 
 
 def topology_seeds(frag: Fragments, seeds: np.ndarray, threads=None) -> np.ndarray:
