@@ -312,3 +312,19 @@ def test_chamfer_loss_jax():
     np.testing.assert_allclose(
         np.einsum("nk,nkd->nd", s.barycentric, V[F[s.faces]]), s.points, atol=1e-15
     )
+
+
+def test_unique_rows_is_numpys_unique_along_rows():
+    # the packed-key path and the fallback (negative values, keys past 2^62, floats)
+    # against np.unique(axis=0): rows, first indices, inverse and counts
+    rng = np.random.default_rng(4)
+    cases = [rng.integers(0, hi, size=(n, k)) for n, k, hi in ((0, 2, 1), (1, 3, 5), (500, 2, 40), (800, 3, 12))]
+    cases += [rng.integers(-5, 5, size=(200, 2)), np.array([[2**40, 1], [0, 2**40], [2**40, 1]]),
+              rng.integers(0, 3, size=(50, 2)).astype(np.int32), rng.random((20, 2)).round(1)]
+    for a in cases:
+        want = np.unique(a, axis=0, return_index=True, return_inverse=True, return_counts=True)
+        got = metrics._unique_rows(a, return_index=True, return_inverse=True, return_counts=True)
+        for w, g in zip(want, got):
+            np.testing.assert_array_equal(np.reshape(g, -1), np.reshape(w, -1))
+        assert got[0].dtype == a.dtype and got[0].shape == want[0].shape
+        np.testing.assert_array_equal(metrics._unique_rows(a), np.unique(a, axis=0))

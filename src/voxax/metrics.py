@@ -405,6 +405,32 @@ def triangle_quality(mesh) -> np.ndarray:
     return np.clip(q, 0.0, 1.0)
 
 
+def _unique_rows(a: np.ndarray, *, return_index=False, return_inverse=False, return_counts=False):
+    """`np.unique(a, axis=0, ...)` of a 2-D integer array, the same results (rows in
+    lexicographic order, first occurrences, inverse, counts): rows of non-negative values
+    are packed into one int64 key each, whose order is the rows' lexicographic order, so
+    the sort is of integers instead of rows (several times faster); other arrays go to
+    `np.unique(axis=0)`."""
+    a = np.asarray(a)
+    k = a.shape[1] if a.ndim == 2 else 0
+    base = int(a.max()) + 1 if a.size else 1
+    if k == 0 or not np.issubdtype(a.dtype, np.integer) or (a.size and int(a.min()) < 0) or base ** k >= 1 << 62:
+        return np.unique(a, axis=0, return_index=return_index, return_inverse=return_inverse,
+                         return_counts=return_counts)
+    key = np.zeros(len(a), np.int64)
+    for c in range(k):
+        key = key * base + a[:, c].astype(np.int64)
+    _, first, inv, cnt = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    out = [a[first]]
+    if return_index:
+        out.append(first)
+    if return_inverse:
+        out.append(inv.reshape(-1))
+    if return_counts:
+        out.append(cnt)
+    return tuple(out) if len(out) > 1 else out[0]
+
+
 def _edges(faces: np.ndarray):
     """Directed half-edges (3F, 2) in face order, and the undirected unique edges with
     inverse indices and counts."""
@@ -414,7 +440,7 @@ def _edges(faces: np.ndarray):
         .astype(np.int64)
     )
     und = np.sort(he, axis=1)
-    uniq, inv, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    uniq, inv, cnt = _unique_rows(und, return_inverse=True, return_counts=True)
     return he, uniq, inv.reshape(-1), cnt
 
 
@@ -518,7 +544,7 @@ def manifold_report(mesh) -> ManifoldReport:
     used = np.unique(F)
     chi = int(len(used) - len(uniq) + nf)
     # directed-edge duplicates: misorientation
-    _, dcnt = np.unique(he, axis=0, return_counts=True)
+    _, dcnt = _unique_rows(he, return_counts=True)
     self_loops = he[:, 0] == he[:, 1]
     n_mis = int(np.sum(dcnt > 1))
     boundary = cnt == 1
@@ -546,16 +572,16 @@ def manifold_report(mesh) -> ManifoldReport:
     )
     corners = corners[good]
     va = np.concatenate([corners[:, [0, 1]], corners[:, [0, 2]]], 0)
-    keys, kinv = np.unique(va, axis=0, return_inverse=True)
+    keys, kinv = _unique_rows(va, return_inverse=True)
     kinv = kinv.reshape(-1)
     k = len(corners)
     _, lab = _components(len(keys), np.stack([kinv[:k], kinv[k:]], 1))
-    fans = np.unique(np.stack([keys[:, 0], lab], 1), axis=0)
+    fans = _unique_rows(np.stack([keys[:, 0], lab], 1))
     fans_per_vertex = np.bincount(fans[:, 0], minlength=m.n_vertices)
     n_nmv = int(np.sum(fans_per_vertex > 1))
     # duplicates and degenerates
     sorted_faces = np.sort(F, axis=1)
-    _, first = np.unique(sorted_faces, axis=0, return_index=True)
+    _, first = _unique_rows(sorted_faces, return_index=True)
     n_dup = int(nf - len(first))
     _, _, _, _, norm = _face_geometry(m)
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])

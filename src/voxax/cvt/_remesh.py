@@ -312,8 +312,10 @@ def _refine(source, grid: Grid, frag: Fragments, n_seeds: int, alpha: float, ins
 
 def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str, threads) -> tuple:
     """The source's fragments, at about `alpha` per seed (a `(values, level)` grid as given),
-    checked to bound a solid with `orient`, and the Euler characteristic of a closed mesh
-    source (None for other sources). **Returns:** `(frag, euler characteristic)`."""
+    checked to bound a solid with `orient`, the Euler characteristic of a closed mesh
+    source (None for other sources) and whether the source is a mesh of one connected
+    piece (its faces joined through edges). **Returns:** `(frag, euler characteristic,
+    one piece)`."""
     from .. import metrics
 
     mesh = _mesh_source(source)
@@ -363,7 +365,7 @@ def _sample(source, grid, n_seeds: int, alpha: float, orient: bool, inside: str,
                          f"{frag.size} fragments; use fewer seeds or a finer grid")
     if orient and open_lines(frag):
         raise ValueError(_not_a_solid(frag, report))
-    return frag, expected
+    return frag, expected, report is not None and report.n_components == 1
 
 
 def _optimized_seeds(frag, n_seeds, key, components, method, steps, polish, weighted, threads, bar) -> dict:
@@ -409,9 +411,11 @@ def euler_characteristic(faces: np.ndarray) -> int:
     """`V - E + F` of a triangulation (its vertices: those its faces use)."""
     if len(faces) == 0:
         return 0
+    from ..metrics import _unique_rows
+
     f = np.asarray(faces, np.int64)
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    return int(len(np.unique(f)) - len(np.unique(e, axis=0)) + len(f))
+    return int(len(np.unique(f)) - len(_unique_rows(e)) + len(f))
 
 
 def topology_seeds(frag: Fragments, seeds: np.ndarray, threads=None) -> np.ndarray:
@@ -493,11 +497,15 @@ def _pipeline(source, grid, a: dict, o: dict) -> RemeshResult:
     times, cpu = {}, {}
     t0, c0 = time.perf_counter(), time.process_time()
     with _timed(times, cpu, "fragments"):
-        frag, expected = _sample(source, grid, a["n_seeds"], a["alpha"], o["orient"], o["inside"], o["threads"])
+        frag, expected, one_piece = _sample(source, grid, a["n_seeds"], a["alpha"], o["orient"], o["inside"],
+                                            o["threads"])
     bar = _Bar(a["steps"] + (a["polish"] if o["method"] == "lbfgs" else 0), o["progress"])
     try:
         with _timed(times, cpu, "optimize"):
-            seeded = _optimized_seeds(frag, a["n_seeds"], o["key"], o["components"], o["method"], a["steps"],
+            # a mesh of one connected piece samples to one piece (neighbouring fragments of a
+            # connected surface are within sqrt(2) spacings): no search for other pieces
+            components = o["components"] and not one_piece
+            seeded = _optimized_seeds(frag, a["n_seeds"], o["key"], components, o["method"], a["steps"],
                                       a["polish"], o["weighted"], o["threads"], bar)
         with _timed(times, cpu, "rdt"):
             rounds = a["max_rounds"] if o["orient"] else 0
@@ -598,7 +606,9 @@ def remesh(
       with too few seeds to close, and the mesh then drops it (a CSG scene at 2,000 seeds:
       an island 0.2% of the area, Hausdorff distance 7.25 mean edge lengths without, 0.69
       with). Pieces smaller than one seed's share are not meshed. The report's
-      `"component_seeds"` says how many seeds were moved.
+      `"component_seeds"` says how many seeds were moved. A mesh source whose faces form
+      one connected piece is taken as one piece without the search (at 20,000 seeds the
+      search over 1M fragments took 2.7 s of a 7.4 s run).
     - `weighted`: use area weights (uniform density).
     - `max_rounds`, `round_steps`: the 2-manifold step (with `orient`): while some edge
       has other than two triangles or some vertex more than one fan, the seeds first take
