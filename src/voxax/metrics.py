@@ -404,6 +404,16 @@ def triangle_quality(mesh) -> np.ndarray:
     return np.clip(q, 0.0, 1.0)
 
 
+def _unique_pairs(x: np.ndarray, **kw):
+    """`np.unique(x, axis=0, **kw)` for rows of two integers in [0, 2^32), through one int64
+    key per row (the same rows in the same order, much faster than sorting rows)."""
+    x = np.asarray(x, np.int64)
+    out = np.unique((x[:, 0] << 32) | x[:, 1], **kw)
+    keys, rest = (out[0], out[1:]) if isinstance(out, tuple) else (out, ())
+    rows = np.stack([keys >> 32, keys & 0xFFFFFFFF], axis=1)
+    return (rows, *rest) if rest else rows
+
+
 def _edges(faces: np.ndarray):
     """Directed half-edges (3F, 2) in face order, and the undirected unique edges with
     inverse indices and counts."""
@@ -413,7 +423,7 @@ def _edges(faces: np.ndarray):
         .astype(np.int64)
     )
     und = np.sort(he, axis=1)
-    uniq, inv, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    uniq, inv, cnt = _unique_pairs(und, return_inverse=True, return_counts=True)
     return he, uniq, inv.reshape(-1), cnt
 
 
@@ -517,7 +527,7 @@ def manifold_report(mesh) -> ManifoldReport:
     used = np.unique(F)
     chi = int(len(used) - len(uniq) + nf)
     # directed-edge duplicates: misorientation
-    _, dcnt = np.unique(he, axis=0, return_counts=True)
+    _, dcnt = _unique_pairs(he, return_counts=True)
     self_loops = he[:, 0] == he[:, 1]
     n_mis = int(np.sum(dcnt > 1))
     boundary = cnt == 1
@@ -545,17 +555,17 @@ def manifold_report(mesh) -> ManifoldReport:
     )
     corners = corners[good]
     va = np.concatenate([corners[:, [0, 1]], corners[:, [0, 2]]], 0)
-    keys, kinv = np.unique(va, axis=0, return_inverse=True)
+    keys, kinv = _unique_pairs(va, return_inverse=True)
     kinv = kinv.reshape(-1)
     k = len(corners)
     _, lab = _components(len(keys), np.stack([kinv[:k], kinv[k:]], 1))
-    fans = np.unique(np.stack([keys[:, 0], lab], 1), axis=0)
+    fans = _unique_pairs(np.stack([keys[:, 0], lab], 1))
     fans_per_vertex = np.bincount(fans[:, 0], minlength=m.n_vertices)
     n_nmv = int(np.sum(fans_per_vertex > 1))
     # duplicates and degenerates
     sorted_faces = np.sort(F, axis=1)
-    _, first = np.unique(sorted_faces, axis=0, return_index=True)
-    n_dup = int(nf - len(first))
+    _, pair = _unique_pairs(sorted_faces[:, :2], return_inverse=True)  # (a, b) then c
+    n_dup = int(nf - len(_unique_pairs(np.stack([pair.reshape(-1), sorted_faces[:, 2]], 1))))
     _, _, _, _, norm = _face_geometry(m)
     repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
     n_deg = int(np.sum(repeated | (norm == 0)))
