@@ -9,7 +9,9 @@ fcpw and point-cloud-utils' `closest_points_on_mesh`; k nearest neighbours again
 pykdtree, scipy's cKDTree and point-cloud-utils' `k_nearest_neighbors`. fcpw computes in
 float32 (its vectorised BVH); its scene is built once, outside the timed calls, as voxax's
 BVH is, and the builds are timed on their own rows. Calls alternate (voxax, peer, voxax,
-peer, ...) and the best of `--repeat` rounds is kept; results are checked for agreement.
+peer, ...) after a warm-up, the order rotating every round, and the median of `--repeat`
+rounds is reported (builds: one call each); results are checked for agreement. The
+1-minute load average is printed before and after.
 
     pip install embreex libigl pykdtree fcpw point-cloud-utils   # the peers
 
@@ -40,15 +42,17 @@ def _best(fn, repeat):
 
 
 def _interleave(fns, repeat):
-    """{name: (best seconds, last result)}, the calls alternating round by round."""
-    times = {k: np.inf for k in fns}
-    outs = {}
-    for _ in range(repeat):
-        for k, fn in fns.items():
+    """{name: (median seconds, last result)}: one warm-up call each, then `repeat` rounds
+    of calls alternating (the order rotating every round)."""
+    names = list(fns)
+    outs = {k: fns[k]() for k in names}
+    times = {k: [] for k in names}
+    for r in range(repeat):
+        for k in names[r % len(names) :] + names[: r % len(names)]:
             t = time.perf_counter()
-            outs[k] = fn()
-            times[k] = min(times[k], time.perf_counter() - t)
-    return {k: (times[k], outs[k]) for k in fns}
+            outs[k] = fns[k]()
+            times[k].append(time.perf_counter() - t)
+    return {k: (float(np.median(times[k])), outs[k]) for k in names}
 
 
 def _row(query, peer, tv, tp, agree):
@@ -287,7 +291,8 @@ def main(argv=None):
     rng = np.random.default_rng(0)
     big = voxax.data.large(args.faces)
     mid = voxax.data.large(min(args.faces, 100_000))
-    print(f"{args.cores} core(s), voxax threads={threads}, best of {args.repeat} alternating rounds\n")
+    load = os.getloadavg()[0]
+    print(f"{args.cores} core(s), voxax threads={threads}, median of {args.repeat} alternating rounds, load {load:.1f}\n")
     print("| query | peer | voxax | peer | voxax speed-up | agreement |")
     print("|---|---|---|---|---|---|")
     first_hits(big, args.rays, threads, args.repeat, rng)
@@ -296,6 +301,7 @@ def main(argv=None):
     winding(voxax.data.large(2_000), args.points // 10, threads, args.repeat, rng, open_faces=True)
     closest(mid, args.points, threads, args.repeat, rng)
     knn(args.points, threads, args.repeat, rng)
+    print(f"\n1-minute load average at the end: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
