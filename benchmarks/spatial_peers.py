@@ -1,11 +1,19 @@
 """voxax's spatial queries against the libraries users pick for them, side by side.
 
 Each query runs on the same inputs in voxax and in the peers that are installed (benchmark
-only, never dependencies of voxax): first hits against embree (`embreex`), exact winding
-numbers against libigl's `winding_number` (and its `fast_winding_number`, approximate),
-closest points against libigl's AABB (`point_mesh_squared_distance`), k nearest neighbours
-against pykdtree and scipy's cKDTree. Calls alternate (voxax, peer, voxax, peer, ...) and
-the best of `--repeat` rounds is kept; results are checked for agreement.
+only, never dependencies of voxax): first hits against embree (`embreex`), fcpw and
+point-cloud-utils' `RayMeshIntersector` (embree inside); exact winding numbers against
+libigl's `winding_number` (and the approximate `fast_winding_number` of libigl and of
+point-cloud-utils); closest points against libigl's AABB (`point_mesh_squared_distance`),
+fcpw and point-cloud-utils' `closest_points_on_mesh`; k nearest neighbours against
+pykdtree, scipy's cKDTree and point-cloud-utils' `k_nearest_neighbors`. fcpw computes in
+float32 (its vectorised BVH); its scene is built once, outside the timed calls, as voxax's
+BVH is, and the builds are timed on their own rows. Calls alternate (voxax, peer, voxax,
+peer, ...) after a warm-up, the order rotating every round, and the median of `--repeat`
+rounds is reported (builds: one call each); results are checked for agreement. The
+1-minute load average is printed before and after.
+
+    pip install embreex libigl pykdtree fcpw point-cloud-utils   # the peers
 
 `--cores 1` pins the process to one core (`os.sched_setaffinity`), which holds every
 library, thread pools included, to one thread; voxax is also passed `threads`.
@@ -34,19 +42,82 @@ def _best(fn, repeat):
 
 
 def _interleave(fns, repeat):
-    """{name: (best seconds, last result)}, the calls alternating round by round."""
-    times = {k: np.inf for k in fns}
-    outs = {}
-    for _ in range(repeat):
-        for k, fn in fns.items():
+    """{name: (median seconds, last result)}: one warm-up call each, then `repeat` rounds
+    of calls alternating (the order rotating every round)."""
+    names = list(fns)
+    outs = {k: fns[k]() for k in names}
+    times = {k: [] for k in names}
+    for r in range(repeat):
+        for k in names[r % len(names) :] + names[: r % len(names)]:
             t = time.perf_counter()
-            outs[k] = fn()
-            times[k] = min(times[k], time.perf_counter() - t)
-    return {k: (times[k], outs[k]) for k in fns}
+            outs[k] = fns[k]()
+            times[k].append(time.perf_counter() - t)
+    return {k: (float(np.median(times[k])), outs[k]) for k in names}
 
 
 def _row(query, peer, tv, tp, agree):
     print(f"| {query} | {peer} | {tv:.3f} s | {tp:.3f} s | {tp / tv:.2f}x | {agree} |", flush=True)
+
+
+def _fcpw_scene(v, f):
+    """An fcpw scene of the triangles (float32 vertices), its vectorised SAH BVH built; None
+    when fcpw is not installed."""
+    try:
+        import fcpw
+    except ImportError:
+        return None
+    scene = fcpw.scene_3D()
+    scene.set_object_count(1)
+    scene.set_object_vertices(np.asfortranarray(v, np.float32), 0)
+    scene.set_object_triangles(np.asfortranarray(f, np.int32), 0)
+    scene.build(fcpw.aggregate_type.bvh_surface_area, True)
+    return scene
+
+
+def _fcpw_results(interactions):
+    """(distance or t, primitive index) arrays of an fcpw interaction list (-1 where none)."""
+    d = np.array([it.d for it in interactions], np.float64)
+    prim = np.array([it.primitive_index for it in interactions], np.int64)
+    return d, prim
+
+
+def first_hits_more(mesh, n_rays, threads, repeat, rng):
+    """First hits against fcpw and point-cloud-utils (embree through its own binding)."""
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    lo, hi = v.min(0), v.max(0)
+    o = rng.uniform(lo, hi, size=(n_rays, 3))
+    d = rng.normal(size=(n_rays, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bvh = voxax.BVH(mesh)
+    fns = {"voxax": lambda: bvh.first_hits(o, d, threads=threads).face}
+    tb, scene = _best(lambda: _fcpw_scene(v, f), 1)
+    if scene is not None:
+        import fcpw
+
+        o32, d32 = np.asfortranarray(o, np.float32), np.asfortranarray(d, np.float32)
+        far = np.full(n_rays, np.inf, np.float32)
+
+        def fcpw_hits():  # the interactions are read out after the timed call
+            out = fcpw.interaction_3D_list()
+            scene.intersect(o32, d32, far, out)
+            return out
+
+        fns["fcpw"] = fcpw_hits
+        _row(f"BVH build, {len(f)} faces", "fcpw (SAH, vectorised)", _best(lambda: voxax.BVH(mesh), 1)[0], tb, "-")
+    try:
+        import point_cloud_utils as pcu
+
+        pcu_rays = pcu.RayMeshIntersector(v, f.astype(np.int32))
+        fns["point-cloud-utils"] = lambda: pcu_rays.intersect_rays(o, d)[0]
+    except ImportError:
+        pass
+    r = _interleave(fns, repeat)
+    if "fcpw" in r:
+        r["fcpw"] = (r["fcpw"][0], _fcpw_results(r["fcpw"][1])[1])
+    for name in fns:
+        if name != "voxax":
+            same = np.mean(np.asarray(r[name][1]) == np.where(r["voxax"][1] >= 0, r["voxax"][1], -1))
+            _row(f"first hits, {n_rays} rays", name, r["voxax"][0], r[name][0], f"same face {100 * same:.2f}% of rays")
 
 
 def first_hits(mesh, n_rays, threads, repeat, rng):
@@ -113,14 +184,24 @@ def winding(mesh, n_points, threads, repeat, rng, open_faces=False):
         r["igl"][0],
         f"max |diff| {np.max(np.abs(wv - wi)):.1e}",
     )
-    tf, wf = _best(lambda: igl.fast_winding_number(v, f.astype(np.int32), p), repeat)
-    _row(
-        f"winding numbers, {kind}, {len(f)} faces, {n_points} points",
-        "libigl fast_winding_number",
-        r["voxax"][0],
-        tf,
-        f"fast's max |error| {np.max(np.abs(wf - wv)):.1e}",
-    )
+    fast = {"libigl fast_winding_number": lambda: igl.fast_winding_number(v, f.astype(np.int32), p)}
+    try:
+        import point_cloud_utils as pcu
+
+        fast["point-cloud-utils triangle_soup_fast_winding_number"] = lambda: pcu.triangle_soup_fast_winding_number(
+            v, f.astype(np.int32), p
+        )
+    except ImportError:
+        pass
+    for name, fn in fast.items():
+        tf, wf = _best(fn, repeat)
+        _row(
+            f"winding numbers, {kind}, {len(f)} faces, {n_points} points",
+            name,
+            r["voxax"][0],
+            tf,
+            f"fast's max |error| {np.max(np.abs(np.asarray(wf) - wv)):.1e}",
+        )
 
 
 def closest(mesh, n_points, threads, repeat, rng):
@@ -133,20 +214,41 @@ def closest(mesh, n_points, threads, repeat, rng):
     f = np.ascontiguousarray(mesh.faces, np.int32)
     p = v[rng.integers(0, len(v), n_points)] + rng.normal(scale=0.01, size=(n_points, 3))
     bvh = voxax.BVH(mesh)
-    r = _interleave(
-        {
-            "voxax": lambda: bvh.closest_points(p, threads=threads).distance,
-            "igl": lambda: np.sqrt(igl.point_mesh_squared_distance(p, v, f)[0]),
-        },
-        repeat,
-    )
-    _row(
-        f"closest points near the surface, {len(f)} faces, {n_points} points (voxax prebuilt, libigl builds)",
-        "libigl AABB",
-        r["voxax"][0],
-        r["igl"][0],
-        f"max |diff| {np.max(np.abs(r['voxax'][1] - r['igl'][1])):.1e}",
-    )
+    fns = {
+        "voxax": lambda: np.asarray(bvh.closest_points(p, threads=threads).distance),
+        "libigl AABB (builds in its call)": lambda: np.sqrt(igl.point_mesh_squared_distance(p, v, f)[0]),
+    }
+    scene = _fcpw_scene(v, f)
+    if scene is not None:
+        import fcpw
+
+        p32, r2 = np.asfortranarray(p, np.float32), np.full(len(p), np.inf, np.float32)
+
+        def fcpw_closest():  # the interactions are read out after the timed call
+            out = fcpw.interaction_3D_list()
+            scene.find_closest_points(p32, r2, out)
+            return out
+
+        fns["fcpw (prebuilt, float32)"] = fcpw_closest
+    try:
+        import point_cloud_utils as pcu
+
+        fns["point-cloud-utils (builds in its call)"] = lambda: pcu.closest_points_on_mesh(p, v, f)[0]
+    except ImportError:
+        pass
+    r = _interleave(fns, repeat)
+    fc = "fcpw (prebuilt, float32)"
+    if fc in r:
+        r[fc] = (r[fc][0], _fcpw_results(r[fc][1])[0])
+    for name in fns:
+        if name != "voxax":
+            _row(
+                f"closest points near the surface, {len(f)} faces, {n_points} points (voxax prebuilt)",
+                name,
+                r["voxax"][0],
+                r[name][0],
+                f"max |diff| {np.max(np.abs(r['voxax'][1] - np.asarray(r[name][1]))):.1e}",
+            )
 
 
 def knn(n_points, threads, repeat, rng, k=8):
@@ -162,6 +264,12 @@ def knn(n_points, threads, repeat, rng, k=8):
     from scipy.spatial import cKDTree
 
     fns["cKDTree"] = lambda: cKDTree(pts).query(q, k, workers=threads)[0]
+    try:
+        import point_cloud_utils as pcu
+
+        fns["point-cloud-utils"] = lambda: pcu.k_nearest_neighbors(q, pts, k, num_threads=threads)[0]
+    except ImportError:
+        pass
     r = _interleave(fns, repeat)
     for name in fns:
         if name != "voxax":
@@ -183,14 +291,17 @@ def main(argv=None):
     rng = np.random.default_rng(0)
     big = voxax.data.large(args.faces)
     mid = voxax.data.large(min(args.faces, 100_000))
-    print(f"{args.cores} core(s), voxax threads={threads}, best of {args.repeat} alternating rounds\n")
+    load = os.getloadavg()[0]
+    print(f"{args.cores} core(s), voxax threads={threads}, median of {args.repeat} alternating rounds, load {load:.1f}\n")
     print("| query | peer | voxax | peer | voxax speed-up | agreement |")
     print("|---|---|---|---|---|---|")
     first_hits(big, args.rays, threads, args.repeat, rng)
+    first_hits_more(big, args.rays, threads, args.repeat, rng)
     winding(mid, args.points, threads, args.repeat, rng)
     winding(voxax.data.large(2_000), args.points // 10, threads, args.repeat, rng, open_faces=True)
     closest(mid, args.points, threads, args.repeat, rng)
     knn(args.points, threads, args.repeat, rng)
+    print(f"\n1-minute load average at the end: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

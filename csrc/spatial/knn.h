@@ -135,14 +135,19 @@ class PointGrid {
 
   // The k nearest data points to q (k <= kMaxNeighbours), by (distance, index).
   void query(const double* q, int k, int32_t* idx, double* dist) const {
-    Nearest best(k);
-    if (n_ > 0 && (beyond(q) || !grid_search(q, best))) {
-      best = Nearest(k);
-      tree().search(q, best);
-    }
-    for (int j = 0; j < k; ++j) {
-      idx[j] = best.idx[j];
-      dist[j] = std::sqrt(best.d2[j]);
+    switch (k) {  // the common k at compile time; the same pairs either way
+      case 1:
+        return query_k<1>(q, k, idx, dist);
+      case 2:
+        return query_k<2>(q, k, idx, dist);
+      case 3:
+        return query_k<3>(q, k, idx, dist);
+      case 4:
+        return query_k<4>(q, k, idx, dist);
+      case 8:
+        return query_k<8>(q, k, idx, dist);
+      default:
+        return query_k<0>(q, k, idx, dist);
     }
   }
 
@@ -173,22 +178,52 @@ class PointGrid {
   }
 
  private:
+  template <int K>
+  void query_k(const double* q, int k, int32_t* idx, double* dist) const {
+    NearestK<K> best(k);
+    if (n_ > 0 && (beyond(q) || !grid_search(q, best))) {
+      best = NearestK<K>(k);
+      tree().search(q, best);
+    }
+    for (int j = 0; j < k; ++j) {
+      idx[j] = best.idx[j];
+      dist[j] = std::sqrt(best.d2[j]);
+    }
+  }
+
   // The grid search of `query` (n_ > 0): false (with `far_index`) when the query should go
   // to the kd-tree instead.
-  bool grid_search(const double* q, Nearest& best) const {
-    const int k = best.k;
+  template <class Best>
+  bool grid_search(const double* q, Best& best) const {
+    const int k = best.size();
     int64_t c[3];
     for (int a = 0; a < 3; ++a) c[a] = coord(q, a);
     const int64_t rmax = std::max(dim_[0], std::max(dim_[1], dim_[2]));
     // Rounding allowance of the cell boxes (binning rounds differently).
     const double tol = 1e-9 * (std::max(h_[0], std::max(h_[1], h_[2])) + std::fabs(q[0]) +
                                std::fabs(q[1]) + std::fabs(q[2]));
-    // Offers the points in cell-order positions [b, e) to the candidate list.
+    // Offers the points in cell-order positions [b, e) to the candidate list. A block of
+    // points is first filtered against the k-th candidate as it stands before the block,
+    // without branches (the list only improves, so no point that could enter is left
+    // out); the points kept are then offered in order.
     auto scan = [&](int64_t b, int64_t e) {
-      for (int64_t s = b; s < e; ++s) {
-        const double d2 = point_d2(&pts_[3 * static_cast<size_t>(s)], q);
-        if (d2 > best.d2[k - 1]) continue;  // +inf while the list is not full
-        best.offer(d2, order_[s]);
+      constexpr int64_t kBlock = 16;
+      double kept_d2[kBlock];
+      int64_t kept[kBlock];
+      for (int64_t s0 = b; s0 < e; s0 += kBlock) {
+        const int64_t len = std::min(kBlock, e - s0);
+        const double before = best.d2[k - 1];  // +inf while the list is not full
+        int64_t n = 0;
+        for (int64_t t = 0; t < len; ++t) {
+          const double d2 = point_d2(&pts_[3 * static_cast<size_t>(s0 + t)], q);
+          kept_d2[n] = d2;
+          kept[n] = s0 + t;
+          n += d2 <= before;
+        }
+        for (int64_t t = 0; t < n; ++t) {
+          if (kept_d2[t] > best.d2[k - 1]) continue;
+          best.offer(kept_d2[t], order_[kept[t]]);
+        }
       }
     };
     // Squared distance from q to the (slightly grown) box of cells [lo, hi] (inclusive).

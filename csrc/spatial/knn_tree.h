@@ -26,28 +26,42 @@ namespace spatial {
 
 constexpr int kMaxNeighbours = 32;
 
-struct Nearest {
-  double d2[kMaxNeighbours];
-  int32_t idx[kMaxNeighbours];
+// K > 0: the k = K best, K known at compile time (the loops unroll); K == 0: k given at
+// run time, up to kMaxNeighbours. Both keep the same pairs.
+template <int K>
+struct NearestK {
+  static constexpr int kCap = K > 0 ? K : kMaxNeighbours;
+  double d2[kCap];
+  int32_t idx[kCap];
   int k;
   int have = 0;
 
-  explicit Nearest(int k_) : k(k_) {
-    for (int j = 0; j < k; ++j) {
+  explicit NearestK(int k_) : k(K > 0 ? K : k_) {
+    for (int j = 0; j < size(); ++j) {
       d2[j] = std::numeric_limits<double>::infinity();
       idx[j] = -1;
     }
   }
-  bool full() const { return have == k; }
+  int size() const { return K > 0 ? K : k; }
+  bool full() const { return have == size(); }
   // Whether a point at squared distance at least `lower` with index at least `min_index`
   // could enter the list.
   bool may_enter(double lower, int32_t min_index) const {
-    return have < k || lower < d2[k - 1] || (lower == d2[k - 1] && min_index < idx[k - 1]);
+    const int n = size();
+    return have < n || lower < d2[n - 1] || (lower == d2[n - 1] && min_index < idx[n - 1]);
   }
   void offer(double dd, int32_t p) {
-    if (have == k && !(dd < d2[k - 1] || (dd == d2[k - 1] && p < idx[k - 1]))) return;
-    int pos = have < k ? have++ : k - 1;
-    while (pos > 0 && (dd < d2[pos - 1] || (dd == d2[pos - 1] && p < idx[pos - 1]))) {
+    const int n = size();
+    if (have == n && !(dd < d2[n - 1] || (dd == d2[n - 1] && p < idx[n - 1]))) return;
+    int pos = have < n ? have++ : n - 1;
+    // the list is ordered, so the pairs after (dd, p) are those farther than dd, then
+    // before them those as far with a larger index (ties are rare: one comparison mostly)
+    while (pos > 0 && dd < d2[pos - 1]) {
+      d2[pos] = d2[pos - 1];
+      idx[pos] = idx[pos - 1];
+      --pos;
+    }
+    while (pos > 0 && dd == d2[pos - 1] && p < idx[pos - 1]) {
       d2[pos] = d2[pos - 1];
       idx[pos] = idx[pos - 1];
       --pos;
@@ -56,6 +70,8 @@ struct Nearest {
     idx[pos] = p;
   }
 };
+
+using Nearest = NearestK<0>;
 
 inline double point_d2(const double* x, const double* q) {
   const double dx = x[0] - q[0], dy = x[1] - q[1], dz = x[2] - q[2];
@@ -88,7 +104,8 @@ class PointTree {
   }
 
   // Offers to `best` every point that can be among its k best for the query q.
-  void search(const double* q, Nearest& best) const {
+  template <class Best>
+  void search(const double* q, Best& best) const {
     if (nodes_.empty()) return;
     struct Entry {
       double d2;
