@@ -88,13 +88,31 @@ inline bool check_host_faces(const int32_t* F, int64_t nf, int64_t nv, std::stri
   return true;
 }
 
+// Whether the largest magnitude in x[0:count] (finite values) is non-zero and below
+// kMinLargestAbsCoordinate, that magnitude in *largest. It is read from the bit patterns
+// (the order of non-negative doubles is the order of their bits), so subnormal values
+// count also on threads that treat subnormal operands as zero: XLA's CPU threads set
+// denormals-are-zero, where fabs and comparisons would see a set of subnormals as zeros.
+inline bool below_coordinate_scale(const double* x, int64_t count, double* largest) {
+  constexpr uint64_t kMagnitude = ~(uint64_t{1} << 63);
+  uint64_t top = 0, limit = 0;
+  for (int64_t i = 0; i < count; ++i) {
+    uint64_t bits;
+    std::memcpy(&bits, x + i, sizeof bits);
+    top = std::max(top, bits & kMagnitude);
+  }
+  const double bound = kMinLargestAbsCoordinate;
+  std::memcpy(&limit, &bound, sizeof limit);
+  std::memcpy(largest, &top, sizeof top);
+  return top != 0 && top < limit;
+}
+
 // Rejects a coordinate array whose largest magnitude is non-zero and below
 // kMinLargestAbsCoordinate (the whole set is too small to compute with; see constants.h).
 inline bool check_coordinate_scale(const double* x, int64_t count, const char* what,
                                    std::string* msg) {
   double largest = 0.0;
-  for (int64_t i = 0; i < count; ++i) largest = std::max(largest, std::fabs(x[i]));
-  if (largest > 0.0 && largest < kMinLargestAbsCoordinate) {
+  if (below_coordinate_scale(x, count, &largest)) {
     char buf[64];
     std::snprintf(buf, sizeof buf, "%.3g", largest);
     *msg = std::string("voxax: ") + what + " are all below 1e-75 in magnitude (largest " + buf +

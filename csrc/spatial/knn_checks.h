@@ -10,6 +10,7 @@
 #include <string>
 
 #include "common/constants.h"
+#include "common/host_errors.h"
 #include "spatial/knn_tree.h"
 
 namespace voxax {
@@ -51,8 +52,7 @@ inline bool check_knn_inputs(const double* S, int64_t n, const double* Q, int64_
   }
   if (!check_knn_rows(S, n, "points", msg) || !check_knn_rows(Q, m, "queries", msg)) return false;
   double largest = 0.0;
-  for (int64_t i = 0; i < 3 * n; ++i) largest = std::max(largest, std::fabs(S[i]));
-  if (largest > 0.0 && largest < kMinLargestAbsCoordinate) {
+  if (below_coordinate_scale(S, 3 * n, &largest)) {
     char buf[64];
     std::snprintf(buf, sizeof buf, "%.3g", largest);
     *msg = std::string("voxax.nearest_neighbors: `points` must not all be below 1e-75 in ") +
