@@ -1,13 +1,17 @@
-"""Remeshing a closed surface mesh: `voxax.cvt.remesh` against pymeshlab's isotropic remeshing.
+"""Remeshing a closed surface mesh: `voxax.cvt.remesh` against pymeshlab's isotropic remeshing
+and gpytoolbox's `remesh_botsch`.
 
-Both remesh the same closed input at about the same vertex count: voxax with `n_seeds`
-vertices, pymeshlab's `meshing_isotropic_explicit_remeshing` (10 iterations) with a target
-edge length calibrated (untimed, before the timed calls) so that its output has about that
-many vertices. Both run on the same cores (`os.sched_setaffinity`, `--threads` of them), with
-`VOXAX_NUM_THREADS`, `threads=` and `OMP_NUM_THREADS` set to that count. For every size the
-first `remesh` call in the process (compilation included) is timed apart, then the calls
-alternate (voxax, pymeshlab, voxax, ...) `--repeat` times and the medians are reported, with
-the load average before and after. Quality: vertices, Euler characteristic, closed
+All remesh the same closed input at about the same vertex count: voxax with `n_seeds`
+vertices; pymeshlab's `meshing_isotropic_explicit_remeshing` and gpytoolbox's
+`remesh_botsch` (both Botsch-Kobbelt split / collapse / flip / smooth remeshing, 10
+iterations, with projection onto the input) with a target edge length calibrated per
+library (untimed, before the timed calls) so that its output has about that many vertices.
+All run on the same cores (`os.sched_setaffinity`, `--threads` of them), with
+`VOXAX_NUM_THREADS`, `threads=` and `OMP_NUM_THREADS` set to that count (the two peers use
+one thread whatever the count). For every size the first `remesh` call in the process
+(compilation included) is timed apart, then the calls alternate (voxax, pymeshlab,
+gpytoolbox, voxax, ...) `--repeat` times and the medians are reported, with the load
+average before and after. A peer that is not installed is left out (`--peers`). Quality: vertices, Euler characteristic, closed
 2-manifold, Q min / Q mean (`voxax.metrics.triangle_quality`), the two-sided Hausdorff
 distance to the source (`voxax.metrics.hausdorff`) in % of the source's bounding-box
 diagonal.
@@ -90,7 +94,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="1000,5000,20000")
     ap.add_argument("--repeat", type=int, default=3, help="interleaved timed calls per library and size")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--iterations", type=int, default=10, help="pymeshlab's remeshing iterations")
+    ap.add_argument("--iterations", type=int, default=10, help="the peers' remeshing iterations")
+    ap.add_argument("--peers", default="pymeshlab,gpytoolbox", help="peers to run, of pymeshlab,gpytoolbox")
     ap.add_argument("--hausdorff-n", type=int, default=200_000)
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args()
@@ -100,7 +105,6 @@ def main() -> None:
 
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    import pymeshlab
 
     import voxax
     from voxax import cvt, metrics
@@ -108,18 +112,44 @@ def main() -> None:
     def voxax_call(src, n):
         return cvt.remesh(src, n, threads=args.threads, progress=False)
 
-    def pml_call(v, f, edge):
-        ms = pymeshlab.MeshSet()
-        ms.add_mesh(pymeshlab.Mesh(v, f))
-        ms.meshing_isotropic_explicit_remeshing(targetlen=pymeshlab.PureValue(edge), iterations=args.iterations)
-        pm = ms.current_mesh()
-        return voxax.Mesh(pm.vertex_matrix(), pm.face_matrix())
+    peers, versions = {}, {}
+    wanted = [p for p in args.peers.split(",") if p]
+    if "pymeshlab" in wanted:
+        try:
+            import pymeshlab
+        except ImportError:
+            print("pymeshlab is not installed: left out", flush=True)
+        else:
+
+            def pml_call(v, f, edge):
+                ms = pymeshlab.MeshSet()
+                ms.add_mesh(pymeshlab.Mesh(v, f))
+                ms.meshing_isotropic_explicit_remeshing(targetlen=pymeshlab.PureValue(edge),
+                                                        iterations=args.iterations)
+                pm = ms.current_mesh()
+                return voxax.Mesh(pm.vertex_matrix(), pm.face_matrix())
+
+            peers["pymeshlab"] = pml_call
+            versions["pymeshlab"] = getattr(pymeshlab, "__version__", "?")
+    if "gpytoolbox" in wanted:
+        try:
+            import gpytoolbox
+        except ImportError:
+            print("gpytoolbox is not installed: left out", flush=True)
+        else:
+
+            def gpy_call(v, f, edge):
+                vo, fo = gpytoolbox.remesh_botsch(np.array(v), np.array(f), i=args.iterations, h=edge, project=True)
+                return voxax.Mesh(np.asarray(vo), np.asarray(fo))
+
+            peers["gpytoolbox"] = gpy_call
+            versions["gpytoolbox"] = getattr(gpytoolbox, "__version__", "?")
 
     out = {"threads": args.threads, "cores": sorted(os.sched_getaffinity(0)), "load_start": os.getloadavg(),
-           "python": sys.version.split()[0], "pymeshlab": getattr(pymeshlab, "__version__", "?"), "runs": []}
+           "python": sys.version.split()[0], **versions, "runs": []}
     print(f"load average at the start: {out['load_start']}, cores {out['cores']}", flush=True)
     print("| source | size | library | vertices | chi | closed 2-manifold | Q min | Q mean | dH (% diag) | "
-          "first call | later calls (median) | ratio voxax / pymeshlab |")
+          "first call | later calls (median) | ratio voxax / peer |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.sources.split(","):
         src = source(name)
@@ -130,39 +160,48 @@ def main() -> None:
         print(f"source {name}: {len(v)} vertices, {len(f)} faces, chi {metrics.euler_characteristic(src)}, "
               f"Q min {src_q.min():.3f}, Q mean {src_q.mean():.3f}", flush=True)
         for n in (int(s) for s in args.sizes.split(",")):
-            # pymeshlab's target edge: from the area (equilateral triangles, F = 2V), then
+            # each peer's target edge: from the area (equilateral triangles, F = 2V), then
             # corrected twice by the vertex count it gave (untimed)
-            edge = float(np.sqrt(4.0 * area / (np.sqrt(3.0) * 2 * n)))
-            for _ in range(2):
-                edge *= float(np.sqrt(pml_call(v, f, edge).n_vertices / n))
+            edges = {}
+            for lib, call in peers.items():
+                edge = float(np.sqrt(4.0 * area / (np.sqrt(3.0) * 2 * n)))
+                for _ in range(2):
+                    edge *= float(np.sqrt(call(v, f, edge).n_vertices / n))
+                edges[lib] = edge
             t = time.perf_counter()
             vm, vrep = voxax_call(src, n)
             first = time.perf_counter() - t
-            tv, tp = [], []
+            tv, tp, results = [], {lib: [] for lib in peers}, {}
             for _ in range(args.repeat):
                 t = time.perf_counter()
                 vm, vrep = voxax_call(src, n)
                 tv.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                pm = pml_call(v, f, edge)
-                tp.append(time.perf_counter() - t)
-            sv, sp = summary(vm, src, diag, args.hausdorff_n), summary(pm, src, diag, args.hausdorff_n)
-            mv, mp = statistics.median(tv), statistics.median(tp)
+                for lib, call in peers.items():
+                    t = time.perf_counter()
+                    results[lib] = call(v, f, edges[lib])
+                    tp[lib].append(time.perf_counter() - t)
+            sv = summary(vm, src, diag, args.hausdorff_n)
+            mv = statistics.median(tv)
             run = {"source": name, "size": n, "voxax": {**sv, "first_s": first, "times_s": tv, "median_s": mv,
                                                          "stages_s": dict(vrep.time), "cpu_s": dict(vrep.cpu_time),
                                                          "fragments": vrep.n_fragments,
-                                                         "polish_steps": vrep.polish_steps, "rounds": vrep.rounds},
-                   "pymeshlab": {**sp, "edge": edge, "times_s": tp, "median_s": mp}, "load": os.getloadavg()}
+                                                         "polish_steps": vrep.polish_steps, "rounds": vrep.rounds}}
+            rows = [("voxax", sv, f"{first:.2f} s", mv, "")]
+            for lib in peers:
+                sp, mp = summary(results[lib], src, diag, args.hausdorff_n), statistics.median(tp[lib])
+                run[lib] = {**sp, "edge": edges[lib], "times_s": tp[lib], "median_s": mp}
+                rows.append((lib, sp, "-", mp, f"{mv / mp:.2f}"))
+            run["load"] = os.getloadavg()
             out["runs"].append(run)
-            for lib, s, fc, med in (("voxax", sv, f"{first:.2f} s", mv), ("pymeshlab", sp, "-", mp)):
-                ratio = f"{mv / mp:.2f}" if lib == "voxax" else ""
+            for lib, s, fc, med, ratio in rows:
                 print(f"| {name} | {n} | {lib} | {s['vertices']} | {s['chi']} | "
                       f"{'yes' if s['closed_manifold'] else 'no'} | {s['q_min']:.3f} | {s['q_mean']:.3f} | "
                       f"{s['hausdorff_pct']:.3f} | {fc} | {med:.2f} s | {ratio} |", flush=True)
             st = {k: round(x, 2) for k, x in vrep.time.items()}
+            peer_times = "; ".join(f"{lib} {[round(x, 2) for x in tp[lib]]}" for lib in peers)
             print(f"  voxax stages (last call) {st}, {vrep.n_fragments} fragments, polish {vrep.polish_steps}, "
-                  f"rounds {vrep.rounds}; times voxax {[round(x, 2) for x in tv]}, pymeshlab "
-                  f"{[round(x, 2) for x in tp]}; load {os.getloadavg()}", flush=True)
+                  f"rounds {vrep.rounds}; times voxax {[round(x, 2) for x in tv]}; {peer_times}; "
+                  f"load {os.getloadavg()}", flush=True)
     out["load_end"] = os.getloadavg()
     print(f"load average at the end: {out['load_end']}", flush=True)
     if args.json:
