@@ -409,9 +409,10 @@ def coordinates(where: str, name: str, value, d: int | None = 3, *, finite: bool
     return value
 
 
-def finite_values(where: str, name: str, value, max_abs: float | None = None):
+def finite_values(where: str, name: str, value, max_abs: float | None = None, positive: bool = False):
     """Checks that a float array holds finite values (of magnitude at most `max_abs` when
-    given), eagerly and under `jax.jit`: a concrete array is checked here (`ValueError`);
+    given; all > 0 with `positive`), eagerly and under `jax.jit`: a concrete array is
+    checked here (`ValueError`);
     a traced one is returned tied to the value check of the kernels
     (`voxax._kernels.checks`), which fails the computation with the same message (a
     `jax.errors.JaxRuntimeError`). Returns `value` (a traced value as the checked copy,
@@ -424,6 +425,9 @@ def finite_values(where: str, name: str, value, max_abs: float | None = None):
                 raise ValueError(f"{where}: `{name}` must be finite (it contains NaN or Inf)")
             if max_abs is not None and max(float(hi), -float(lo)) > max_abs:
                 raise ValueError(f"{where}: `{name}` must have magnitude <= {max_abs:g}".replace("e+", "e"))
+            if positive and not lo >= np.finfo(a.dtype if a.dtype.kind == "f" else np.float64).tiny:
+                raise ValueError(f"{where}: `{name}` must be > 0 (zero, negative and subnormal values are "
+                                 f"refused), got {lo:g}")
         return value
     import jax
     import jax.numpy as jnp
@@ -434,7 +438,7 @@ def finite_values(where: str, name: str, value, max_abs: float | None = None):
     checked = jax.lax.stop_gradient(value)
     if checked.dtype not in (jnp.float32, jnp.float64):  # float16, bfloat16: widened for the check
         checked = checked.astype(jnp.float32)
-    flag = finite_check_ffi(checked, where, name, limit)
+    flag = finite_check_ffi(checked, where, name, limit, positive)
     return jnp.where(flag == 0, value, jnp.nan)
 
 
@@ -677,7 +681,8 @@ def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = ()):
     a `Grid` given as static, are left to the function). So that `f(W, w="3")` fails
     with `voxax.<ns>.<fn>: `w` must be a real number or array` rather than JAX's message
     about abstract arrays. The arguments named in `positive` (a sharpness, a width) must
-    moreover be `> 0` and finite when given as concrete scalars (`positive_float`)."""
+    moreover be `> 0` and finite: concrete scalars here (`positive_float`), traced values
+    by the value-check kernel under the trace (`finite_values`)."""
     import functools
     import inspect
 
@@ -713,6 +718,8 @@ def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = ()):
                     real_value(where, name, value)
                     if name in positive and is_concrete(value) and np.ndim(value) == 0:
                         positive_float(where, name, value)
+                    elif name in positive and not is_concrete(value):  # traced: the kernel's check
+                        bound.arguments[name] = finite_values(where, name, jax.numpy.asarray(value), positive=True)
                     if isinstance(value, (list, tuple)):  # nested numbers: one array, not a pytree of scalars
                         bound.arguments[name] = np.asarray(value)
             return jitted(*bound.args, **bound.kwargs)

@@ -50,6 +50,14 @@ CASES = [
      "ValueError", "`w`"),
     ("voxelize", "sparse self-intersection with a NaN eps",
      "voxax.energies.sparse_self_intersection(voxax.voxelize_sparse(V, F, G), float('nan'))", "ValueError", "`eps`"),
+    ("voxelize", "sparse silhouette with a traced w = 0",
+     "sg = voxax.voxelize_sparse(V, F, G);"
+     "jax.jit(lambda w: voxax.energies.sparse_silhouette_z(sg, w))(0.0).block_until_ready()", "JaxRuntimeError",
+     "voxax.energies.sparse_silhouette_z: `w` must be > 0"),
+    ("voxelize", "sparse self-intersection with a traced NaN eps",
+     "sg = voxax.voxelize_sparse(V, F, G);"
+     "jax.jit(lambda e: voxax.energies.sparse_self_intersection(sg, e))(np.nan).block_until_ready()",
+     "JaxRuntimeError", "voxax.energies.sparse_self_intersection: `eps` must be finite"),
     ("voxelize", "slab_grids count 0", "voxax.slab_grids(G, 0)", "ValueError", "voxax.slab_grids: `count`"),
     ("voxelize", "slab_grids count 4 of 6 cells", "voxax.slab_grids(G, 4)", "ValueError", "`count` must divide"),
     ("voxelize", "slab_grids of three (oracle)",

@@ -149,6 +149,16 @@ CASES = [
     ("energies", "mellowmax with a traced NaN w",
      f"jax.jit(lambda s: {E}.mellowmax(jnp.ones(3), s))(jnp.nan).block_until_ready()", "JaxRuntimeError",
      "voxax.energies.mellowmax: `w` must be finite"),
+    # a traced sharpness <= 0 divided by zero (NaN) before the value check took `positive`
+    ("energies", "mellowmax with a traced w 0",
+     f"jax.jit(lambda s: {E}.mellowmax(jnp.ones(3), s))(0.0).block_until_ready()", "JaxRuntimeError",
+     "voxax.energies.mellowmax: `w` must be > 0"),
+    ("energies", "silhouettes with a traced negative w",
+     f"jax.jit(lambda s: {E}.silhouettes({W}, s)[0])(-1.0).block_until_ready()", "JaxRuntimeError",
+     "voxax.energies.silhouettes: `w` must be > 0"),
+    ("energies", "bandsaw_cut with a traced w 0",
+     f"jax.jit(lambda s: {E}.bandsaw_cut({W}, s))(0.0).block_until_ready()", "JaxRuntimeError",
+     "voxax.energies.bandsaw_cut: `w` must be > 0"),
     ("energies", "mellowmax differentiated in w under jit (oracle)",
      f"g = float(jax.jit(jax.grad(lambda w: {E}.mellowmax(jnp.array([0.0, 1.0]), w)))(10.0));"
      "x = np.array([0.0, 1.0]); f = lambda w: np.log(np.mean(np.exp(w * x))) / w;"

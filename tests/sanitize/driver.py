@@ -1907,7 +1907,7 @@ def run_finite_check(rng, rounds=40):
     positions, under jit and vmap; the first bad index must be reported, valid arrays pass."""
     from voxax._kernels.checks import finite_check_ffi
 
-    check = jax.jit(finite_check_ffi, static_argnames=("where", "name", "max_abs"))
+    check = jax.jit(finite_check_ffi, static_argnames=("where", "name", "max_abs", "positive"))
     shapes = [(), (0,), (1,), (7,), (3, 0, 2), (33, 5), (4, 4, 4), (20_000,)]
     for r in range(rounds):
         shape = shapes[r % len(shapes)]
@@ -1930,6 +1930,25 @@ def run_finite_check(rng, rounds=40):
             continue
         if bad or out != 0:
             fail(f"finite check: accepted {shape} {dtype.__name__} with a bad value at {idx} (flag {out})")
+    # `positive`: every value > 0; the first one <= 0 (zero, negative, subnormal: XLA's
+    # threads see it as 0) is named, after any non-finite one
+    for r in range(rounds):
+        shape = shapes[r % len(shapes)]
+        dtype = (np.float32, np.float64)[r % 2]
+        x = np.array(rng.random(size=shape) + 0.5, dtype=dtype)
+        bad = x.size and r % 3 != 0
+        idx = int(rng.integers(x.size)) if bad else -1
+        if bad:
+            x.reshape(-1)[idx] = (0.0, -1.0, -0.0, np.finfo(dtype).tiny / 4)[r % 4]
+        COUNTS["finite_check"] += 1
+        try:
+            out = int(check(jnp.asarray(x), where="voxax.test", name="x", positive=True))
+        except (ValueError, jax.errors.JaxRuntimeError) as err:
+            if not bad or f"must be > 0 (flat index {idx}:" not in str(err):
+                fail(f"finite check (positive): wrong rejection of {shape} {dtype.__name__} (index {idx}): {err}")
+            continue
+        if bad or out != 0:
+            fail(f"finite check (positive): accepted {shape} {dtype.__name__} with {x.reshape(-1)[idx]} at {idx}")
     # under vmap: one flag per item, the failing item's value found
     xs = jnp.asarray(rng.normal(size=(5, 9)))
     flags = jax.vmap(lambda v: finite_check_ffi(v, "voxax.test", "x"))(xs)

@@ -60,7 +60,7 @@ def mellowmax(x, w: float = 1000.0, axis: int = -1):
     m = jax.lax.stop_gradient(jnp.max(x, axis=axis, keepdims=True))
     # Guard against -inf/inf maxima (all entries -inf): keep the shift finite.
     m = jnp.where(jnp.isfinite(m), m, 0.0)
-    w = _validate.finite_values("voxax.energies.mellowmax", "w", jnp.asarray(w, x.dtype))  # traced: the kernel check
+    w = _validate.finite_values("voxax.energies.mellowmax", "w", jnp.asarray(w, x.dtype), positive=True)  # traced: the kernel check
     lse = jax.nn.logsumexp(w * (x - m), axis=axis)
     return jnp.squeeze(m, axis=axis) + (lse - math.log(n)) / w
 
