@@ -79,9 +79,19 @@ def mesh_object_arrays(where: str, obj) -> tuple:
     return vertices, faces
 
 
+def _rank(x) -> int:
+    """`np.ndim(x)`, or -1 for what is not one array (a ragged list, a tuple of tracers)."""
+    if hasattr(x, "ndim"):
+        return x.ndim
+    try:
+        return np.ndim(x)
+    except Exception:
+        return -1
+
+
 def is_mesh_pair(x) -> bool:
     """A `(vertices, faces)` pair: a tuple or list of two arrays of rank 2 or more."""
-    return isinstance(x, (tuple, list)) and len(x) == 2 and all(np.ndim(a) >= 2 for a in x)
+    return isinstance(x, (tuple, list)) and len(x) == 2 and all(_rank(a) >= 2 for a in x)
 
 
 def _not_a_surface(where: str, value) -> None:
@@ -125,6 +135,11 @@ def unpack_mesh(where: str, vertices, faces, *params):
         if hasattr(vertices, "geometry") and hasattr(vertices, "dump"):
             _not_a_surface(where, vertices)
         if faces is None:
+            if isinstance(vertices, (tuple, list)) and len(vertices) == 2 and all(
+                    hasattr(a, "shape") for a in vertices):
+                shapes = " and ".join(str(tuple(np.shape(a))) for a in vertices)
+                raise ValueError(f"{where}: a (vertices, faces) pair needs two arrays of rank 2 or more "
+                                 f"(vertices (V, d), faces (F, k)), got shapes {shapes}")
             raise TypeError(
                 f"{where}: missing `faces` (pass `vertices, faces`, a (vertices, faces) pair or a voxax.Mesh)"
             )
@@ -523,9 +538,9 @@ def jax_key(where: str, value):
 def _looks_like_faces(first, second) -> bool:
     """Whether `f(first, second, ...)` is `f(vertices, faces, ...)`: an array of rank 2 or
     more and an integer array of rank 2 or more (points, rays and counts are not)."""
-    if not (hasattr(first, "shape") or isinstance(first, (list, tuple))) or np.ndim(first) < 2:
+    if not (hasattr(first, "shape") or isinstance(first, (list, tuple))) or _rank(first) < 2:
         return False
-    if is_mesh_object(second) or np.ndim(second) < 2:
+    if is_mesh_object(second) or _rank(second) < 2:
         return False
     kind = second.dtype.kind if hasattr(second, "dtype") else np.asarray(second).dtype.kind
     return kind in "iu"

@@ -153,6 +153,11 @@ CASES = [
     ("spatial", "closest_points of subnormal vertices", "voxax.closest_points((V * 1e-310, F), P)", "ValueError",
      "voxax.closest_points: vertices are all below 1e-75"),
     ("spatial", "a BVH of subnormal vertices", "voxax.BVH(V * 1e-310, F)", "ValueError", "voxax.BVH: vertices are all below"),
+    # found by tools/fuzz_api.py: a pair with a flat array went to np.ndim of a ragged tuple
+    ("spatial", "a (vertices, faces) pair with flat vertices", "voxax.closest_points((V.reshape(-1), F), P)",
+     "ValueError", "voxax.closest_points: a (vertices, faces) pair needs two arrays of rank 2"),
+    ("spatial", "a (vertices, faces) pair with flat faces", "voxax.first_hits((V, F.reshape(-1)), P, P + 1)",
+     "ValueError", "voxax.first_hits: a (vertices, faces) pair needs two arrays of rank 2"),
     # XLA's CPU threads treat subnormal operands as zero: the kernels read the bits
     ("spatial", "jit closest_points of subnormal vertices",
      "jax.jit(lambda v: voxax.closest_points((v, F), P * 1e-310).distance)(V * 1e-310).block_until_ready()",
