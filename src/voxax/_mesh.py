@@ -67,6 +67,9 @@ class Mesh:
     info: Mapping[str, Any] = dataclasses.field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
+        if not (_validate.is_concrete(self.vertices) and _validate.is_concrete(self.faces)):
+            raise TypeError("voxax.Mesh: holds NumPy arrays and cannot take traced values: under jax.jit pass "
+                            "`vertices, faces` (or a (vertices, faces) pair) to the function instead")
         vertices = np.asarray(self.vertices)
         if vertices.dtype.kind in "fiub":
             vertices = vertices.astype(np.float64)

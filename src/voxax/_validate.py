@@ -58,6 +58,45 @@ def is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def holds_tracer(x, depth: int = 0) -> bool:
+    """Whether `x` is a JAX tracer or holds one (in a tuple, a list, a dict or a mesh
+    object's `vertices` / `faces`)."""
+    if not is_concrete(x):
+        return True
+    if depth > 3:
+        return False
+    if isinstance(x, (tuple, list)):
+        return any(holds_tracer(a, depth + 1) for a in x)
+    if isinstance(x, dict):
+        return any(holds_tracer(a, depth + 1) for a in x.values())
+    if hasattr(x, "vertices") and hasattr(x, "faces") and not isinstance(x, type):
+        return holds_tracer(getattr(x, "vertices", None), depth + 1) or holds_tracer(getattr(x, "faces", None),
+                                                                                       depth + 1)
+    return False
+
+
+def host_only(where: str, instead: str | None = None):
+    """Marks a function that computes eagerly on the host (NumPy and the C++ kernels' eager
+    entry points): called with a traced argument (under `jax.jit`, `jax.grad`,
+    `jax.vmap`) it raises one `TypeError` that says so, and names the traceable function
+    to use `instead` when there is one, rather than JAX's TracerArrayConversionError from
+    deep inside."""
+    import functools
+
+    def decorate(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            if any(holds_tracer(a) for a in args) or any(holds_tracer(a) for a in kwargs.values()):
+                hint = f"; under a trace use {instead}" if instead else ""
+                raise TypeError(f"{where}: computes eagerly on the host (NumPy in, NumPy out) and cannot take "
+                                f"traced values: call it outside jax.jit / jax.grad / jax.vmap{hint}")
+            return fn(*args, **kwargs)
+
+        return wrapper
+
+    return decorate
+
+
 def is_mesh_object(x) -> bool:
     """A `voxax.Mesh`, a `trimesh.Trimesh` or anything else with `.vertices` and `.faces`."""
     return not hasattr(x, "shape") and hasattr(x, "vertices") and hasattr(x, "faces")
@@ -690,14 +729,16 @@ def real_value(where: str, name: str, value, kinds: str = "fiub", sequences: boo
     raise TypeError(f"{where}: `{name}` must be {what}, got {type(value).__name__}")
 
 
-def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = ()):
+def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = (), scalar: tuple = ()):
     """`jax.jit` with its traced arguments checked first, outside the trace, by
     `real_value` (arguments whose default is None may be None; pytrees of arrays, such as
     a `Grid` given as static, are left to the function). So that `f(W, w="3")` fails
     with `voxax.<ns>.<fn>: `w` must be a real number or array` rather than JAX's message
     about abstract arrays. The arguments named in `positive` (a sharpness, a width) must
     moreover be `> 0` and finite: concrete scalars here (`positive_float`), traced values
-    by the value-check kernel under the trace (`finite_values`)."""
+    by the value-check kernel under the trace (`finite_values`). Those and the arguments
+    named in `scalar` must be scalars (a list or an array is a `TypeError`, not a
+    broadcasting error from inside)."""
     import functools
     import inspect
 
@@ -731,6 +772,8 @@ def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = ()):
                     continue
                 else:
                     real_value(where, name, value)
+                    if (name in positive or name in scalar) and np.ndim(value) != 0:
+                        raise TypeError(f"{where}: `{name}` must be a scalar, got shape {np.shape(value)}")
                     if name in positive and is_concrete(value) and np.ndim(value) == 0:
                         positive_float(where, name, value)
                     elif name in positive and not is_concrete(value):  # traced: the kernel's check

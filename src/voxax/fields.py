@@ -202,6 +202,8 @@ def gyroid(points, period=1.0, level=0.0):
     """
     _validate.real_value("voxax.fields.gyroid", "period", period, "fiu", sequences=False)
     _validate.real_value("voxax.fields.gyroid", "level", level, "fiu", sequences=False)
+    if _validate.is_concrete(period) and not np.all(np.asarray(period) != 0):
+        raise ValueError("voxax.fields.gyroid: `period` must be non-zero")
     p = _points("voxax.fields.gyroid", points, 3) * (2 * math.pi / period)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     return (

@@ -152,6 +152,7 @@ def is_watertight(vertices: Any, faces: Any = None, *, strict: bool = False) -> 
 # --------------------------------------------------------------------------------------
 
 
+@_validate.host_only("voxax.io.normalize")
 @_validate.surface_first
 def normalize(mesh: Any, max_abs: float = 0.8, *, return_transform: bool = False):
     """Centre the bounding box at the origin and scale uniformly so that `max |v| == max_abs`.

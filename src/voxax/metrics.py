@@ -106,6 +106,7 @@ class SurfaceSamples(NamedTuple):
     barycentric: np.ndarray
 
 
+@_validate.host_only("voxax.metrics.sample_surface")
 @_validate.surface_first
 def sample_surface(mesh, n: int, key=None, *, seed=None) -> SurfaceSamples:
     """`n` points uniformly distributed over the area of a triangle mesh.
@@ -187,6 +188,7 @@ def _distances(
 CHAMFER_CONVENTIONS = ("l2", "l1_bbox", "g2p")
 
 
+@_validate.host_only("voxax.metrics.chamfer", instead="voxax.metrics.chamfer_loss on point sets")
 def chamfer(
     a, b, *, convention: str = "l2", n: int = 10_000, key=None, to_surface: bool = False, seed=None
 ) -> float:
@@ -298,6 +300,7 @@ def chamfer_loss(p, q, *, squared: bool = True, chunk_size: int = 1024):
     return jnp.mean(power(rows)) + jnp.mean(power(cols))
 
 
+@_validate.host_only("voxax.metrics.directed_hausdorff")
 def directed_hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     """The one-sided Hausdorff distance `max_{x in a} d(x, b)` from mesh `a` to mesh `b`.
 
@@ -321,6 +324,7 @@ def directed_hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     return float(BVH(mb).closest_points(pts).distance.max())
 
 
+@_validate.host_only("voxax.metrics.hausdorff")
 def hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     """The two-sided Hausdorff distance between two triangle meshes.
 
@@ -343,6 +347,7 @@ def hausdorff(a, b, *, n: int = 100_000, key=None, seed=None) -> float:
     return max(directed_hausdorff(a, b, n=n, key=key), directed_hausdorff(b, a, n=n, key=key))
 
 
+@_validate.host_only("voxax.metrics.f_score")
 def f_score(
     a, b, threshold: float, *, n: int = 10_000, key=None, to_surface: bool = False, seed=None
 ) -> float:
@@ -369,6 +374,7 @@ def f_score(
     return 2 * precision * recall / (precision + recall)
 
 
+@_validate.host_only("voxax.metrics.triangle_quality")
 @_validate.surface_first
 def triangle_quality(mesh) -> np.ndarray:
     """Per-triangle quality `Q = (6 / sqrt 3) A / (p e_max)`, 1 for equilateral triangles.
@@ -444,6 +450,7 @@ def _edges(faces: np.ndarray):
     return he, uniq, inv.reshape(-1), cnt
 
 
+@_validate.host_only("voxax.metrics.euler_characteristic")
 @_validate.surface_first
 def euler_characteristic(mesh) -> int:
     """The Euler characteristic `V - E + F` of a triangle mesh.
@@ -510,6 +517,7 @@ def _components(n_nodes: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
     return connected_components(g, directed=False)
 
 
+@_validate.host_only("voxax.metrics.manifold_report")
 @_validate.surface_first
 def manifold_report(mesh) -> ManifoldReport:
     """Manifoldness, boundaries, orientation and defects of a triangle mesh.

@@ -130,6 +130,7 @@ def _line_coords(where: str, grid: Grid, axis: int, lines) -> tuple[str, tuple]:
     return "custom", tuple(coords)
 
 
+@check.host_only("voxax.raster.line_crossings")
 def line_crossings(vertices, faces=None, grid=None, axis=None, *, lines="centers", threads=None) -> Dexels:
     """Every crossing of a triangle mesh with the grid lines parallel to `axis`.
 

@@ -107,6 +107,8 @@ CASES = [
     ("cvt.lloyd_step", "short normals", "cvt.lloyd_step(SD, fr(normals=FR.normals[:2]))", "ValueError",
      "frag.normals"),
     ("cvt.respawn", "counts of another length", "cvt.respawn(SD, FR, np.ones(3, int))", "ValueError", "`count`"),
+    ("cvt.fragments", "under jit", "jax.jit(lambda v: voxax.cvt.fragments((v, F), G))(V)", "TypeError",
+     "voxax.cvt.fragments: computes eagerly on the host"),
 ]
 
 

@@ -84,6 +84,8 @@ CASES = [
      "m, r = fc.roundtrip(BALL, G8, progress=False); assert isinstance(r, fc.RoundtripReport);"
      "assert r.manifold.closed and r.manifold.euler_characteristic == 2 and r.hausdorff < 2 * max(G8.spacing), r",
      None, ""),
+    ("fc", "encode under jit", "jax.jit(lambda v: voxax.fc.encode(v, F, G))(V)", "TypeError",
+     "voxax.fc.encode: computes eagerly on the host"),
 ]
 
 

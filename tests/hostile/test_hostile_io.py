@@ -55,6 +55,8 @@ CASES = [
      "assert voxax.io.is_watertight(V, F) and not voxax.io.is_watertight(V, F[:-1])", None, ""),
     ("io.normalize", "a mesh too small to scale (subnormal)", "voxax.io.normalize((V * 1e-310, F))", "ValueError",
      "voxax.io.normalize: the mesh is too small to scale"),
+    ("io.normalize", "under jit", "jax.jit(lambda v: voxax.io.normalize((v, F)))(V)", "TypeError",
+     "voxax.io.normalize: computes eagerly on the host"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

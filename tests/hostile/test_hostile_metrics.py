@@ -60,6 +60,11 @@ CASES = [
      "voxax.metrics.sample_surface: 1099511627776 surface samples"),
     ("metrics", "sample_surface with the key '3'", "voxax.metrics.sample_surface(BALL, 5, '3')", "TypeError",
      "voxax.metrics.sample_surface: `key`"),
+    # host functions under jit: one line that says so (found by tools/fuzz_api.py)
+    ("metrics", "hausdorff under jit", "jax.jit(lambda v: voxax.metrics.hausdorff((v, F), BALL))(V)", "TypeError",
+     "voxax.metrics.hausdorff: computes eagerly on the host"),
+    ("metrics", "triangle_quality of a traced Mesh", "jax.jit(lambda v: voxax.metrics.triangle_quality(voxax.Mesh(v, F)))(V)",
+     "TypeError", "voxax.Mesh: holds NumPy arrays and cannot take traced values"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

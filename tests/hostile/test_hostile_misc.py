@@ -163,6 +163,16 @@ CASES = [
      f"g = float(jax.jit(jax.grad(lambda w: {E}.mellowmax(jnp.array([0.0, 1.0]), w)))(10.0));"
      "x = np.array([0.0, 1.0]); f = lambda w: np.log(np.mean(np.exp(w * x))) / w;"
      "assert abs(g - (f(10.0 + 1e-6) - f(10.0 - 1e-6)) / 2e-6) < 1e-6, g", None, ""),
+    # found by tools/fuzz_api.py: raw messages from inside
+    ("energies", "silhouettes of a grid without cells", f"{E}.silhouettes({W}[:0])", "ValueError",
+     "voxax.energies.silhouettes: `W` must have at least one cell along each grid axis"),
+    ("energies", "fold_periodic of a grid without cells", f"{E}.fold_periodic({W}[:0], 2)", "ValueError",
+     "voxax.energies.fold_periodic: `W` must have at least one cell"),
+    ("energies", "bandsaw_cut with a list w", f"{E}.bandsaw_cut({W}, [1.0, 2.0])", "TypeError",
+     "voxax.energies.bandsaw_cut: `w` must be a scalar"),
+    ("energies", "self_intersection with a list eps", f"{E}.self_intersection({W}, [1e-3, 2.0])", "TypeError",
+     "voxax.energies.self_intersection: `eps` must be a scalar"),
+    ("fields", "gyroid of period 0", "voxax.fields.gyroid(P, 0)", "ValueError", "voxax.fields.gyroid: `period` must be non-zero"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

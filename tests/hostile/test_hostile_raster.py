@@ -50,6 +50,8 @@ CASES = [
      "s = 2.0**-90; g = voxax.Grid(tuple(np.array(G8.lower) * s), tuple(np.array(G8.upper) * s), G8.shape);"
      "d = lc(CV * s, CF, g, 2); assert len(d.depth) == 32 and np.all(np.abs(np.abs(d.depth) / s - 0.5) < 1e-12)",
      None, ""),
+    ("raster", "line_crossings under jit", "jax.jit(lambda v: voxax.raster.line_crossings(v, F, G, 2).depth)(V)",
+     "TypeError", "voxax.raster.line_crossings: computes eagerly on the host"),
 ]
 
 

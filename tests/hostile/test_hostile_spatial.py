@@ -177,6 +177,10 @@ CASES = [
     ("spatial", "first_hits with a traced t_max",
      "jax.jit(lambda s: voxax.first_hits(BALL, P, P + 1, t_max=s).t)(1.0)", "TypeError",
      "voxax.first_hits: `t_max` must be a concrete number"),
+    ("spatial", "any_hits under jit", "jax.jit(lambda o: voxax.any_hits(BALL, o, o + 1))(P)", "TypeError",
+     "voxax.any_hits: computes eagerly on the host"),
+    ("spatial", "a BVH of traced vertices", "jax.jit(lambda v: voxax.BVH(v, F).closest_points(P).distance)(V)",
+     "TypeError", "voxax.BVH: the tree is built eagerly on the host"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

@@ -134,6 +134,10 @@ class BVH:
     """
 
     def __init__(self, vertices, faces=None, *, where: str = "voxax.BVH"):
+        if _validate.holds_tracer(vertices) or _validate.holds_tracer(faces):
+            raise TypeError(f"{where}: the tree is built eagerly on the host and cannot take traced values: build "
+                            "it outside jax.jit / jax.grad / jax.vmap; under a trace use voxax.closest_points or "
+                            "voxax.first_hits")
         if isinstance(vertices, Mesh) and faces is None:
             mesh = vertices
         else:
@@ -487,6 +491,7 @@ def first_hits(
     return _as_bvh(mesh, "voxax.first_hits")._first(origins, directions, t_min, t_max, False, threads, "voxax.first_hits")
 
 
+@_validate.host_only("voxax.any_hits", instead="voxax.first_hits (its `hit` field)")
 @_validate.surface_first
 def any_hits(
     mesh,
@@ -502,6 +507,7 @@ def any_hits(
     return _as_bvh(mesh, where)._first(origins, directions, t_min, t_max, True, threads, where).hit
 
 
+@_validate.host_only("voxax.all_hits")
 @_validate.surface_first
 def all_hits(
     mesh,

@@ -686,6 +686,7 @@ def _check_grid(grid) -> Grid:
     return grid
 
 
+@_validate.host_only("voxax.cvt.fragments")
 def fragments(
     source, grid: Grid | None = None, *, inside: str = "below", iterations: int = 30, threads=None
 ) -> Fragments:

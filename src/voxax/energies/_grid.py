@@ -21,6 +21,8 @@ def _grid(where: str, W, name: str = "W", rank: int = 3):
     if W.ndim < rank:
         raise ValueError(f"{where}: `{name}` must be a grid with at least {rank} axes (..., nx, ny, nz), got shape "
                          f"{W.shape}")
+    if 0 in W.shape[W.ndim - rank:]:
+        raise ValueError(f"{where}: `{name}` must have at least one cell along each grid axis, got shape {W.shape}")
     return _validate.finite_values(where, name, W)
 
 
@@ -169,7 +171,7 @@ def bandsaw_cut(W, w: float = 1000.0):
 bandsaw = bandsaw_cut
 
 
-@_validate.checked_jit("voxax.energies.self_intersection", static_argnames=())
+@_validate.checked_jit("voxax.energies.self_intersection", static_argnames=(), scalar=("eps",))
 def self_intersection(W, eps: float = 1e-3):
     """The self-intersection energy `E_sect` (paper, Sec. 4.2).
 

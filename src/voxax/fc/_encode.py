@@ -63,6 +63,7 @@ class Pieces(NamedTuple):
     centroid: np.ndarray
 
 
+@check.host_only("voxax.fc.pieces")
 def pieces(vertices, faces=None, grid=None, *, threads=None) -> Pieces:
     """Clips every triangle into the cells it meets; the pieces partition each triangle.
 
@@ -158,6 +159,7 @@ def _net_signs_host(grid: Grid, index, cr: _Crossings, threads):
     return S, pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
+@check.host_only("voxax.fc.encode")
 def encode(
     vertices,
     faces=None,
