@@ -12,6 +12,25 @@
 // exactly, or p lies within rounding of a face it meets, the point falls back to the
 // exact sum, so the result is always the solid-angle sum's value: the integer, or the
 // half-integers of points on the surface.
+//
+// Approximate, error-bounded evaluation (WindingTree::eval_approx), after Barill et al.
+// (2018): a node's triangles seen from far away are replaced by the Taylor expansion, to
+// second order, of the dipole kernel K(y) = y / |y|^3 about the node's centre c, whose
+// coefficients are the exact moments of the triangles' area-weighted normals. The
+// remainder has a rigorous bound: with r = c - p, rho = |r|, every triangle point within
+// R of c and q = R / rho < 1, the Legendre expansion of 1 / |r + d| gives the order-l term
+// of K(r + d) as -grad_r of |d|^l P_l(cos) / rho^(l + 1), whose magnitude is at most
+// (l + 1) |d|^l / rho^(l + 2) (from P_l^2 + (1 - x^2) P_l'^2 / (l (l + 1)) <= 1 on
+// [-1, 1], a function increasing in |x|). Truncated after order k, the solid angle of a
+// node of total absolute area A is therefore off by at most
+//   A / rho^2 * sum_{l > k} (l + 1) q^l = A / rho^2 * q^(k+1) ((k + 2) - (k + 1) q) / (1 - q)^2.
+// A point's error budget 4 pi eps (in solid-angle units) is shared out during the
+// traversal: a node may spend at most (budget left) * (its area) / (area not yet
+// visited); nodes whose bound exceeds that share take their exact boundary fan (or, where
+// both children fit their shares, descend to them) or descend, down to the exact triangles
+// of the leaves, so the sum of the spent bounds never exceeds the budget. The bound used
+// is the sharper sum_{l >= 3} (l + 1) int |d|^l dA / rho^(l + 2), with the integrals
+// bounded by the corners' means of |d|^3 and |d|^4 (both convex) and |d| <= R.
 #pragma once
 
 #include <algorithm>
@@ -201,7 +220,237 @@ class WindingTree {
     return s / (4.0 * 3.14159265358979323846);
   }
 
+  // The nodes' far-field moments, for eval_approx (after build). A node whose box is a
+  // point (or below the normal range) gets none and is never expanded.
+  void build_moments() {
+    moments_.assign(nodes_.size(), Moments{});
+    if (nodes_.empty()) return;
+    const int32_t n = static_cast<int32_t>(order_.size());
+    // every triangle's area in units of the root's size (for the budget's shares)
+    std::vector<double> area(n, 0.0);
+    {
+      const Node& root = nodes_[0];
+      double c[3], h;
+      if (frame(root, c, &h))
+        for (int32_t f = 0; f < n; ++f) {
+          double d[3][3];
+          for (int k = 0; k < 3; ++k)
+            for (int a = 0; a < 3; ++a) d[k][a] = (corner(f, k)[a] - c[a]) / h;
+          double nn[3];
+          half_cross(d, nn);
+          area[f] = norm3(nn);
+        }
+    }
+    for (size_t k = 0; k < nodes_.size(); ++k) {
+      const Node& nd = nodes_[k];
+      Moments& m = moments_[k];
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) m.area += area[order_[i]];
+      double c[3], h;
+      if (!frame(nd, c, &h)) continue;
+      // the centre: the triangles' area-weighted centroid (the box's centre if no area)
+      double g[3] = {0, 0, 0}, wsum = 0.0;
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
+        double d[3][3];
+        for (int j = 0; j < 3; ++j)
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) / h;
+        double nn[3];
+        half_cross(d, nn);
+        const double w = norm3(nn);
+        wsum += w;
+        for (int a = 0; a < 3; ++a) g[a] += w * (d[0][a] + d[1][a] + d[2][a]) / 3.0;
+      }
+      if (wsum > 0.0)
+        for (int a = 0; a < 3; ++a) c[a] += h * (g[a] / wsum);
+      double r2 = 0.0;  // the farthest vertex from c, in units of h
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i)
+        for (int j = 0; j < 3; ++j) {
+          double d2 = 0.0;
+          for (int a = 0; a < 3; ++a) {
+            const double x = (corner(order_[i], j)[a] - c[a]) / h;
+            d2 += x * x;
+          }
+          r2 = std::max(r2, d2);
+        }
+      const double rn = std::sqrt(r2);
+      if (!(rn > 0.0)) continue;
+      for (int a = 0; a < 3; ++a) m.c[a] = c[a];
+      m.R = h * rn;
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
+        double d[3][3];  // the corners relative to c, in units of R
+        for (int j = 0; j < 3; ++j)
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) / h / rn;
+        double nn[3];  // the area-weighted normal
+        half_cross(d, nn);
+        const double at = norm3(nn);
+        m.A += at;
+        // |d|^3 and |d|^4 are convex: their means over a triangle are at most the means
+        // over its corners
+        double l3 = 0.0, l4 = 0.0;
+        for (int j = 0; j < 3; ++j) {
+          const double l2 = d[j][0] * d[j][0] + d[j][1] * d[j][1] + d[j][2] * d[j][2];
+          l3 += l2 * std::sqrt(l2);
+          l4 += l2 * l2;
+        }
+        m.mu3 += at * l3 / 3.0;
+        m.mu4 += at * l4 / 3.0;
+        double s[3];
+        for (int a = 0; a < 3; ++a) s[a] = d[0][a] + d[1][a] + d[2][a];
+        // int_t d_j d_k dA = (area / 12) (sum of the corners' d_j d_k + s_j s_k)
+        double S[6];
+        int idx = 0;
+        for (int a = 0; a < 3; ++a)
+          for (int b = a; b < 3; ++b, ++idx)
+            S[idx] =
+                (d[0][a] * d[0][b] + d[1][a] * d[1][b] + d[2][a] * d[2][b] + s[a] * s[b]) / 12.0;
+        for (int a = 0; a < 3; ++a) {
+          m.N[a] += nn[a];
+          for (int b = 0; b < 3; ++b) m.M1[3 * a + b] += nn[a] * s[b] / 3.0;
+          for (int j = 0; j < 6; ++j) m.M2[6 * a + j] += nn[a] * S[j];
+        }
+      }
+    }
+  }
+
+  // The winding number at p within eps of the solid-angle sum (plus rounding), for
+  // eps >= 0 (after build_moments). 0: the same value as eval.
+  double eval_approx(const double* p, double eps) const {
+    if (nodes_.empty()) return 0.0;
+    const double scale = std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
+    double budget = 4.0 * 3.14159265358979323846 * eps;  // in solid-angle units
+    double area_left = moments_[0].area;
+    double s = 0.0;
+    int32_t stack[128];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+      const int32_t id = stack[--sp];
+      const Node& nd = nodes_[id];
+      const Moments& m = moments_[id];
+      double u[3], q, bound;
+      if (admissible(m, p, budget, area_left, u, &q, &bound)) {
+        s += expansion(m, u, q);
+        budget -= bound;
+        area_left -= m.area;
+        continue;
+      }
+      if (nd.edge_begin >= 0 &&
+          (nd.left < 0 || nd.edge_end - nd.edge_begin <= 2 ||
+           !children_expand(nd.left, p, budget, area_left)) &&
+          outside(nd, p, 1e-9 * (scale + nd.extent()))) {
+        for (int64_t j = nd.edge_begin; j < nd.edge_end; ++j) {
+          const Edge& e = edges_[j];
+          s += e.mult * solid_angle(p, nd.c, V_ + 3 * int64_t(e.i), V_ + 3 * int64_t(e.j));
+        }
+        area_left -= m.area;
+        continue;
+      }
+      if (nd.left < 0 || sp + 2 > 128) {
+        for (int32_t i = nd.first; i < nd.first + nd.count; ++i)
+          s += solid_angle(p, corner(order_[i], 0), corner(order_[i], 1), corner(order_[i], 2));
+        area_left -= m.area;
+        continue;
+      }
+      stack[sp++] = nd.left + 1;
+      stack[sp++] = nd.left;
+    }
+    return s / (4.0 * 3.14159265358979323846);
+  }
+
  private:
+  // A node's far field: its centre c (the triangles' area-weighted centroid), the radius R
+  // of its corners about c and, in units of R (so that neither tiny nor huge meshes under-
+  // or overflow), the total absolute area A, bounds mu3, mu4 on int |d|^3, |d|^4 dA and the
+  // moments of the area-weighted normals n: N_i = sum n_i, M1_ij = int n_i d_j, M2_ijk =
+  // int n_i d_j d_k (d = x - c; jk packed upper-triangular); `area` is the node's area in
+  // units of the root's size, for the budget's shares.
+  struct Moments {
+    double c[3] = {0, 0, 0};
+    double R = 0.0, A = 0.0, mu3 = 0.0, mu4 = 0.0, area = 0.0;
+    double N[3] = {0, 0, 0};
+    double M1[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    double M2[18] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+  };
+
+  // Whether node m's expansion at p is within its share of the budget; then u (the unit
+  // vector from p to the centre), q = R / rho and the bound.
+  static bool admissible(const Moments& m, const double* p, double budget, double area_left,
+                         double* u, double* q, double* bound) {
+    if (!(m.R > 0.0 && budget > 0.0)) return false;
+    double big = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      u[a] = m.c[a] - p[a];
+      big = std::max(big, std::fabs(u[a]));
+    }
+    if (!(big > 0.0)) return false;
+    for (int a = 0; a < 3; ++a) u[a] /= big;
+    const double len = norm3(u);
+    *q = m.R / big / len;
+    if (!(*q < 1.0)) return false;
+    *bound = remainder(m, *q);
+    const double share = m.area >= area_left ? budget : budget * (m.area / area_left);
+    if (!(*bound <= share)) return false;
+    for (int a = 0; a < 3; ++a) u[a] /= len;
+    return true;
+  }
+  // Whether both children of an inner node would take their expansions at p (cheaper than
+  // the node's boundary fan of more than two edges), with the budget as it stands.
+  bool children_expand(int32_t left, const double* p, double budget, double area_left) const {
+    if (left < 0) return false;
+    double u[3], q, b0, b1;
+    if (!admissible(moments_[left], p, budget, area_left, u, &q, &b0)) return false;
+    return admissible(moments_[left + 1], p, budget - b0, area_left - moments_[left].area, u, &q,
+                      &b1);
+  }
+
+  // The bound on the error of a node's expansion at a point at distance R / q from its
+  // centre: sum_{l >= 3} (l + 1) int |d|^l dA / rho^(l + 2), with int |d|^l dA <= R^(l - 4)
+  // mu4 for l >= 4 (in units of R: q^5 (4 mu3 + q mu4 sum_j (j + 5) q^j)).
+  static double remainder(const Moments& m, double q) {
+    const double q2 = q * q;
+    return q2 * q2 * q * (4.0 * m.mu3 + q * m.mu4 * (5.0 - 4.0 * q) / ((1.0 - q) * (1.0 - q)));
+  }
+
+  // The second-order expansion of a node's solid angle at a point at distance R / q from
+  // its centre, u the unit vector from the point to the centre: sum of the orders
+  // N.K + M1:grad K + M2:grad grad K / 2 of K(y) = y / |y|^3 at y = u R / q.
+  static double expansion(const Moments& m, const double* u, double q) {
+    const double o0 = m.N[0] * u[0] + m.N[1] * u[1] + m.N[2] * u[2];
+    double tr = m.M1[0] + m.M1[4] + m.M1[8], uMu = 0.0;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) uMu += u[a] * m.M1[3 * a + b] * u[b];
+    const double o1 = tr - 3.0 * uMu;
+    // packed index of (j, k), j <= k: 00 01 02 11 12 22
+    static constexpr int kSym[3][3] = {{0, 1, 2}, {1, 3, 4}, {2, 4, 5}};
+    double t1 = 0.0, t2 = 0.0, t3 = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double* S = m.M2 + 6 * i;
+      double Su = 0.0, uSu = 0.0;
+      for (int j = 0; j < 3; ++j) {
+        double row = 0.0;
+        for (int k = 0; k < 3; ++k) row += S[kSym[j][k]] * u[k];
+        uSu += u[j] * row;
+        if (j == i) Su = row;
+      }
+      t1 += Su;                           // sum_i M2_iik u_k
+      t2 += u[i] * (S[0] + S[3] + S[5]);  // sum_i u_i M2_ijj
+      t3 += u[i] * uSu;                   // M2_ijk u_i u_j u_k
+    }
+    const double o2 = 0.5 * (15.0 * t3 - 3.0 * (2.0 * t1 + t2));
+    return (q * q) * (o0 + q * (o1 + q * o2));
+  }
+  static double norm3(const double* x) {
+    return std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+  }
+  static void half_cross(const double (*d)[3], double* nn) {
+    double e1[3], e2[3];
+    for (int a = 0; a < 3; ++a) {
+      e1[a] = d[1][a] - d[0][a];
+      e2[a] = d[2][a] - d[0][a];
+    }
+    nn[0] = 0.5 * (e1[1] * e2[2] - e1[2] * e2[1]);
+    nn[1] = 0.5 * (e1[2] * e2[0] - e1[0] * e2[2]);
+    nn[2] = 0.5 * (e1[0] * e2[1] - e1[1] * e2[0]);
+  }
   struct Node {
     double lo[3] = {std::numeric_limits<double>::infinity(),
                     std::numeric_limits<double>::infinity(),
@@ -221,6 +470,18 @@ class WindingTree {
   struct Edge {
     int32_t i, j, mult;
   };
+  std::vector<Moments> moments_;
+  // The centre of a node's box and its largest half-extent h; false where h is zero or
+  // below the normal range.
+  static bool frame(const Node& nd, double* c, double* h) {
+    double e = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      c[a] = 0.5 * nd.lo[a] + 0.5 * nd.hi[a];
+      e = std::max(e, 0.5 * nd.hi[a] - 0.5 * nd.lo[a]);
+    }
+    *h = e;
+    return e >= std::numeric_limits<double>::min() && std::isfinite(e);
+  }
   const double* corner(int32_t f, int k) const { return V_ + 3 * int64_t(F_[3 * int64_t(f) + k]); }
   static bool outside(const Node& nd, const double* p, double margin) {
     for (int a = 0; a < 3; ++a)
