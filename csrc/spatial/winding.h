@@ -15,22 +15,27 @@
 //
 // Approximate, error-bounded evaluation (WindingTree::eval_approx), after Barill et al.
 // (2018): a node's triangles seen from far away are replaced by the Taylor expansion, to
-// second order, of the dipole kernel K(y) = y / |y|^3 about the node's centre c, whose
-// coefficients are the exact moments of the triangles' area-weighted normals. The
-// remainder has a rigorous bound: with r = c - p, rho = |r|, every triangle point within
-// R of c and q = R / rho < 1, the Legendre expansion of 1 / |r + d| gives the order-l term
-// of K(r + d) as -grad_r of |d|^l P_l(cos) / rho^(l + 1), whose magnitude is at most
-// (l + 1) |d|^l / rho^(l + 2) (from P_l^2 + (1 - x^2) P_l'^2 / (l (l + 1)) <= 1 on
-// [-1, 1], a function increasing in |x|). Truncated after order k, the solid angle of a
-// node of total absolute area A is therefore off by at most
-//   A / rho^2 * sum_{l > k} (l + 1) q^l = A / rho^2 * q^(k+1) ((k + 2) - (k + 1) q) / (1 - q)^2.
-// A point's error budget 4 pi eps (in solid-angle units) is shared out during the
-// traversal: a node may spend at most (budget left) * (its area) / (area not yet
-// visited); nodes whose bound exceeds that share take their exact boundary fan (or, where
-// both children fit their shares, descend to them) or descend, down to the exact triangles
-// of the leaves, so the sum of the spent bounds never exceeds the budget. The bound used
-// is the sharper sum_{l >= 3} (l + 1) int |d|^l dA / rho^(l + 2), with the integrals
-// bounded by the corners' means of |d|^3 and |d|^4 (both convex) and |d| <= R.
+// third order, of the dipole kernel K(y) = y / |y|^3 about the node's centre c, whose
+// coefficients are the exact moments of the triangles' area-weighted normals (order 0:
+// their sum; 1 to 3: their moments with d = x - c, d (x) d, d (x) d (x) d, integrated
+// exactly over each triangle). The remainder has a rigorous bound: with r = c - p,
+// rho = |r|, every triangle point within R of c and q = R / rho < 1, the Legendre series
+// of 1 / |r + d| gives the order-l term of K(r + d) as -grad_r of |d|^l P_l(cos) /
+// rho^(l + 1), whose magnitude is at most (l + 1) |d|^l / rho^(l + 2) (in spherical
+// coordinates about d, |grad|^2 rho^(2 l + 4) = (l + 1)^2 P_l^2 + (1 - x^2) P_l'^2, and
+// P_l^2 + (1 - x^2) P_l'^2 / (l (l + 1)) <= 1 on [-1, 1]: by Legendre's equation its
+// derivative is 2 x P_l'^2 / (l (l + 1)), so its maximum is at x = +-1, where it is 1).
+// Truncated after order 3, a node's solid angle is therefore off by at most
+//   sum_{l >= 4} (l + 1) int |d|^l dA / rho^(l + 2)
+//     <= (5 mu4 + mu5 q (6 - 5 q) / (1 - q)^2) / rho^6,   mu_k >= int |d|^k dA,
+// using int |d|^l dA <= R^(l - 5) mu5 for l >= 5; |d|^k is convex, so its mean over a
+// triangle is at most the mean of its corners' values, which gives mu4 and mu5. A point's
+// error budget 4 pi eps (in solid-angle units) is shared out during the traversal: a
+// node may spend at most (budget left) * (its area) / (area not yet visited), so the
+// spent bounds never add up to more than the budget. A node whose bound exceeds its share
+// takes its exact boundary fan when the point is outside its box (unless descending looks
+// cheaper: both children fit their shares, or the bound is not far above the share), else
+// descends, down to the exact triangles of the leaves.
 #pragma once
 
 #include <algorithm>
@@ -283,16 +288,16 @@ class WindingTree {
         half_cross(d, nn);
         const double at = norm3(nn);
         m.A += at;
-        // |d|^3 and |d|^4 are convex: their means over a triangle are at most the means
+        // |d|^4 and |d|^5 are convex: their means over a triangle are at most the means
         // over its corners
-        double l3 = 0.0, l4 = 0.0;
+        double l4 = 0.0, l5 = 0.0;
         for (int j = 0; j < 3; ++j) {
           const double l2 = d[j][0] * d[j][0] + d[j][1] * d[j][1] + d[j][2] * d[j][2];
-          l3 += l2 * std::sqrt(l2);
           l4 += l2 * l2;
+          l5 += l2 * l2 * std::sqrt(l2);
         }
-        m.mu3 += at * l3 / 3.0;
         m.mu4 += at * l4 / 3.0;
+        m.mu5 += at * l5 / 3.0;
         double s[3];
         for (int a = 0; a < 3; ++a) s[a] = d[0][a] + d[1][a] + d[2][a];
         // int_t d_j d_k dA = (area / 12) (sum of the corners' d_j d_k + s_j s_k)
@@ -307,6 +312,21 @@ class WindingTree {
           for (int b = 0; b < 3; ++b) m.M1[3 * a + b] += nn[a] * s[b] / 3.0;
           for (int j = 0; j < 6; ++j) m.M2[6 * a + j] += nn[a] * S[j];
         }
+        // int_t d_j d_k d_l dA = (area / 60) (s_j s_k s_l + sum over the corners v of
+        // v_j v_k s_l + v_j s_k v_l + s_j v_k v_l + 2 v_j v_k v_l)
+        idx = 0;
+        double T[10];
+        for (int a = 0; a < 3; ++a)
+          for (int b = a; b < 3; ++b)
+            for (int e = b; e < 3; ++e, ++idx) {
+              double t = s[a] * s[b] * s[e];
+              for (int j = 0; j < 3; ++j)
+                t += d[j][a] * d[j][b] * s[e] + d[j][a] * s[b] * d[j][e] +
+                     s[a] * d[j][b] * d[j][e] + 2.0 * d[j][a] * d[j][b] * d[j][e];
+              T[idx] = t / 60.0;
+            }
+        for (int a = 0; a < 3; ++a)
+          for (int j = 0; j < 10; ++j) m.M3[10 * a + j] += nn[a] * T[j];
       }
     }
   }
@@ -326,8 +346,8 @@ class WindingTree {
       const int32_t id = stack[--sp];
       const Node& nd = nodes_[id];
       const Moments& m = moments_[id];
-      double u[3], q, bound;
-      if (admissible(m, p, budget, area_left, u, &q, &bound)) {
+      double u[3], q, bound, ratio;
+      if (admissible(m, p, budget, area_left, u, &q, &bound, &ratio)) {
         s += expansion(m, u, q);
         budget -= bound;
         area_left -= m.area;
@@ -335,7 +355,8 @@ class WindingTree {
       }
       if (nd.edge_begin >= 0 &&
           (nd.left < 0 || nd.edge_end - nd.edge_begin <= 2 ||
-           !children_expand(nd.left, p, budget, area_left)) &&
+           !(descend_cost(ratio) < double(nd.edge_end - nd.edge_begin) ||
+             children_expand(nd.left, p, budget, area_left))) &&
           outside(nd, p, 1e-9 * (scale + nd.extent()))) {
         for (int64_t j = nd.edge_begin; j < nd.edge_end; ++j) {
           const Edge& e = edges_[j];
@@ -350,31 +371,40 @@ class WindingTree {
         area_left -= m.area;
         continue;
       }
-      stack[sp++] = nd.left + 1;
-      stack[sp++] = nd.left;
+      // the farther child first (last on the stack): it spends little of its share and
+      // leaves the rest to the nearer one (a fixed order for a given point: deterministic)
+      const bool swap = dist2(moments_[nd.left].c, p) > dist2(moments_[nd.left + 1].c, p);
+      stack[sp++] = swap ? nd.left + 1 : nd.left;
+      stack[sp++] = swap ? nd.left : nd.left + 1;
     }
     return s / (4.0 * 3.14159265358979323846);
+  }
+  static double dist2(const double* a, const double* b) {
+    return (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+           (a[2] - b[2]) * (a[2] - b[2]);
   }
 
  private:
   // A node's far field: its centre c (the triangles' area-weighted centroid), the radius R
   // of its corners about c and, in units of R (so that neither tiny nor huge meshes under-
-  // or overflow), the total absolute area A, bounds mu3, mu4 on int |d|^3, |d|^4 dA and the
+  // or overflow), the total absolute area A, bounds mu4, mu5 on int |d|^4, |d|^5 dA and the
   // moments of the area-weighted normals n: N_i = sum n_i, M1_ij = int n_i d_j, M2_ijk =
-  // int n_i d_j d_k (d = x - c; jk packed upper-triangular); `area` is the node's area in
-  // units of the root's size, for the budget's shares.
+  // int n_i d_j d_k, M3_ijkl = int n_i d_j d_k d_l (d = x - c; jk, jkl packed sorted);
+  // `area` is the node's area in units of the root's size, for the budget's shares.
   struct Moments {
     double c[3] = {0, 0, 0};
-    double R = 0.0, A = 0.0, mu3 = 0.0, mu4 = 0.0, area = 0.0;
+    double R = 0.0, A = 0.0, mu4 = 0.0, mu5 = 0.0, area = 0.0;
     double N[3] = {0, 0, 0};
     double M1[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     double M2[18] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    double M3[30] = {};
   };
 
   // Whether node m's expansion at p is within its share of the budget; then u (the unit
   // vector from p to the centre), q = R / rho and the bound.
   static bool admissible(const Moments& m, const double* p, double budget, double area_left,
-                         double* u, double* q, double* bound) {
+                         double* u, double* q, double* bound, double* ratio = nullptr) {
+    if (ratio) *ratio = std::numeric_limits<double>::infinity();
     if (!(m.R > 0.0 && budget > 0.0)) return false;
     double big = 0.0;
     for (int a = 0; a < 3; ++a) {
@@ -388,9 +418,18 @@ class WindingTree {
     if (!(*q < 1.0)) return false;
     *bound = remainder(m, *q);
     const double share = m.area >= area_left ? budget : budget * (m.area / area_left);
+    if (ratio && share > 0.0) *ratio = *bound / share;
     if (!(*bound <= share)) return false;
     for (int a = 0; a < 3; ++a) u[a] /= len;
     return true;
+  }
+  // About what descending into a node costs (in solid angles) where its bound is `ratio`
+  // times its share: its descendants' bounds fall as their radius^6 (q^6), their shares
+  // only as their area, radius^2, so about ratio^(2/3)-ish of them fit (the constant and
+  // the power measured on open meshes). Only a choice of work: the values stay within the
+  // bound either way.
+  static double descend_cost(double ratio) {
+    return ratio < 1e30 ? 3.0 * std::cbrt(ratio * ratio) : ratio;
   }
   // Whether both children of an inner node would take their expansions at p (cheaper than
   // the node's boundary fan of more than two edges), with the budget as it stands.
@@ -403,16 +442,16 @@ class WindingTree {
   }
 
   // The bound on the error of a node's expansion at a point at distance R / q from its
-  // centre: sum_{l >= 3} (l + 1) int |d|^l dA / rho^(l + 2), with int |d|^l dA <= R^(l - 4)
-  // mu4 for l >= 4 (in units of R: q^5 (4 mu3 + q mu4 sum_j (j + 5) q^j)).
+  // centre: sum_{l >= 4} (l + 1) int |d|^l dA / rho^(l + 2), with int |d|^l dA <= R^(l - 5)
+  // mu5 for l >= 5 (in units of R: q^6 (5 mu4 + q mu5 sum_j (j + 6) q^j)).
   static double remainder(const Moments& m, double q) {
     const double q2 = q * q;
-    return q2 * q2 * q * (4.0 * m.mu3 + q * m.mu4 * (5.0 - 4.0 * q) / ((1.0 - q) * (1.0 - q)));
+    return q2 * q2 * q2 * (5.0 * m.mu4 + q * m.mu5 * (6.0 - 5.0 * q) / ((1.0 - q) * (1.0 - q)));
   }
 
-  // The second-order expansion of a node's solid angle at a point at distance R / q from
+  // The third-order expansion of a node's solid angle at a point at distance R / q from
   // its centre, u the unit vector from the point to the centre: sum of the orders
-  // N.K + M1:grad K + M2:grad grad K / 2 of K(y) = y / |y|^3 at y = u R / q.
+  // N.K + M1:grad K + M2:grad^2 K / 2 + M3:grad^3 K / 6 of K(y) = y / |y|^3 at y = u R / q.
   static double expansion(const Moments& m, const double* u, double q) {
     const double o0 = m.N[0] * u[0] + m.N[1] * u[1] + m.N[2] * u[2];
     double tr = m.M1[0] + m.M1[4] + m.M1[8], uMu = 0.0;
@@ -436,7 +475,32 @@ class WindingTree {
       t3 += u[i] * uSu;                   // M2_ijk u_i u_j u_k
     }
     const double o2 = 0.5 * (15.0 * t3 - 3.0 * (2.0 * t1 + t2));
-    return (q * q) * (o0 + q * (o1 + q * o2));
+    // order 3: M3_ijkl d^3 K_i / 6 = -M3_ijkl T_ijkl / 6, T the fourth derivatives of
+    // 1 / |y|: (105 u_i u_j u_k u_l - 15 (delta u u, 6 terms) + 3 (delta delta, 3 terms))
+    static constexpr int kSym3[3][3][3] = {{{0, 1, 2}, {1, 3, 4}, {2, 4, 5}},
+                                           {{1, 3, 4}, {3, 6, 7}, {4, 7, 8}},
+                                           {{2, 4, 5}, {4, 7, 8}, {5, 8, 9}}};
+    double W = 0.0, X = 0.0, Y = 0.0, Z = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double* M = m.M3 + 10 * i;
+      double b[3], tr[3];
+      for (int j = 0; j < 3; ++j) {
+        double bj = 0.0;
+        for (int k = 0; k < 3; ++k) {
+          double a = 0.0;
+          for (int l = 0; l < 3; ++l) a += M[kSym3[j][k][l]] * u[l];
+          bj += a * u[k];
+        }
+        b[j] = bj;                                                          // M3_i(j, u, u)
+        tr[j] = M[kSym3[0][0][j]] + M[kSym3[1][1][j]] + M[kSym3[2][2][j]];  // M3_i(k, k, j)
+      }
+      W += u[i] * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2]);
+      X += b[i];
+      Y += u[i] * (tr[0] * u[0] + tr[1] * u[1] + tr[2] * u[2]);
+      Z += tr[i];
+    }
+    const double o3 = (-105.0 * W + 45.0 * (X + Y) - 9.0 * Z) / 6.0;
+    return (q * q) * (o0 + q * (o1 + q * (o2 + q * o3)));
   }
   static double norm3(const double* x) {
     return std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);

@@ -12,8 +12,8 @@ voxels: both agree for closed surfaces.
 Eagerly, for one 3D mesh, the values come from C++ (`csrc/spatial/winding*`): one
 watertight ray per point through a BVH where the faces form a cycle, the exact sum
 elsewhere (a hierarchy of the faces' boundaries, exact up to rounding), or with `accuracy`
-the same hierarchy with error-bounded far-field expansions (Barill et al. 2018, with a
-rigorous remainder bound; see `csrc/spatial/winding.h`). Traced, batched and
+the same hierarchy with error-bounded far-field expansions (Barill et al. 2018, to third
+order, with a rigorous remainder bound; see `csrc/spatial/winding.h`). Traced, batched and
 2D calls run in JAX (differentiable): every point meets
 every face, so the cost is O(points x faces). The points are processed in chunks with
 `jax.lax.map`, so the memory is O(chunk_size x faces) for the forward pass and, because
@@ -169,18 +169,21 @@ def winding_number(
       node costs its boundary's edges and only the nodes around the point descend to
       their triangles; the value is the solid-angle sum's up to rounding (no
       approximation). With `accuracy = eps > 0` the hierarchy also replaces the nodes
-      far enough from a point by the second-order expansion of their area-weighted
+      far enough from a point by the third-order expansion of their area-weighted
       normals about their centre (the "fast winding numbers" of Barill et al. 2018), where
       a rigorous bound on the expansion's remainder allows it: at most
-      `A q^5 (4 m3 + q m4 (5 - 4 q) / (1 - q)^2) / (4 pi)` for a node of area `A`, radius
-      `R` about its centre at distance `rho`, `q = R / rho`, `m3` and `m4` the means of
-      `(|x - c| / R)^3` and `^4` over its triangles, from the Legendre series of the dipole
-      kernel. The point's budget `eps` is shared out over the nodes by area as the
-      traversal goes (a node may spend its area's share of what is left), and the nodes
-      whose bound does not fit descend to the exact boundary fans and triangles, so
-      **every value is within `eps` of the exact solid-angle sum** (plus rounding, about
-      1e-15 per face). Closed meshes keep the exact ray path (it is exact and faster);
-      only the points a ray leaves unclear take the bounded hierarchy. On all cores
+      `q^6 (5 m4 + q m5 (6 - 5 q) / (1 - q)^2) / (4 pi)` for a node of radius `R` about
+      its centre at distance `rho` from the point, `q = R / rho`, where `m4`, `m5` bound
+      the integrals of `|x - c|^4`, `|x - c|^5` over its triangles in units of `R` (from
+      the Legendre series of the dipole kernel). The point's budget `eps` is shared out
+      over the nodes by area as the traversal goes (a node may spend its area's share of
+      what is left) and the nodes whose bound does not fit take their exact boundary fan
+      or descend, down to the exact triangles, so **every value is within `eps` of the
+      exact solid-angle sum** (plus rounding, as in the exact path). The bound is a worst
+      case: the errors seen are typically 10 to 100 times smaller. It pays on large meshes
+      and for points far from the surface; on small meshes near the surface the exact
+      hierarchy is about as fast. Closed meshes keep the exact ray path (exact, and
+      faster); only the points a ray leaves unclear take the bounded hierarchy. On all cores
       (`threads`); the result is cast to the input's float dtype.
     - **JAX** (under `jax.jit`, `jax.grad`, `jax.vmap`, for batch axes and for 2D): the
       sum in plain JAX, differentiable in `vertices` and `points` by autodiff (away from
