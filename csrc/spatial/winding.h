@@ -48,14 +48,8 @@
 namespace voxax {
 namespace spatial {
 
-// The signed solid angle of triangle (A, B, C) at p, in [-2 pi, 2 pi].
-inline double solid_angle(const double* p, const double* A, const double* B, const double* C) {
-  double a[3], b[3], c[3];
-  for (int i = 0; i < 3; ++i) {
-    a[i] = A[i] - p[i];
-    b[i] = B[i] - p[i];
-    c[i] = C[i] - p[i];
-  }
+// The signed solid angle of the triangle with corners p + a, p + b, p + c at p.
+inline double solid_angle_of(const double* a, const double* b, const double* c) {
   const double la = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
   const double lb = std::sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
   const double lc = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
@@ -68,6 +62,27 @@ inline double solid_angle(const double* p, const double* A, const double* B, con
   const double bcd = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
   const double den = la * lb * lc + ab * lc + ac * lb + bcd * la;
   return 2.0 * std::atan2(num, den);
+}
+
+// The signed solid angle of triangle (A, B, C) at p, in [-2 pi, 2 pi]. Where the corners
+// lie so close to p that the cubic terms would underflow (a mesh at 1e-150 and below),
+// the corners are first scaled to unit size (the solid angle does not depend on scale).
+inline double solid_angle(const double* p, const double* A, const double* B, const double* C) {
+  double a[3], b[3], c[3];
+  double m = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    a[i] = A[i] - p[i];
+    b[i] = B[i] - p[i];
+    c[i] = C[i] - p[i];
+    m = std::max(m, std::max(std::fabs(a[i]), std::max(std::fabs(b[i]), std::fabs(c[i]))));
+  }
+  if (m < 1e-90 && m > 0.0)
+    for (int i = 0; i < 3; ++i) {
+      a[i] /= m;
+      b[i] /= m;
+      c[i] /= m;
+    }
+  return solid_angle_of(a, b, c);
 }
 
 // The exact sum at p over faces F (nf, 3) of vertices V.

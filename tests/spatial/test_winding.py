@@ -265,3 +265,20 @@ def test_accuracy_traced_is_refused():
     m = voxax.data.box()
     with pytest.raises(TypeError, match="traced"):
         jax.jit(lambda a: winding_number(m.vertices, m.faces, jnp.zeros((2, 3)), accuracy=a))(0.1)
+
+
+def test_tiny_meshes_do_not_underflow():
+    # The cubic terms of the solid angle underflow below about 1e-150 (float64) and 1e-20
+    # (float32); the corners are then scaled to unit size first: eager, jit, 3D and 2D.
+    m, sq = voxax.data.box(), voxax.data.polygon_square()
+    p = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.1, 0.1]])
+    want = [1.0, 0.0, 0.5]
+    for s in (1e-300, 1e-160, 1.0):
+        v, q = np.asarray(m.vertices) * s, p * s
+        np.testing.assert_allclose(winding_number(v, m.faces, q), want, atol=1e-12)
+        np.testing.assert_allclose(winding_number(v, m.faces[:-1], q[:1], accuracy=1e-6), 11 / 12, atol=1e-6)
+        np.testing.assert_allclose(jax.jit(lambda v, q: winding_number(v, m.faces, q))(v, q), want, atol=1e-12)
+        w2 = jax.jit(lambda v, q: winding_number(v, sq.faces, q))(np.asarray(sq.vertices) * s, p[:, :2] * s)
+        np.testing.assert_allclose(w2, want, atol=1e-12)
+    v32, q32 = (np.asarray(m.vertices) * 1e-20).astype(np.float32), (p * 1e-20).astype(np.float32)
+    np.testing.assert_allclose(jax.jit(lambda v, q: winding_number(v, m.faces, q))(v32, q32), want, atol=1e-5)
