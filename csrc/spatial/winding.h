@@ -373,10 +373,7 @@ class WindingTree {
            !(descend_cost(ratio) < double(nd.edge_end - nd.edge_begin) ||
              children_expand(nd.left, p, budget, area_left))) &&
           outside(nd, p, 1e-9 * (scale + nd.extent()))) {
-        for (int64_t j = nd.edge_begin; j < nd.edge_end; ++j) {
-          const Edge& e = edges_[j];
-          s += e.mult * solid_angle(p, nd.c, V_ + 3 * int64_t(e.i), V_ + 3 * int64_t(e.j));
-        }
+        s += fan_angle(nd.c, nd.edge_begin, nd.edge_end, p);
         area_left -= m.area;
         continue;
       }
@@ -393,6 +390,62 @@ class WindingTree {
       stack[sp++] = swap ? nd.left : nd.left + 1;
     }
     return s / (4.0 * 3.14159265358979323846);
+  }
+  // The solid angle of the fan from c over edges [b, e) at p: the sum of 2 atan2(num, den)
+  // over its triangles, with one atan2 for each run of triangles whose half-angles add up
+  // to less than 1.5 in magnitude (bounded by sum |num| / den where den > 0): the
+  // product of the complex numbers den + i num has their sum as its argument, exactly
+  // (up to rounding) while that sum stays in (-pi, pi).
+  double fan_angle(const double* c, int64_t b, int64_t e, const double* p) const {
+    double a[3];
+    double m = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      a[k] = c[k] - p[k];
+      m = std::max(m, std::fabs(a[k]));
+    }
+    double s = 0.0;
+    if (m < 1e-80) {  // tiny: the scaled solid angles
+      for (int64_t j = b; j < e; ++j)
+        s += edges_[j].mult *
+             solid_angle(p, c, V_ + 3 * int64_t(edges_[j].i), V_ + 3 * int64_t(edges_[j].j));
+      return s;
+    }
+    const double la = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double zr = 1.0, zi = 0.0, t = 0.0;
+    for (int64_t j = b; j < e; ++j) {
+      const Edge& ed = edges_[j];
+      const double* B = V_ + 3 * int64_t(ed.i);
+      const double* C = V_ + 3 * int64_t(ed.j);
+      const double u[3] = {B[0] - p[0], B[1] - p[1], B[2] - p[2]};
+      const double w[3] = {C[0] - p[0], C[1] - p[1], C[2] - p[2]};
+      const double lb = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      const double lc = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+      const double uw[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2],
+                            u[0] * w[1] - u[1] * w[0]};
+      const double num = a[0] * uw[0] + a[1] * uw[1] + a[2] * uw[2];
+      if (num == 0.0) continue;
+      const double den = la * lb * lc + (a[0] * u[0] + a[1] * u[1] + a[2] * u[2]) * lc +
+                         (a[0] * w[0] + a[1] * w[1] + a[2] * w[2]) * lb +
+                         (u[0] * w[0] + u[1] * w[1] + u[2] * w[2]) * la;
+      if (!(den > 0.0) || ed.mult != 1) {
+        s += ed.mult * 2.0 * std::atan2(num, den);
+        continue;
+      }
+      const double x = std::fabs(num) / den;
+      if (t > 0.0 && t + x > 1.5) {
+        s += 2.0 * std::atan2(zi, zr);
+        zr = 1.0;
+        zi = 0.0;
+        t = 0.0;
+      }
+      const double nr = zr * den - zi * num, ni = zr * num + zi * den;
+      const double k = 1.0 / std::max(std::fabs(nr), std::fabs(ni));
+      zr = nr * k;
+      zi = ni * k;
+      t += x;
+    }
+    if (t > 0.0) s += 2.0 * std::atan2(zi, zr);
+    return s;
   }
   static double dist2(const double* a, const double* b) {
     return (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
