@@ -255,7 +255,7 @@ class WindingTree {
         for (int32_t f = 0; f < n; ++f) {
           double d[3][3];
           for (int k = 0; k < 3; ++k)
-            for (int a = 0; a < 3; ++a) d[k][a] = (corner(f, k)[a] - c[a]) / h;
+            for (int a = 0; a < 3; ++a) d[k][a] = (corner(f, k)[a] - c[a]) * (1.0 / h);
           double nn[3];
           half_cross(d, nn);
           area[f] = norm3(nn);
@@ -267,12 +267,13 @@ class WindingTree {
       for (int32_t i = nd.first; i < nd.first + nd.count; ++i) m.area += area[order_[i]];
       double c[3], h;
       if (!frame(nd, c, &h)) continue;
+      const double ih = 1.0 / h;
       // the centre: the triangles' area-weighted centroid (the box's centre if no area)
       double g[3] = {0, 0, 0}, wsum = 0.0;
       for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
         double d[3][3];
         for (int j = 0; j < 3; ++j)
-          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) / h;
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) * ih;
         double nn[3];
         half_cross(d, nn);
         const double w = norm3(nn);
@@ -286,19 +287,20 @@ class WindingTree {
         for (int j = 0; j < 3; ++j) {
           double d2 = 0.0;
           for (int a = 0; a < 3; ++a) {
-            const double x = (corner(order_[i], j)[a] - c[a]) / h;
+            const double x = (corner(order_[i], j)[a] - c[a]) * ih;
             d2 += x * x;
           }
           r2 = std::max(r2, d2);
         }
       const double rn = std::sqrt(r2);
       if (!(rn > 0.0)) continue;
+      const double irn = ih / rn;
       for (int a = 0; a < 3; ++a) m.c[a] = c[a];
       m.R = h * rn;
       for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
         double d[3][3];  // the corners relative to c, in units of R
         for (int j = 0; j < 3; ++j)
-          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) / h / rn;
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) * irn;
         double nn[3];  // the area-weighted normal
         half_cross(d, nn);
         const double at = norm3(nn);
@@ -493,11 +495,11 @@ class WindingTree {
   }
   // About what descending into a node costs (in solid angles) where its bound is `ratio`
   // times its share: its descendants' bounds fall as their radius^6 (q^6), their shares
-  // only as their area, radius^2, so about ratio^(2/3)-ish of them fit (the constant and
-  // the power measured on open meshes). Only a choice of work: the values stay within the
-  // bound either way.
+  // only as their area, so the number of them needed grows as a power of ratio (the
+  // constant and the power tuned on open meshes). Only a choice of work: the values stay
+  // within the bound either way.
   static double descend_cost(double ratio) {
-    return ratio < 1e30 ? 3.0 * std::cbrt(ratio * ratio) : ratio;
+    return ratio < 1e30 ? 8.0 * std::cbrt(ratio * ratio) : ratio;
   }
   // Whether both children of an inner node would take their expansions at p (cheaper than
   // the node's boundary fan of more than two edges), with the budget as it stands.
