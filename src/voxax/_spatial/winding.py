@@ -49,14 +49,14 @@ def _safe_atan2(y, x):
     return jnp.where(both, 0, jnp.arctan2(y, jnp.where(both, 1, x)))
 
 
-def _unit_scale(*vs):
-    """`vs` (each (..., d)) divided by their largest coordinate where that is so small that
-    their cubic terms would underflow (a mesh at 1e-150 in float64, 1e-20 in float32);
-    unchanged elsewhere. The angles do not depend on the scale."""
-    m = jnp.max(jnp.stack([jnp.max(jnp.abs(v), axis=-1) for v in vs]), axis=0)
-    tiny = 1e-90 if vs[0].dtype == jnp.float64 else 1e-12
-    s = jnp.where((m < tiny) & (m > 0), m, 1)[..., None]
-    return tuple(v / s for v in vs)
+def _unit_scale(vertices, points):
+    """`vertices` and `points` divided by their largest coordinate where that is so small
+    that the angles' cubic terms would underflow (a mesh and points below 1e-90 in float64,
+    1e-12 in float32); unchanged elsewhere. The angles do not depend on the scale."""
+    m = jnp.maximum(jnp.max(jnp.abs(vertices), initial=0), jnp.max(jnp.abs(points), initial=0))
+    tiny = 1e-90 if vertices.dtype == jnp.float64 else 1e-12
+    s = jnp.where((m < tiny) & (m > 0), m, 1)
+    return vertices / s.astype(vertices.dtype), points / s.astype(points.dtype)
 
 
 def _angles_3d(corners, p):
@@ -64,7 +64,6 @@ def _angles_3d(corners, p):
     a = corners[None, :, 0, :] - p[:, None, :]
     b = corners[None, :, 1, :] - p[:, None, :]
     c = corners[None, :, 2, :] - p[:, None, :]
-    a, b, c = _unit_scale(a, b, c)
     la, lb, lc = _safe_norm(a), _safe_norm(b), _safe_norm(c)
     # Van Oosterom & Strackee (1983): tan(Omega / 2) = det[a b c] / denominator.
     num = jnp.sum(a * jnp.cross(b, c), axis=-1)
@@ -85,7 +84,6 @@ def _angles_2d(corners, p):
     """Signed angles / (2 pi) of segments `corners` (F, 2, 2) at points `p` (P, 2)."""
     a = corners[None, :, 0, :] - p[:, None, :]
     b = corners[None, :, 1, :] - p[:, None, :]
-    a, b = _unit_scale(a, b)
     cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
     dot = jnp.sum(a * b, axis=-1)
     # Points on the line of a segment get 0 (on the segment itself that is the average of
@@ -100,6 +98,7 @@ def winding_flat(vertices, faces, points, chunk_size: int):
     at a time (the last chunk padded). Unchecked: the building block of `winding_number`
     and `voxelize_mc`."""
     d = vertices.shape[-1]
+    vertices, points = _unit_scale(vertices, points)
     corners = vertices[faces]  # (F, d, d)
     fn = _angles_3d if d == 3 else _angles_2d
     n = points.shape[0]
