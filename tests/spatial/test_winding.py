@@ -269,7 +269,8 @@ def test_accuracy_traced_is_refused():
 
 def test_tiny_meshes_do_not_underflow():
     # The cubic terms of the solid angle underflow below about 1e-150 (float64) and 1e-20
-    # (float32); the corners are then scaled to unit size first: eager, jit, 3D and 2D.
+    # (float32); the coordinates are then scaled to unit size first (C++: per triangle and
+    # point, JAX: per mesh and points): eager, jit, 3D and 2D.
     m, sq = voxax.data.box(), voxax.data.polygon_square()
     p = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.1, 0.1]])
     want = [1.0, 0.0, 0.5]
