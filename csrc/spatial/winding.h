@@ -12,6 +12,30 @@
 // exactly, or p lies within rounding of a face it meets, the point falls back to the
 // exact sum, so the result is always the solid-angle sum's value: the integer, or the
 // half-integers of points on the surface.
+//
+// Approximate, error-bounded evaluation (WindingTree::eval_approx), after Barill et al.
+// (2018): a node's triangles seen from far away are replaced by the Taylor expansion, to
+// third order, of the dipole kernel K(y) = y / |y|^3 about the node's centre c, whose
+// coefficients are the exact moments of the triangles' area-weighted normals (order 0:
+// their sum; 1 to 3: their moments with d = x - c, d (x) d, d (x) d (x) d, integrated
+// exactly over each triangle). The remainder has a rigorous bound: with r = c - p,
+// rho = |r|, every triangle point within R of c and q = R / rho < 1, the Legendre series
+// of 1 / |r + d| gives the order-l term of K(r + d) as -grad_r of |d|^l P_l(cos) /
+// rho^(l + 1), whose magnitude is at most (l + 1) |d|^l / rho^(l + 2) (in spherical
+// coordinates about d, |grad|^2 rho^(2 l + 4) = (l + 1)^2 P_l^2 + (1 - x^2) P_l'^2, and
+// P_l^2 + (1 - x^2) P_l'^2 / (l (l + 1)) <= 1 on [-1, 1]: by Legendre's equation its
+// derivative is 2 x P_l'^2 / (l (l + 1)), so its maximum is at x = +-1, where it is 1).
+// Truncated after order 3, a node's solid angle is therefore off by at most
+//   sum_{l >= 4} (l + 1) int |d|^l dA / rho^(l + 2)
+//     <= (5 mu4 + mu5 q (6 - 5 q) / (1 - q)^2) / rho^6,   mu_k >= int |d|^k dA,
+// using int |d|^l dA <= R^(l - 5) mu5 for l >= 5; |d|^k is convex, so its mean over a
+// triangle is at most the mean of its corners' values, which gives mu4 and mu5. A point's
+// error budget 4 pi eps (in solid-angle units) is shared out during the traversal: a
+// node may spend at most (budget left) * (its area) / (area not yet visited), so the
+// spent bounds never add up to more than the budget. A node whose bound exceeds its share
+// takes its exact boundary fan when the point is outside its box (unless descending looks
+// cheaper: both children fit their shares, or the bound is not far above the share), else
+// descends, down to the exact triangles of the leaves.
 #pragma once
 
 #include <algorithm>
@@ -24,14 +48,8 @@
 namespace voxax {
 namespace spatial {
 
-// The signed solid angle of triangle (A, B, C) at p, in [-2 pi, 2 pi].
-inline double solid_angle(const double* p, const double* A, const double* B, const double* C) {
-  double a[3], b[3], c[3];
-  for (int i = 0; i < 3; ++i) {
-    a[i] = A[i] - p[i];
-    b[i] = B[i] - p[i];
-    c[i] = C[i] - p[i];
-  }
+// The signed solid angle of the triangle with corners p + a, p + b, p + c at p.
+inline double solid_angle_of(const double* a, const double* b, const double* c) {
   const double la = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
   const double lb = std::sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
   const double lc = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
@@ -44,6 +62,27 @@ inline double solid_angle(const double* p, const double* A, const double* B, con
   const double bcd = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
   const double den = la * lb * lc + ab * lc + ac * lb + bcd * la;
   return 2.0 * std::atan2(num, den);
+}
+
+// The signed solid angle of triangle (A, B, C) at p, in [-2 pi, 2 pi]. Where the corners
+// lie so close to p that the cubic terms would underflow (a mesh at 1e-150 and below),
+// the corners are first scaled to unit size (the solid angle does not depend on scale).
+inline double solid_angle(const double* p, const double* A, const double* B, const double* C) {
+  double a[3], b[3], c[3];
+  double m = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    a[i] = A[i] - p[i];
+    b[i] = B[i] - p[i];
+    c[i] = C[i] - p[i];
+    m = std::max(m, std::max(std::fabs(a[i]), std::max(std::fabs(b[i]), std::fabs(c[i]))));
+  }
+  if (m < 1e-90 && m > 0.0)
+    for (int i = 0; i < 3; ++i) {
+      a[i] /= m;
+      b[i] /= m;
+      c[i] /= m;
+    }
+  return solid_angle_of(a, b, c);
 }
 
 // The exact sum at p over faces F (nf, 3) of vertices V.
@@ -201,7 +240,351 @@ class WindingTree {
     return s / (4.0 * 3.14159265358979323846);
   }
 
+  // The nodes' far-field moments, for eval_approx (after build). A node whose box is a
+  // point (or below the normal range) gets none and is never expanded.
+  void build_moments() {
+    moments_.assign(nodes_.size(), Moments{});
+    if (nodes_.empty()) return;
+    const int32_t n = static_cast<int32_t>(order_.size());
+    // every triangle's area in units of the root's size (for the budget's shares)
+    std::vector<double> area(n, 0.0);
+    {
+      const Node& root = nodes_[0];
+      double c[3], h;
+      if (frame(root, c, &h))
+        for (int32_t f = 0; f < n; ++f) {
+          double d[3][3];
+          for (int k = 0; k < 3; ++k)
+            for (int a = 0; a < 3; ++a) d[k][a] = (corner(f, k)[a] - c[a]) * (1.0 / h);
+          double nn[3];
+          half_cross(d, nn);
+          area[f] = norm3(nn);
+        }
+    }
+    for (size_t k = 0; k < nodes_.size(); ++k) {
+      const Node& nd = nodes_[k];
+      Moments& m = moments_[k];
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) m.area += area[order_[i]];
+      double c[3], h;
+      if (!frame(nd, c, &h)) continue;
+      const double ih = 1.0 / h;
+      // the centre: the triangles' area-weighted centroid (the box's centre if no area)
+      double g[3] = {0, 0, 0}, wsum = 0.0;
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
+        double d[3][3];
+        for (int j = 0; j < 3; ++j)
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) * ih;
+        double nn[3];
+        half_cross(d, nn);
+        const double w = norm3(nn);
+        wsum += w;
+        for (int a = 0; a < 3; ++a) g[a] += w * (d[0][a] + d[1][a] + d[2][a]) / 3.0;
+      }
+      if (wsum > 0.0)
+        for (int a = 0; a < 3; ++a) c[a] += h * (g[a] / wsum);
+      double r2 = 0.0;  // the farthest vertex from c, in units of h
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i)
+        for (int j = 0; j < 3; ++j) {
+          double d2 = 0.0;
+          for (int a = 0; a < 3; ++a) {
+            const double x = (corner(order_[i], j)[a] - c[a]) * ih;
+            d2 += x * x;
+          }
+          r2 = std::max(r2, d2);
+        }
+      const double rn = std::sqrt(r2);
+      if (!(rn > 0.0)) continue;
+      const double irn = ih / rn;
+      for (int a = 0; a < 3; ++a) m.c[a] = c[a];
+      m.R = h * rn;
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
+        double d[3][3];  // the corners relative to c, in units of R
+        for (int j = 0; j < 3; ++j)
+          for (int a = 0; a < 3; ++a) d[j][a] = (corner(order_[i], j)[a] - c[a]) * irn;
+        double nn[3];  // the area-weighted normal
+        half_cross(d, nn);
+        const double at = norm3(nn);
+        m.A += at;
+        // |d|^4 and |d|^5 are convex: their means over a triangle are at most the means
+        // over its corners
+        double l4 = 0.0, l5 = 0.0;
+        for (int j = 0; j < 3; ++j) {
+          const double l2 = d[j][0] * d[j][0] + d[j][1] * d[j][1] + d[j][2] * d[j][2];
+          l4 += l2 * l2;
+          l5 += l2 * l2 * std::sqrt(l2);
+        }
+        m.mu4 += at * l4 / 3.0;
+        m.mu5 += at * l5 / 3.0;
+        double s[3];
+        for (int a = 0; a < 3; ++a) s[a] = d[0][a] + d[1][a] + d[2][a];
+        // int_t d_j d_k dA = (area / 12) (sum of the corners' d_j d_k + s_j s_k)
+        double S[6];
+        int idx = 0;
+        for (int a = 0; a < 3; ++a)
+          for (int b = a; b < 3; ++b, ++idx)
+            S[idx] =
+                (d[0][a] * d[0][b] + d[1][a] * d[1][b] + d[2][a] * d[2][b] + s[a] * s[b]) / 12.0;
+        for (int a = 0; a < 3; ++a) {
+          m.N[a] += nn[a];
+          for (int b = 0; b < 3; ++b) m.M1[3 * a + b] += nn[a] * s[b] / 3.0;
+          for (int j = 0; j < 6; ++j) m.M2[6 * a + j] += nn[a] * S[j];
+        }
+        // int_t d_j d_k d_l dA = (area / 60) (s_j s_k s_l + sum over the corners v of
+        // v_j v_k s_l + v_j s_k v_l + s_j v_k v_l + 2 v_j v_k v_l)
+        idx = 0;
+        double T[10];
+        for (int a = 0; a < 3; ++a)
+          for (int b = a; b < 3; ++b)
+            for (int e = b; e < 3; ++e, ++idx) {
+              double t = s[a] * s[b] * s[e];
+              for (int j = 0; j < 3; ++j)
+                t += d[j][a] * d[j][b] * s[e] + d[j][a] * s[b] * d[j][e] +
+                     s[a] * d[j][b] * d[j][e] + 2.0 * d[j][a] * d[j][b] * d[j][e];
+              T[idx] = t / 60.0;
+            }
+        for (int a = 0; a < 3; ++a)
+          for (int j = 0; j < 10; ++j) m.M3[10 * a + j] += nn[a] * T[j];
+      }
+    }
+  }
+
+  // The winding number at p within eps of the solid-angle sum (plus rounding), for
+  // eps >= 0 (after build_moments). 0: the same value as eval.
+  double eval_approx(const double* p, double eps) const {
+    if (nodes_.empty()) return 0.0;
+    const double scale = std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
+    double budget = 4.0 * 3.14159265358979323846 * eps;  // in solid-angle units
+    double area_left = moments_[0].area;
+    double s = 0.0;
+    int32_t stack[128];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+      const int32_t id = stack[--sp];
+      const Node& nd = nodes_[id];
+      const Moments& m = moments_[id];
+      double u[3], q, bound, ratio;
+      if (admissible(m, p, budget, area_left, u, &q, &bound, &ratio)) {
+        s += expansion(m, u, q);
+        budget -= bound;
+        area_left -= m.area;
+        continue;
+      }
+      if (nd.edge_begin >= 0 &&
+          (nd.left < 0 || nd.edge_end - nd.edge_begin <= 2 ||
+           !(descend_cost(ratio) < double(nd.edge_end - nd.edge_begin) ||
+             children_expand(nd.left, p, budget, area_left))) &&
+          outside(nd, p, 1e-9 * (scale + nd.extent()))) {
+        s += fan_angle(nd.c, nd.edge_begin, nd.edge_end, p);
+        area_left -= m.area;
+        continue;
+      }
+      if (nd.left < 0 || sp + 2 > 128) {
+        for (int32_t i = nd.first; i < nd.first + nd.count; ++i)
+          s += solid_angle(p, corner(order_[i], 0), corner(order_[i], 1), corner(order_[i], 2));
+        area_left -= m.area;
+        continue;
+      }
+      // the farther child first (last on the stack): it spends little of its share and
+      // leaves the rest to the nearer one (a fixed order for a given point: deterministic)
+      const bool swap = dist2(moments_[nd.left].c, p) > dist2(moments_[nd.left + 1].c, p);
+      stack[sp++] = swap ? nd.left + 1 : nd.left;
+      stack[sp++] = swap ? nd.left : nd.left + 1;
+    }
+    return s / (4.0 * 3.14159265358979323846);
+  }
+  // The solid angle of the fan from c over edges [b, e) at p: the sum of 2 atan2(num, den)
+  // over its triangles, with one atan2 for each run of triangles whose half-angles add up
+  // to less than 1.5 in magnitude (bounded by sum |num| / den where den > 0): the
+  // product of the complex numbers den + i num has their sum as its argument, exactly
+  // (up to rounding) while that sum stays in (-pi, pi).
+  double fan_angle(const double* c, int64_t b, int64_t e, const double* p) const {
+    double a[3];
+    double m = 0.0;
+    for (int k = 0; k < 3; ++k) {
+      a[k] = c[k] - p[k];
+      m = std::max(m, std::fabs(a[k]));
+    }
+    double s = 0.0;
+    if (m < 1e-80) {  // tiny: the scaled solid angles
+      for (int64_t j = b; j < e; ++j)
+        s += edges_[j].mult *
+             solid_angle(p, c, V_ + 3 * int64_t(edges_[j].i), V_ + 3 * int64_t(edges_[j].j));
+      return s;
+    }
+    const double la = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double zr = 1.0, zi = 0.0, t = 0.0;
+    for (int64_t j = b; j < e; ++j) {
+      const Edge& ed = edges_[j];
+      const double* B = V_ + 3 * int64_t(ed.i);
+      const double* C = V_ + 3 * int64_t(ed.j);
+      const double u[3] = {B[0] - p[0], B[1] - p[1], B[2] - p[2]};
+      const double w[3] = {C[0] - p[0], C[1] - p[1], C[2] - p[2]};
+      const double lb = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      const double lc = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+      const double uw[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2],
+                            u[0] * w[1] - u[1] * w[0]};
+      const double num = a[0] * uw[0] + a[1] * uw[1] + a[2] * uw[2];
+      if (num == 0.0) continue;
+      const double den = la * lb * lc + (a[0] * u[0] + a[1] * u[1] + a[2] * u[2]) * lc +
+                         (a[0] * w[0] + a[1] * w[1] + a[2] * w[2]) * lb +
+                         (u[0] * w[0] + u[1] * w[1] + u[2] * w[2]) * la;
+      if (!(den > 0.0) || ed.mult != 1) {
+        s += ed.mult * 2.0 * std::atan2(num, den);
+        continue;
+      }
+      const double x = std::fabs(num) / den;
+      if (t > 0.0 && t + x > 1.5) {
+        s += 2.0 * std::atan2(zi, zr);
+        zr = 1.0;
+        zi = 0.0;
+        t = 0.0;
+      }
+      const double nr = zr * den - zi * num, ni = zr * num + zi * den;
+      const double k = 1.0 / std::max(std::fabs(nr), std::fabs(ni));
+      zr = nr * k;
+      zi = ni * k;
+      t += x;
+    }
+    if (t > 0.0) s += 2.0 * std::atan2(zi, zr);
+    return s;
+  }
+  static double dist2(const double* a, const double* b) {
+    return (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+           (a[2] - b[2]) * (a[2] - b[2]);
+  }
+
  private:
+  // A node's far field: its centre c (the triangles' area-weighted centroid), the radius R
+  // of its corners about c and, in units of R (so that neither tiny nor huge meshes under-
+  // or overflow), the total absolute area A, bounds mu4, mu5 on int |d|^4, |d|^5 dA and the
+  // moments of the area-weighted normals n: N_i = sum n_i, M1_ij = int n_i d_j, M2_ijk =
+  // int n_i d_j d_k, M3_ijkl = int n_i d_j d_k d_l (d = x - c; jk, jkl packed sorted);
+  // `area` is the node's area in units of the root's size, for the budget's shares.
+  struct Moments {
+    double c[3] = {0, 0, 0};
+    double R = 0.0, A = 0.0, mu4 = 0.0, mu5 = 0.0, area = 0.0;
+    double N[3] = {0, 0, 0};
+    double M1[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    double M2[18] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    double M3[30] = {};
+  };
+
+  // Whether node m's expansion at p is within its share of the budget; then u (the unit
+  // vector from p to the centre), q = R / rho and the bound.
+  static bool admissible(const Moments& m, const double* p, double budget, double area_left,
+                         double* u, double* q, double* bound, double* ratio = nullptr) {
+    if (ratio) *ratio = std::numeric_limits<double>::infinity();
+    if (!(m.R > 0.0 && budget > 0.0)) return false;
+    double big = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      u[a] = m.c[a] - p[a];
+      big = std::max(big, std::fabs(u[a]));
+    }
+    if (!(big > 0.0)) return false;
+    for (int a = 0; a < 3; ++a) u[a] /= big;
+    const double len = norm3(u);
+    *q = m.R / big / len;
+    if (!(*q < 1.0)) return false;
+    *bound = remainder(m, *q);
+    const double share = m.area >= area_left ? budget : budget * (m.area / area_left);
+    if (ratio && share > 0.0) *ratio = *bound / share;
+    if (!(*bound <= share)) return false;
+    for (int a = 0; a < 3; ++a) u[a] /= len;
+    return true;
+  }
+  // About what descending into a node costs (in solid angles) where its bound is `ratio`
+  // times its share: its descendants' bounds fall as their radius^6 (q^6), their shares
+  // only as their area, so the number of them needed grows as a power of ratio (the
+  // constant and the power tuned on open meshes). Only a choice of work: the values stay
+  // within the bound either way.
+  static double descend_cost(double ratio) {
+    return ratio < 1e30 ? 8.0 * std::cbrt(ratio * ratio) : ratio;
+  }
+  // Whether both children of an inner node would take their expansions at p (cheaper than
+  // the node's boundary fan of more than two edges), with the budget as it stands.
+  bool children_expand(int32_t left, const double* p, double budget, double area_left) const {
+    if (left < 0) return false;
+    double u[3], q, b0, b1;
+    if (!admissible(moments_[left], p, budget, area_left, u, &q, &b0)) return false;
+    return admissible(moments_[left + 1], p, budget - b0, area_left - moments_[left].area, u, &q,
+                      &b1);
+  }
+
+  // The bound on the error of a node's expansion at a point at distance R / q from its
+  // centre: sum_{l >= 4} (l + 1) int |d|^l dA / rho^(l + 2), with int |d|^l dA <= R^(l - 5)
+  // mu5 for l >= 5 (in units of R: q^6 (5 mu4 + q mu5 sum_j (j + 6) q^j)).
+  static double remainder(const Moments& m, double q) {
+    const double q2 = q * q;
+    return q2 * q2 * q2 * (5.0 * m.mu4 + q * m.mu5 * (6.0 - 5.0 * q) / ((1.0 - q) * (1.0 - q)));
+  }
+
+  // The third-order expansion of a node's solid angle at a point at distance R / q from
+  // its centre, u the unit vector from the point to the centre: sum of the orders
+  // N.K + M1:grad K + M2:grad^2 K / 2 + M3:grad^3 K / 6 of K(y) = y / |y|^3 at y = u R / q.
+  static double expansion(const Moments& m, const double* u, double q) {
+    const double o0 = m.N[0] * u[0] + m.N[1] * u[1] + m.N[2] * u[2];
+    double tr = m.M1[0] + m.M1[4] + m.M1[8], uMu = 0.0;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) uMu += u[a] * m.M1[3 * a + b] * u[b];
+    const double o1 = tr - 3.0 * uMu;
+    // packed index of (j, k), j <= k: 00 01 02 11 12 22
+    static constexpr int kSym[3][3] = {{0, 1, 2}, {1, 3, 4}, {2, 4, 5}};
+    double t1 = 0.0, t2 = 0.0, t3 = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double* S = m.M2 + 6 * i;
+      double Su = 0.0, uSu = 0.0;
+      for (int j = 0; j < 3; ++j) {
+        double row = 0.0;
+        for (int k = 0; k < 3; ++k) row += S[kSym[j][k]] * u[k];
+        uSu += u[j] * row;
+        if (j == i) Su = row;
+      }
+      t1 += Su;                           // sum_i M2_iik u_k
+      t2 += u[i] * (S[0] + S[3] + S[5]);  // sum_i u_i M2_ijj
+      t3 += u[i] * uSu;                   // M2_ijk u_i u_j u_k
+    }
+    const double o2 = 0.5 * (15.0 * t3 - 3.0 * (2.0 * t1 + t2));
+    // order 3: M3_ijkl d^3 K_i / 6 = -M3_ijkl T_ijkl / 6, T the fourth derivatives of
+    // 1 / |y|: (105 u_i u_j u_k u_l - 15 (delta u u, 6 terms) + 3 (delta delta, 3 terms))
+    static constexpr int kSym3[3][3][3] = {{{0, 1, 2}, {1, 3, 4}, {2, 4, 5}},
+                                           {{1, 3, 4}, {3, 6, 7}, {4, 7, 8}},
+                                           {{2, 4, 5}, {4, 7, 8}, {5, 8, 9}}};
+    double W = 0.0, X = 0.0, Y = 0.0, Z = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double* M = m.M3 + 10 * i;
+      double b[3], tr[3];
+      for (int j = 0; j < 3; ++j) {
+        double bj = 0.0;
+        for (int k = 0; k < 3; ++k) {
+          double a = 0.0;
+          for (int l = 0; l < 3; ++l) a += M[kSym3[j][k][l]] * u[l];
+          bj += a * u[k];
+        }
+        b[j] = bj;                                                          // M3_i(j, u, u)
+        tr[j] = M[kSym3[0][0][j]] + M[kSym3[1][1][j]] + M[kSym3[2][2][j]];  // M3_i(k, k, j)
+      }
+      W += u[i] * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2]);
+      X += b[i];
+      Y += u[i] * (tr[0] * u[0] + tr[1] * u[1] + tr[2] * u[2]);
+      Z += tr[i];
+    }
+    const double o3 = (-105.0 * W + 45.0 * (X + Y) - 9.0 * Z) / 6.0;
+    return (q * q) * (o0 + q * (o1 + q * (o2 + q * o3)));
+  }
+  static double norm3(const double* x) {
+    return std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+  }
+  static void half_cross(const double (*d)[3], double* nn) {
+    double e1[3], e2[3];
+    for (int a = 0; a < 3; ++a) {
+      e1[a] = d[1][a] - d[0][a];
+      e2[a] = d[2][a] - d[0][a];
+    }
+    nn[0] = 0.5 * (e1[1] * e2[2] - e1[2] * e2[1]);
+    nn[1] = 0.5 * (e1[2] * e2[0] - e1[0] * e2[2]);
+    nn[2] = 0.5 * (e1[0] * e2[1] - e1[1] * e2[0]);
+  }
   struct Node {
     double lo[3] = {std::numeric_limits<double>::infinity(),
                     std::numeric_limits<double>::infinity(),
@@ -221,6 +604,18 @@ class WindingTree {
   struct Edge {
     int32_t i, j, mult;
   };
+  std::vector<Moments> moments_;
+  // The centre of a node's box and its largest half-extent h; false where h is zero or
+  // below the normal range.
+  static bool frame(const Node& nd, double* c, double* h) {
+    double e = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      c[a] = 0.5 * nd.lo[a] + 0.5 * nd.hi[a];
+      e = std::max(e, 0.5 * nd.hi[a] - 0.5 * nd.lo[a]);
+    }
+    *h = e;
+    return e >= std::numeric_limits<double>::min() && std::isfinite(e);
+  }
   const double* corner(int32_t f, int k) const { return V_ + 3 * int64_t(F_[3 * int64_t(f) + k]); }
   static bool outside(const Node& nd, const double* p, double margin) {
     for (int a = 0; a < 3; ++a)

@@ -3,11 +3,13 @@
 // non-zero status with a message in `err`.
 //
 //   voxax_winding_number(V (nv, 3) f64, nv, F (nf, 3) i32, nf, P (n, 3) f64, n, mode,
-//                        threads, out (n,) f64, stats (2,) i64, err, errlen)
+//                        accuracy, threads, out (n,) f64, stats (2,) i64, err, errlen)
 //     mode 0: one ray per point where the faces form a cycle, the hierarchy of boundaries
 //     (WindingTree) elsewhere and for the points a ray leaves unclear; mode 1: the plain
-//     solid-angle sum everywhere (face by face). stats: [faces form a cycle, points decided by a
-//     ray].
+//     solid-angle sum everywhere (face by face). accuracy (finite, >= 0; mode 0 only): 0
+//     for the exact hierarchy, eps > 0 for its error-bounded far-field expansion
+//     (WindingTree::eval_approx: within eps of the solid-angle sum, up to rounding) at the
+//     points that do not take a ray. stats: [faces form a cycle, points decided by a ray].
 
 #include <algorithm>
 #include <cmath>
@@ -34,8 +36,9 @@ constexpr double kDir[3] = {0.5380366873043318, 0.6914262851176237, 0.4820538419
 }  // namespace
 
 VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t* F, int64_t nf,
-                                      const double* P, int64_t n, int32_t mode, int32_t threads,
-                                      double* out, int64_t* stats, char* err, int64_t errlen) {
+                                      const double* P, int64_t n, int32_t mode, double accuracy,
+                                      int32_t threads, double* out, int64_t* stats, char* err,
+                                      int64_t errlen) {
   return voxax::host_guarded("the winding numbers", err, errlen, [&](std::string* msg) {
     if (nv < 0 || nf < 0 || n < 0 || nf > INT32_MAX / 2) {
       *msg = "voxax: the winding numbers take at most 2^30 faces";
@@ -43,6 +46,14 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     }
     if (mode != 0 && mode != 1) {
       *msg = "voxax: the winding numbers' mode must be 0 or 1";
+      return false;
+    }
+    if (!(accuracy >= 0.0) || !std::isfinite(accuracy)) {
+      *msg = "voxax.winding_number: `accuracy` must be a finite number >= 0";
+      return false;
+    }
+    if (mode == 1 && accuracy != 0.0) {
+      *msg = "voxax: the winding numbers' plain sum (mode 1) takes accuracy 0";
       return false;
     }
     if (!voxax::check_host_coordinates(V, 3 * nv, "vertices", msg) ||
@@ -78,11 +89,14 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     if (by_ray < n) {
       voxax::spatial::WindingTree tree;
       if (mode == 0) tree.build(V, F, nf);
+      const bool approx = mode == 0 && accuracy > 0.0;
+      if (approx) tree.build_moments();
       voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t i = b; i < e; ++i)
           if (pending[i])
-            out[i] =
-                mode == 0 ? tree.eval(P + 3 * i) : voxax::spatial::winding_sum(P + 3 * i, V, F, nf);
+            out[i] = approx      ? tree.eval_approx(P + 3 * i, accuracy)
+                     : mode == 0 ? tree.eval(P + 3 * i)
+                                 : voxax::spatial::winding_sum(P + 3 * i, V, F, nf);
       });
     }
     if (stats) {

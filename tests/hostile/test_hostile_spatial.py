@@ -124,6 +124,22 @@ CASES = [
      "p = np.array([[0.0, 0, 0], [1e30, 0, 0], [0, 0, -1e75], [1e-300, 0, 0]]);"
      "w = np.asarray(voxax.winding_number(V, F, p)); wj = np.asarray(jax.jit(lambda q: voxax.winding_number(V, F, q))(p));"
      "assert np.allclose(w, [1, 0, 0, 1], atol=1e-9) and np.allclose(wj, w, atol=1e-9), (w, wj)", None, ""),
+    ("winding_number", "accuracy True", "voxax.winding_number(V, F[:-3], P, accuracy=True)", "TypeError", "`accuracy`"),
+    ("winding_number", "accuracy '0.1'", "voxax.winding_number(V, F[:-3], P, accuracy='0.1')", "TypeError",
+     "`accuracy`"),
+    ("winding_number", "accuracy NaN", "voxax.winding_number(V, F[:-3], P, accuracy=float('nan'))", "ValueError",
+     "`accuracy`"),
+    ("winding_number", "accuracy -1e-3", "voxax.winding_number(V, F[:-3], P, accuracy=-1e-3)", "ValueError", ">= 0"),
+    ("winding_number", "accuracy an array", "voxax.winding_number(V, F[:-3], P, accuracy=np.array([0.1, 0.2]))",
+     "TypeError", "`accuracy`"),
+    ("winding_number", "traced accuracy", "jax.jit(lambda a: voxax.winding_number(V, F[:-3], P, accuracy=a))(0.1)",
+     "TypeError", "traced"),
+    ("winding_number", "accuracy on an open ball at 1e-300 to 1e70 (oracle)",
+     "rng = np.random.default_rng(0); q = rng.normal(size=(200, 3)) * rng.uniform(0.2, 20, (200, 1));"
+     "e = np.asarray(voxax.winding_number(V, F[:-3], q));\n"
+     "for s in (1e-300, 1.0, 1e70):\n"
+     " w = np.asarray(voxax.winding_number(V * s, F[:-3], q * s, accuracy=1e-3)); d = np.abs(w - e).max();"
+     " assert d <= 1e-3 and d > 1e-12, (s, d)", None, ""),
     # nearest neighbours
     ("nearest_neighbors", "k = 2.7", "voxax.nearest_neighbors(V, P, k=2.7)", "TypeError", "`k`"),
     ("nearest_neighbors", "k = '2'", "voxax.nearest_neighbors(V, P, k='2')", "TypeError", "`k`"),

@@ -1812,8 +1812,9 @@ def run_intersections(rng, rounds=60):
 
 
 def run_winding(rng, rounds=40):
-    """Winding numbers (the ray path on closed meshes, the boundary hierarchy on soups) on
-    adversarial soups and closed meshes, against the plain solid-angle sum; hostile raw
+    """Winding numbers (the ray path on closed meshes, the boundary hierarchy on soups, its
+    bounded far-field expansion at a random accuracy) on adversarial soups and closed
+    meshes, against the plain solid-angle sum; hostile raw
     calls of the host entry point and of the jit check kernel."""
     import ctypes
 
@@ -1839,6 +1840,9 @@ def run_winding(rng, rounds=40):
             w1, c1, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 1)
             w3, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 3)
             ws, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, True, 2)
+            eps = float(10.0 ** rng.uniform(-8, 0))  # the bounded far-field expansion
+            wa1, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 1, eps)
+            wa3, _, _ = spk.winding_number(np.ascontiguousarray(v), f, p, False, 3, eps)
         except Exception as exc:  # noqa: BLE001
             fail(f"{label}: raised on a valid input: {exc!r}")
             continue
@@ -1855,6 +1859,10 @@ def run_winding(rng, rounds=40):
             fail(f"{label}: thread count changed the winding numbers")
         if not np.all(np.isfinite(w1)) or np.max(np.abs(w1 - ws), initial=0) > 1e-6 * max(1, len(f)):
             fail(f"{label}: winding numbers differ from the plain sum by {np.max(np.abs(w1 - ws), initial=0)}")
+        if not np.array_equal(wa1, wa3):
+            fail(f"{label}: thread count changed the bounded winding numbers")
+        if not np.all(np.isfinite(wa1)) or np.max(np.abs(wa1 - ws), initial=0) > eps + 1e-6 * max(1, len(f)):
+            fail(f"{label}: accuracy {eps:.1e} exceeded: {np.max(np.abs(wa1 - ws), initial=0)} from the plain sum")
     lib = spk.library()
     err = ctypes.create_string_buffer(256)
     out = np.zeros(4)
@@ -1864,17 +1872,21 @@ def run_winding(rng, rounds=40):
     good_f = np.array([[0, 1, 2]], np.int32)
     nan = np.full((3, 3), np.nan)
     pts = np.zeros((1, 3))
-    for v_, nv, f_, nf, p_, n, mode in (
-        (nan, 3, good_f, 1, pts, 1, 0),
-        (good_v, 3, bad_f, 1, pts, 1, 0),
-        (good_v, 3, good_f, 1, nan, 1, 0),
-        (good_v, -1, good_f, 1, pts, 1, 0),
-        (good_v, 3, good_f, 1, pts, 1, 7),
-        (good_v, 3, good_f, -2, pts, 1, 0),
+    for v_, nv, f_, nf, p_, n, mode, acc in (
+        (nan, 3, good_f, 1, pts, 1, 0, 0.0),
+        (good_v, 3, bad_f, 1, pts, 1, 0, 0.0),
+        (good_v, 3, good_f, 1, nan, 1, 0, 0.0),
+        (good_v, -1, good_f, 1, pts, 1, 0, 0.0),
+        (good_v, 3, good_f, 1, pts, 1, 7, 0.0),
+        (good_v, 3, good_f, -2, pts, 1, 0, 0.0),
+        (good_v, 3, good_f, 1, pts, 1, 0, float("nan")),  # accuracy: NaN, < 0, infinite
+        (good_v, 3, good_f, 1, pts, 1, 0, -1e-3),
+        (good_v, 3, good_f, 1, pts, 1, 0, float("inf")),
+        (good_v, 3, good_f, 1, pts, 1, 1, 0.1),  # the plain sum takes no accuracy
     ):
         status = lib.voxax_winding_number(
             _kernels.pointer(v_, _kernels.D), nv, _kernels.pointer(f_, _kernels.I32), nf,
-            _kernels.pointer(p_, _kernels.D), n, mode, 1, _kernels.pointer(out, _kernels.D),
+            _kernels.pointer(p_, _kernels.D), n, mode, acc, 1, _kernels.pointer(out, _kernels.D),
             _kernels.pointer(stats, _kernels.I64), err, len(err),
         )  # fmt: skip
         if status == 0:

@@ -147,3 +147,139 @@ def test_bad_input():
         winding_number(m.vertices.astype(int), m.faces, np.zeros((3, 3)))
     with pytest.raises(ValueError, match="segments"):
         winding_number(np.zeros((3, 2)), m.faces, np.zeros((3, 2)))
+
+
+# --- `accuracy`: the error-bounded far-field expansion of the eager path -------------------
+
+
+def _solid_angle_sum(v, f, p, block=256):
+    """The winding numbers by the plain solid-angle sum, in numpy (an oracle independent of
+    the kernels): Van Oosterom and Strackee's tan(Omega / 2), face by face."""
+    tri = np.asarray(v, np.float64)[np.asarray(f)]
+    out = []
+    for s in range(0, len(p), block):
+        q = np.asarray(p[s : s + block], np.float64)[:, None, None, :]
+        a, b, c = (tri[None, :, k, :] - q[:, :, 0, :] for k in range(3))
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        num = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
+        den = la * lb * lc + (a * b).sum(-1) * lc + (a * c).sum(-1) * lb + (b * c).sum(-1) * la
+        out.append(np.where(num == 0, 0.0, 2 * np.arctan2(num, den)).sum(-1) / (4 * np.pi))
+    return np.concatenate(out)
+
+
+def _open_and_soup(rng):
+    m = voxax.data.large(2000)
+    v = np.asarray(m.vertices, np.float64)
+    f = np.asarray(m.faces)[: len(m.faces) * 9 // 10]  # 10% of the faces cut: open
+    sv = rng.uniform(-1, 1, size=(900, 3))
+    sv = np.concatenate([sv, sv[:300] + 1e-9])  # also near-duplicate vertices
+    sf = rng.integers(0, len(sv), size=(600, 3))  # random triangles (some degenerate)
+    sf = np.concatenate([sf, rng.choice(len(sv), size=(40, 3), replace=False)])
+    return (v, f), (sv, sf)
+
+
+def _points_near_and_far(rng, v, n=300):
+    lo, hi = v.min(0), v.max(0)
+    near = v[rng.integers(0, len(v), n)] + rng.normal(scale=1e-3 * np.abs(hi - lo).max(), size=(n, 3))
+    box = rng.uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), size=(n, 3))
+    far = rng.normal(size=(n, 3))
+    far *= (np.abs(hi - lo).max() * rng.uniform(1.5, 20, size=(n, 1))) / np.linalg.norm(far, axis=1, keepdims=True)
+    return np.concatenate([near, v[:20], box, far])
+
+
+def test_accuracy_bounds_the_error_on_open_surfaces_and_soups(rng):
+    for v, f in _open_and_soup(rng):
+        p = _points_near_and_far(rng, v)
+        exact = _solid_angle_sum(v, f, p)
+        np.testing.assert_allclose(winding_number(v, f, p), exact, atol=1e-11)
+        errors = {}
+        for eps in (0.3, 1e-2, 1e-4, 1e-7):
+            w = np.asarray(winding_number(v, f, p, accuracy=eps))
+            err = np.abs(w - exact)
+            errors[eps] = err.max()
+            assert err.max() <= eps + 1e-11, (eps, err.max(), np.argmax(err))
+        # The expansion is used (the bound is not met vacuously by the exact sum): the loose
+        # budgets give errors well above rounding, the tight ones much smaller.
+        assert errors[0.3] > 1e-6 and errors[1e-2] > 1e-9, errors
+        assert errors[1e-7] < errors[0.3]
+
+
+def test_accuracy_mesh_scales_and_thread_counts(rng):
+    (v, f), (sv, sf) = _open_and_soup(rng)
+    p = _points_near_and_far(rng, v, 100)
+    exact = _solid_angle_sum(v, f, p)
+    for s in (1e-60, 1.0, 1e60):  # scale-free: no under- or overflow of the moments
+        w = np.asarray(winding_number(v * s, f, p * s, accuracy=1e-3))
+        assert np.abs(w - exact).max() <= 1e-3 + 1e-11, s
+    # the same bits for any thread count (and an error within the bound)
+    q = _points_near_and_far(rng, sv, 700)  # more than one chunk of points
+    w1 = np.asarray(winding_number(sv, sf, q, accuracy=1e-3, threads=1))
+    for t in (2, 3):
+        np.testing.assert_array_equal(np.asarray(winding_number(sv, sf, q, accuracy=1e-3, threads=t)), w1)
+    assert np.abs(w1 - _solid_angle_sum(sv, sf, q)).max() <= 1e-3 + 1e-11
+
+
+def test_accuracy_none_zero_closed_meshes_and_the_jax_path(rng):
+    (v, f), _ = _open_and_soup(rng)
+    p = _points_near_and_far(rng, v, 50)
+    w = np.asarray(winding_number(v, f, p))
+    np.testing.assert_array_equal(np.asarray(winding_number(v, f, p, accuracy=None)), w)
+    np.testing.assert_array_equal(np.asarray(winding_number(v, f, p, accuracy=0)), w)
+    np.testing.assert_array_equal(np.asarray(winding_number(v, f, p, accuracy=np.float32(0.0))), w)
+    # A closed mesh keeps its exact rays: integers (1/2 on the faces), whatever the accuracy.
+    m = voxax.data.icosphere(2)
+    q = rng.uniform(-1.5, 1.5, size=(200, 3))
+    np.testing.assert_array_equal(
+        np.asarray(winding_number(m.vertices, m.faces, q, accuracy=0.4)), np.asarray(winding_number(m.vertices, m.faces, q))
+    )
+    # The JAX path (traced, batched, 2D) is exact, which meets any accuracy.
+    wj = jax.jit(lambda x: winding_number(v, f, x, accuracy=0.5))(p)
+    np.testing.assert_allclose(wj, w, atol=1e-10)
+    sq = voxax.data.polygon_square()
+    p2 = rng.uniform(-1, 1, size=(20, 2))
+    np.testing.assert_array_equal(
+        np.asarray(winding_number(sq.vertices, sq.faces, p2, accuracy=0.1)), np.asarray(winding_number(sq.vertices, sq.faces, p2))
+    )
+
+
+@pytest.mark.parametrize(
+    "value, error, match",
+    [
+        (True, TypeError, "`accuracy`"),
+        ("0.1", TypeError, "`accuracy`"),
+        (1j, TypeError, "`accuracy`"),
+        (np.array([0.1, 0.2]), TypeError, "`accuracy`"),
+        ([0.1], TypeError, "`accuracy`"),
+        (float("nan"), ValueError, "`accuracy`"),
+        (float("inf"), ValueError, "`accuracy`"),
+        (-1e-3, ValueError, ">= 0"),
+    ],
+)
+def test_accuracy_bad_values(value, error, match):
+    m = voxax.data.box()
+    with pytest.raises(error, match=match):
+        winding_number(m.vertices, m.faces[:10], np.zeros((2, 3)), accuracy=value)
+
+
+def test_accuracy_traced_is_refused():
+    m = voxax.data.box()
+    with pytest.raises(TypeError, match="traced"):
+        jax.jit(lambda a: winding_number(m.vertices, m.faces, jnp.zeros((2, 3)), accuracy=a))(0.1)
+
+
+def test_tiny_meshes_do_not_underflow():
+    # The cubic terms of the solid angle underflow below about 1e-150 (float64) and 1e-20
+    # (float32); the coordinates are then scaled to unit size first (C++: per triangle and
+    # point, JAX: per mesh and points): eager, jit, 3D and 2D.
+    m, sq = voxax.data.box(), voxax.data.polygon_square()
+    p = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.1, 0.1]])
+    want = [1.0, 0.0, 0.5]
+    for s in (1e-300, 1e-160, 1.0):
+        v, q = np.asarray(m.vertices) * s, p * s
+        np.testing.assert_allclose(winding_number(v, m.faces, q), want, atol=1e-12)
+        np.testing.assert_allclose(winding_number(v, m.faces[:-1], q[:1], accuracy=1e-6), 11 / 12, atol=1e-6)
+        np.testing.assert_allclose(jax.jit(lambda v, q: winding_number(v, m.faces, q))(v, q), want, atol=1e-12)
+        w2 = jax.jit(lambda v, q: winding_number(v, sq.faces, q))(np.asarray(sq.vertices) * s, p[:, :2] * s)
+        np.testing.assert_allclose(w2, want, atol=1e-12)
+    v32, q32 = (np.asarray(m.vertices) * 1e-20).astype(np.float32), (p * 1e-20).astype(np.float32)
+    np.testing.assert_allclose(jax.jit(lambda v, q: winding_number(v, m.faces, q))(v32, q32), want, atol=1e-5)

@@ -45,7 +45,7 @@ _SIGNATURES = {
     "voxax_hits_size": (_i64, [VP]),
     "voxax_hits_copy": (None, [VP, D, I32, D, I8]),
     "voxax_hits_free": (None, [VP]),
-    "voxax_winding_number": (ctypes.c_int, [D, _i64, I32, _i64, D, _i64, _i32, _i32, D, I64, _err, _i64]),
+    "voxax_winding_number": (ctypes.c_int, [D, _i64, I32, _i64, D, _i64, _i32, _dbl, _i32, D, I64, _err, _i64]),
 }  # fmt: skip
 
 
@@ -133,17 +133,21 @@ def bvh_all_hits(handle: VP, origins, directions, t_min: float, t_max: float, th
     return counts, t, face, bary, sign
 
 
-def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, exact_sum: bool, threads: int):
+def winding_number(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, exact_sum: bool, threads: int, accuracy: float = 0.0
+):
     """Winding numbers of mesh `(vertices (V, 3) f64, faces (F, 3) i32)` at `points (n, 3)
     f64`: `(values (n,) f64, closed, points decided by a ray)`. `exact_sum`: the solid-angle
-    sum at every point instead of one ray per point on a closed mesh."""
+    sum at every point instead of one ray per point on a closed mesh. `accuracy` (a finite
+    float >= 0, not with `exact_sum`): 0 for the exact hierarchy, eps > 0 for the far-field
+    expansion within eps of the sum (at the points no ray decides)."""
     n = len(points)
     out = np.empty(n, np.float64)
     stats = np.zeros(2, np.int64)
     err = error_buffer()
     status = library().voxax_winding_number(
         pointer(vertices, D), len(vertices), pointer(faces, I32), len(faces), pointer(points, D), n,
-        int(exact_sum), threads, pointer(out, D), pointer(stats, I64), err, ERRLEN,
+        int(exact_sum), float(accuracy), threads, pointer(out, D), pointer(stats, I64), err, ERRLEN,
     )  # fmt: skip
     check(status, err)
     return out, bool(stats[0]), int(stats[1])
