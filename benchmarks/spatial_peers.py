@@ -19,6 +19,7 @@ rounds is reported (builds: one call each); results are checked for agreement. T
 library, thread pools included, to one thread; voxax is also passed `threads`.
 
     nice -n 10 python benchmarks/spatial_peers.py --faces 300000 --rays 300000 --cores 1
+    nice -n 10 python benchmarks/spatial_peers.py --faces 1500000 --rays 1000000 --first-hits-only
 """
 
 from __future__ import annotations
@@ -285,6 +286,7 @@ def main(argv=None):
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--cores", type=int, default=1)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--first-hits-only", action="store_true", help="only the first hits against embree")
     args = parser.parse_args(argv)
     os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
     threads = args.cores
@@ -296,6 +298,9 @@ def main(argv=None):
     print("| query | peer | voxax | peer | voxax speed-up | agreement |")
     print("|---|---|---|---|---|---|")
     first_hits(big, args.rays, threads, args.repeat, rng)
+    if args.first_hits_only:
+        print(f"\n1-minute load average at the end: {os.getloadavg()[0]:.1f}")
+        return
     first_hits_more(big, args.rays, threads, args.repeat, rng)
     winding(mid, args.points, threads, args.repeat, rng)
     winding(voxax.data.large(2_000), args.points // 10, threads, args.repeat, rng, open_faces=True)

@@ -504,6 +504,7 @@ class Bvh {
       }
       bool ok = true;
       std::vector<FNode> fn;
+      fn.reserve(quads_.size());  // a hint: an FNode takes up to 7 Pairs, a Quad 3
       make_fnode(root_ref_, &fn, &ok);
       if (ok) make_qnodes(fn);
     }
@@ -662,7 +663,8 @@ class Bvh {
   // below (lo) or above (hi) it, in exact integer arithmetic (double), so the quantised
   // box contains the float one.
   void make_qnodes(const std::vector<FNode>& fn) {
-    std::vector<QNode> out(fn.size());
+    qnodes_.resize(fn.size());  // cleared again where a grid does not fit
+    QNode* out = qnodes_.data();
     for (int a = 0; a < 3; ++a) qmax_[a] = 0.0;
     for (size_t i = 0; i < fn.size(); ++i) {
       const FNode& f = fn[i];
@@ -703,12 +705,17 @@ class Bvh {
           if (fits) {
             q.base[a] = static_cast<float>(m * sc);
             q.scale[a] = static_cast<float>(sc);
-            if (static_cast<double>(q.base[a]) != m * sc || static_cast<double>(q.scale[a]) != sc)
+            if (static_cast<double>(q.base[a]) != m * sc || static_cast<double>(q.scale[a]) != sc) {
+              qnodes_.clear();
               return;
+            }
             qmax_[a] = std::max(qmax_[a], std::fabs(m * sc) + 255.0 * sc);
             break;
           }
-          if (tries > 4 || !(sc < 1e300)) return;
+          if (tries > 4 || !(sc < 1e300)) {
+            qnodes_.clear();
+            return;
+          }
           sc *= 2.0;
         }
         for (int k = 0; k < kFWidth; ++k)
@@ -721,8 +728,7 @@ class Bvh {
       q.scale[3] = 0.0f;
     }
     for (int a = 0; a < 3; ++a)
-      if (!(qmax_[a] <= 1152921504606846976.0)) return;
-    qnodes_.assign(out.begin(), out.end());
+      if (!(qmax_[a] <= 1152921504606846976.0)) qnodes_.clear();
   }
 
   // A ray for the float test of QNodes, where it is conservative. Per axis, with o the
