@@ -36,11 +36,12 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
   const double t_root = ray_box(ray, root_box_, ray.tmax);
   if (t_root == inf) return false;
   const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
-  const RayPair rp = ray_pair(ray);
   // First hits (not any hits, whose answer is the first found and so depends on the order)
   // go down the QNodes in float where that is conservative (FRay): the same answer.
   const FRay fr = fray(ray);
   const bool use_float = !any && fr.ok;
+  RayPair rp;
+  if (!use_float) rp = ray_pair(ray);
   double cull_seen = std::numeric_limits<double>::quiet_NaN();
   float cull_f = std::numeric_limits<float>::infinity();
   // Boxes are culled against the best t with a relative margin: a triangle's computed
@@ -78,7 +79,7 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
         alignas(16) float tc[kFWidth];
         if (cull != cull_seen) {
           cull_seen = cull;
-          cull_f = round_up(cull);
+          cull_f = up_float(cull);
         }
         int mask = qnode_entries(fr, fq, cull_f, tc);  // (cull_f >= cull)
         while (mask != 0) {
