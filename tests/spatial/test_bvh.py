@@ -329,6 +329,29 @@ def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path):
             assert first.face[i] == (f[0] if len(t) else -1)
 
 
+def test_hits_behind_the_origin_on_a_flat_mesh():
+    # a flat mesh (its boxes flat in z) met behind the origin, with t_min < 0: the slab
+    # test's far distance is negative there, and raising it by its rounding margin must not
+    # shrink it (the boxes were all lost that way)
+    g = np.arange(5.0)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(25)], 1)
+    k = (np.arange(4)[:, None] * 5 + np.arange(4)[None, :]).ravel()
+    F = np.concatenate([np.stack([k, k + 5, k + 6], 1), np.stack([k, k + 6, k + 1], 1)])
+    rng = np.random.default_rng(14)
+    o = np.concatenate([rng.uniform(0.1, 3.9, (200, 2)), rng.uniform(0.5, 2.0, (200, 1))], 1)
+    d = np.concatenate([rng.uniform(-0.05, 0.05, (200, 2)), np.ones((200, 1))], 1)
+    expect = -o[:, 2] / d[:, 2]
+    inside = np.all((o[:, :2] + expect[:, None] * d[:, :2] > 0) & (o[:, :2] + expect[:, None] * d[:, :2] < 4), 1)
+    bvh = voxax.BVH(V, F)
+    first = bvh.first_hits(o, d, t_min=-5.0, t_max=5.0)
+    assert inside.sum() > 150
+    np.testing.assert_allclose(first.t[inside], expect[inside], rtol=1e-12)
+    assert np.all(bvh.any_hits(o, d, t_min=-5.0, t_max=5.0)[inside])
+    assert np.all(bvh.all_hits(o, d, t_min=-5.0, t_max=5.0).counts()[inside] == 1)
+    assert np.all(bvh.first_hits(o, d).face == -1)  # nothing ahead
+
+
 def test_first_hits_of_a_far_mesh_under_jit_match_the_host_path():
     # XLA's threads flush results below the normal range to zero: the float records' margin
     # covers that, so the jit path's first hits are the host path's
