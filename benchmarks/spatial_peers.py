@@ -19,10 +19,11 @@ rounds is reported (builds: one call each); results are checked for agreement. T
 library, thread pools included, to one thread; voxax is also passed `threads`.
 
     nice -n 10 python benchmarks/spatial_peers.py --faces 300000 --rays 300000 --cores 1
+    nice -n 10 python benchmarks/spatial_peers.py --faces 1500000 --rays 1000000 --first-hits-only
 
 `--only winding` (or `rays`, `closest`, `knn`; repeatable) runs one group of rows. The
 winding rows include voxax's error-bounded `accuracy=` mode against libigl's
-`fast_winding_number` at equal accuracy (see `winding_accuracy`).
+`fast_winding_number` at equal accuracy (see `winding_accuracy`). `--first-hits-only` runs the first-hit row alone.
 """
 
 from __future__ import annotations
@@ -348,6 +349,7 @@ def main(argv=None):
         action="append",
         help="run only these groups of rows (repeatable; default: all)",
     )
+    parser.add_argument("--first-hits-only", action="store_true", help="only the first hits against embree")
     args = parser.parse_args(argv)
     only = set(args.only or ("rays", "winding", "closest", "knn"))
     os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[: args.cores]))
@@ -361,6 +363,9 @@ def main(argv=None):
     print("|---|---|---|---|---|---|")
     if "rays" in only:
         first_hits(big, args.rays, threads, args.repeat, rng)
+        if args.first_hits_only:
+            print(f"\n1-minute load average at the end: {os.getloadavg()[0]:.1f}")
+            return
         first_hits_more(big, args.rays, threads, args.repeat, rng)
     if "winding" in only:
         winding(mid, args.points, threads, args.repeat, rng)

@@ -5,6 +5,7 @@
 //   voxax_bvh_build(V (nv, 3) f64, nv, F (nf, 3) i32, nf, &handle, err, errlen)
 //   voxax_bvh_free(handle)
 //   voxax_bvh_stats(handle, out[2]): node count, face count
+//   voxax_bvh_float_records(handle): the first hits' float records (0: none, float64 only)
 //   voxax_bvh_closest(handle, P (n, 3), n, max_dist, threads, dist, face, bary (n, 3),
 //   point (n, 3), err, errlen)  (max_dist: inf, or no farther; see Bvh::closest)
 //   voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
@@ -192,6 +193,11 @@ VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
   const Bvh* bvh = static_cast<const Bvh*>(handle);
   out[0] = bvh ? bvh->node_count() : 0;
   out[1] = bvh ? bvh->face_count() : 0;
+}
+
+VOXAX_EXPORT int64_t voxax_bvh_float_records(void* handle) {
+  const Bvh* bvh = static_cast<const Bvh*>(handle);
+  return bvh ? bvh->float_record_count() : 0;
 }
 
 VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, double max_dist,

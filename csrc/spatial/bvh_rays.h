@@ -36,22 +36,24 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
   const double t_root = ray_box(ray, root_box_, ray.tmax);
   if (t_root == inf) return false;
   const bool pairwise = !(ray.flat[0] || ray.flat[1] || ray.flat[2]);
-  const RayPair rp = ray_pair(ray);
-  // the root: a leaf, or Quad 0
-  stack_t[sp] = t_root;
-  stack_rc[sp++] = pack(root_count_ > 0 ? root_ref_ : 0, root_count_);
+  // First hits (not any hits, whose answer is the first found and so depends on the order)
+  // go down the QNodes in float where that is conservative (FRay): the same answer.
+  const FRay fr = fray(ray);
+  const bool use_float = !any && fr.ok;
+  RayPair rp;
+  if (!use_float) rp = ray_pair(ray);
+  double cull_seen = std::numeric_limits<double>::quiet_NaN();
+  float cull_f = std::numeric_limits<float>::infinity();
+  // Boxes are culled against the best t with a relative margin: a triangle's computed
+  // t and its box's slab distance round differently, and a hit a few ulps before the
+  // best one must not be culled (the result is the smallest computed t).
+  double cull = best.t + 1e-9 * std::fabs(best.t);
+  // The node visited: the root (a leaf, or Quad or QNode 0), then the nearest child met, taken
+  // without a round trip through the stack (the order is that of pushing every child met
+  // and popping the nearest, and so is the stack's depth at every record).
+  int32_t eref = root_count_ > 0 ? root_ref_ : 0, ecount = root_count_;
   RayHit h;
-  while (sp > 0) {
-    --sp;
-    const double et = stack_t[sp];
-    const uint64_t erc = stack_rc[sp];
-    const int32_t eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
-    const int32_t ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
-    // Boxes are culled against the best t with a relative margin: a triangle's computed
-    // t and its box's slab distance round differently, and a hit a few ulps before the
-    // best one must not be culled (the result is the smallest computed t).
-    const double cull = best.t + 1e-9 * std::fabs(best.t);
-    if (et > cull) continue;
+  for (;;) {
     if (ecount > 0) {
       for (int32_t i = eref; i < eref + ecount; ++i) {
         if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], best.t, &h)) {
@@ -63,37 +65,82 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
               *out = best;
               return true;
             }
+            cull = best.t + 1e-9 * std::fabs(best.t);
           }
         }
       }
-      continue;
-    }
-    if (sp + kQuadWidth > kStack) return brute_first(ray, any, out);
-    const Quad& qd = quads_[eref];
-    // the children met, pushed in order of decreasing t by insertion (ties keep the slot
-    // order on the way up), so that the nearest is visited first
-    const int base = sp;
-    for (int half = 0; half < kQuadWidth / 2; ++half) {
-      const RayRec& pr = qd.half[half];
-      double t2[2];
-      record_entries(ray, rp, pairwise, pr, cull, t2);
-      for (int j = 0; j < 2; ++j)
-        if (pr.count[j] >= 0 && t2[j] != inf) {
-          // the records or triangles start loading now (a hint: no effect on results)
-          prefetch_ref(pr.ref[j], pr.count[j]);
+    } else {
+      // the children met, pushed in order of decreasing t by insertion (ties keep the slot
+      // order on the way up), so that the nearest is visited first
+      const int base = sp;
+      if (use_float) {
+        if (sp + kFWidth > kStack) return brute_first(ray, any, out);
+        const QNode& fq = qnodes_[eref];
+        alignas(16) float tc[kFWidth];
+        if (cull != cull_seen) {
+          cull_seen = cull;
+          cull_f = up_float(cull);
+        }
+        int mask = qnode_entries(fr, fq, cull_f, tc);  // (cull_f >= cull)
+        while (mask != 0) {
+          const int j = __builtin_ctz(static_cast<unsigned>(mask));
+          mask &= mask - 1;
+          const double tj = tc[j];
+          const int32_t rj = fq.ref[j];
+          prefetch_fref(rj);
+          const uint64_t rc = rj < 0 ? pack(~rj, fq.count[j]) : pack(rj, 0);
           int at = sp++;
-          while (at > base && stack_t[at - 1] <= t2[j]) {
+          while (at > base && stack_t[at - 1] <= tj) {
             stack_t[at] = stack_t[at - 1];
             stack_rc[at] = stack_rc[at - 1];
             --at;
           }
-          stack_t[at] = t2[j];
-          stack_rc[at] = pack(pr.ref[j], pr.count[j]);
+          stack_t[at] = tj;
+          stack_rc[at] = rc;
         }
+      } else {
+        if (sp + kQuadWidth > kStack) return brute_first(ray, any, out);
+        const Quad& qd = quads_[eref];
+        for (int half = 0; half < kQuadWidth / 2; ++half) {
+          const RayRec& pr = qd.half[half];
+          double t2[2];
+          record_entries(ray, rp, pairwise, pr, cull, t2);
+          for (int j = 0; j < 2; ++j)
+            if (pr.count[j] >= 0 && t2[j] != inf) {
+              // the records or triangles start loading now (a hint: no effect on results)
+              prefetch_ref(pr.ref[j], pr.count[j]);
+              int at = sp++;
+              while (at > base && stack_t[at - 1] <= t2[j]) {
+                stack_t[at] = stack_t[at - 1];
+                stack_rc[at] = stack_rc[at - 1];
+                --at;
+              }
+              stack_t[at] = t2[j];
+              stack_rc[at] = pack(pr.ref[j], pr.count[j]);
+            }
+        }
+      }
+      if (sp > base) {  // the nearest child met: within the cull distance, which is unchanged
+        --sp;
+        const uint64_t erc = stack_rc[sp];
+        eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
+        ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
+        continue;
+      }
     }
+    // the next entry of the stack not beyond the cull distance
+    for (;;) {
+      if (sp == 0) {
+        if (found) *out = best;
+        return found;
+      }
+      --sp;
+      if (!(stack_t[sp] > cull)) break;
+    }
+    const uint64_t erc = stack_rc[sp];
+    eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
+    ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
   }
-  if (found) *out = best;
-  return found;
 }
 
 inline void Bvh::all_hits(const Ray& ray, std::vector<RayHit>* out) const {

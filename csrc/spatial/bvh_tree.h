@@ -64,6 +64,62 @@ inline V2d v2_sqrt(V2d x) {
 #endif
 }
 
+// Four floats processed together (SSE on x86-64; plain code elsewhere): the float box test
+// of first hits evaluates the eight children of a QNode as two groups of four.
+typedef float V4f __attribute__((vector_size(16)));
+typedef int V4i __attribute__((vector_size(16)));
+inline V4f v4_splat(float x) { return V4f{x, x, x, x}; }
+inline V4f v4_load(const float* f) {
+  V4f v;
+  std::memcpy(&v, f, sizeof(v));
+  return v;
+}
+inline V4f v4_max(V4f a, V4f b) {  // a > b ? a : b, lane by lane
+#if defined(__SSE__) && defined(__GNUC__) && !defined(__clang__)
+  return __builtin_ia32_maxps(a, b);
+#else
+  return V4f{a[0] > b[0] ? a[0] : b[0], a[1] > b[1] ? a[1] : b[1], a[2] > b[2] ? a[2] : b[2],
+             a[3] > b[3] ? a[3] : b[3]};
+#endif
+}
+inline V4f v4_min(V4f a, V4f b) {  // a < b ? a : b, lane by lane
+#if defined(__SSE__) && defined(__GNUC__) && !defined(__clang__)
+  return __builtin_ia32_minps(a, b);
+#else
+  return V4f{a[0] < b[0] ? a[0] : b[0], a[1] < b[1] ? a[1] : b[1], a[2] < b[2] ? a[2] : b[2],
+             a[3] < b[3] ? a[3] : b[3]};
+#endif
+}
+// Bit k set where lane k of a <= b.
+inline int v4_le_mask(V4f a, V4f b) {
+#if defined(__SSE__) && defined(__GNUC__) && !defined(__clang__)
+  return __builtin_ia32_movmskps(__builtin_ia32_cmpleps(a, b));
+#else
+  return (a[0] <= b[0] ? 1 : 0) | (a[1] <= b[1] ? 2 : 0) | (a[2] <= b[2] ? 4 : 0) |
+         (a[3] <= b[3] ? 8 : 0);
+#endif
+}
+
+// Eight bytes to eight floats (two vectors).
+inline void u8x8_to_float(const uint8_t* p, V4f* out) {
+#if defined(__SSE2__) && defined(__GNUC__) && !defined(__clang__)
+  typedef long long V2ll __attribute__((vector_size(16)));
+  typedef char V16c __attribute__((vector_size(16)));
+  typedef short V8s __attribute__((vector_size(16)));
+  long long bits;
+  std::memcpy(&bits, p, 8);
+  const V16c b = (V16c)(V2ll{bits, 0});
+  const V16c z = {};
+  const V8s w = (V8s)__builtin_ia32_punpcklbw128(b, z);
+  const V8s zs = {};
+  out[0] = __builtin_ia32_cvtdq2ps((V4i)__builtin_ia32_punpcklwd128(w, zs));
+  out[1] = __builtin_ia32_cvtdq2ps((V4i)__builtin_ia32_punpckhwd128(w, zs));
+#else
+  out[0] = V4f{float(p[0]), float(p[1]), float(p[2]), float(p[3])};
+  out[1] = V4f{float(p[4]), float(p[5]), float(p[6]), float(p[7])};
+#endif
+}
+
 // The allocator of the large arrays that ray traversals read at random (triangles, their
 // ids, the Quads): 64-byte aligned, and from 2 MiB on aligned to 2 MiB and (on Linux)
 // marked for transparent huge pages, so that the traversals' loads rarely miss the TLB
@@ -181,6 +237,8 @@ class Bvh {
 
   int64_t node_count() const { return static_cast<int64_t>(nodes_.size()); }
   int64_t face_count() const { return static_cast<int64_t>(ids_.size()); }
+  // The number of QNodes (0: first hits take the float64 test on the Quads for every ray).
+  int64_t float_record_count() const { return static_cast<int64_t>(qnodes_.size()); }
 
   // The closest point to p. `hint` (a slot from an earlier result, or -1) seeds the
   // search with that triangle's distance; the answer does not depend on it: it is
@@ -254,6 +312,34 @@ class Bvh {
     RayRec half[kQuadWidth / 2];
   };
   LargeVector<Quad> quads_;
+  // The first hits' tree: records (QNodes) of up to eight children, a Pair with its inner
+  // children opened by largest box area while slots are left (as in a Quad). The bounds
+  // are taken relative to the root box's centre fcentre_ (each rounded outwards from the
+  // Pair's float bound minus the centre, in float: an FNode, built and then dropped), then
+  // quantised to 8 bits on a grid of the QNode's own per axis, rounded outwards exactly
+  // (make_qnodes): eight children in two cache lines, tested in float where that is
+  // conservative (FRay). Empty where a bound is beyond 2^60 from the centre, or a leaf has
+  // over 127 triangles: first hits then take the float64 test on the Quads.
+  static constexpr int kFWidth = 8;
+  struct FNode {
+    float lo[3][kFWidth], hi[3][kFWidth];  // [axis][child]
+    // a leaf: ~(its first triangle) and its count; an inner child: its FNode and 0; an
+    // unused slot: ~0 and 0, and an empty box
+    int32_t ref[kFWidth], aux[kFWidth];
+  };
+  struct alignas(64) QNode {
+    // child k's box on axis a: base + q[0][a][k] scale to base + q[1][a][k] scale
+    uint8_t q[2][3][kFWidth];
+    float base[4], scale[4];  // per axis (the fourth unused): scale a power of two
+    int32_t ref[kFWidth];     // as the FNode's
+    int8_t count[kFWidth];    // a leaf's count, 0 for an inner child or an unused slot
+    uint8_t used;             // bit k: slot k holds a child
+  };
+  static_assert(sizeof(QNode) == 128, "QNode must fill two cache lines");
+  LargeVector<QNode> qnodes_;
+  double fcentre_[3] = {0, 0, 0};
+  double qmax_[3] = {0, 0, 0};    // per axis the largest |base| + 255 scale of a QNode
+  double fext_ = 0.0;             // the root box's largest extent
   std::vector<FSlab> tri_slabs_;  // per triangle in tree order: its plane and circumscribing disk
   Box3 root_box_;
   double cmax_ = 0.0;  // the largest |coordinate| of a finite slab's centre
@@ -286,6 +372,15 @@ class Bvh {
     if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
     if (std::fabs(f) < kMin) f = f <= 0.0f ? 0.0f : kMin;
     return f;
+  }
+  // A float >= x, as round_up but cheaper (no library call) where |x| is within [2^-100,
+  // 2^100]: x moved up by 2^-20 of its magnitude, then rounded to the nearest float (a
+  // relative error of at most 2^-24), so still above x.
+  static float up_float(double x) {
+    constexpr double kLo = 7.888609052210118e-31, kHi = 1.2676506002282294e30;  // 2^-100, 2^100
+    const double ax = std::fabs(x);
+    if (!(ax >= kLo && ax <= kHi)) return round_up(x);
+    return static_cast<float>(x + ax * (1.0 / 1048576.0));
   }
   // The nearest float, or 0 below the normal range (see above): a value stored once and
   // then used exactly, as float and as double, by every thread.
@@ -409,6 +504,19 @@ class Bvh {
     for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
     quads_.clear();
     if (root_count_ == 0) make_quad(root_ref_);
+    qnodes_.clear();
+    if (root_count_ == 0) {
+      fext_ = 0.0;
+      for (int a = 0; a < 3; ++a) {
+        fcentre_[a] = 0.5 * root_box_.lo[a] + 0.5 * root_box_.hi[a];
+        fext_ = std::max(fext_, root_box_.hi[a] - root_box_.lo[a]);
+      }
+      bool ok = true;
+      std::vector<FNode> fn;
+      fn.reserve(quads_.size());  // a hint: an FNode takes up to 7 Pairs, a Quad 3
+      make_fnode(root_ref_, &fn, &ok);
+      if (ok) make_qnodes(fn);
+    }
     ranges_.clear();
     ranges_.shrink_to_fit();
   }
@@ -476,6 +584,239 @@ class Bvh {
     return q;
   }
 
+  // x - c rounded down (up: up) to a float: the difference rounded to nearest, its
+  // rounding error (exact, by Knuth's two-sum), one step outwards where that rounding went
+  // inwards, and the outward rounding to float.
+  static float relative_bound(double x, double c, bool up) {
+    const double s = x - c;
+    const double bb = s - x;
+    const double err = (x - (s - bb)) + (-c - bb);  // (x - c) - s exactly
+    double r = s;
+    if (!up && err < 0.0) r = std::nextafter(s, -std::numeric_limits<double>::infinity());
+    if (up && err > 0.0) r = std::nextafter(s, std::numeric_limits<double>::infinity());
+    return up ? round_up(r) : round_down(r);
+  }
+
+  // Appends the FNode of Pair p (and those below it, depth first) to *out; returns its
+  // index. *ok turns false where a bound is beyond the float path's range.
+  int32_t make_fnode(int32_t p, std::vector<FNode>* out, bool* ok) {
+    constexpr double kLimit = 1152921504606846976.0;  // 2^60
+    const int32_t q = static_cast<int32_t>(out->size());
+    out->emplace_back();
+    struct Child {
+      int32_t pair, j;  // child j of Pair `pair`
+    } kids[kFWidth];
+    int slot = 0;
+    kids[slot++] = {p, 0};
+    kids[slot++] = {p, 1};
+    while (slot < kFWidth) {
+      int pick = -1;
+      double area = -1.0;
+      for (int k = 0; k < slot; ++k) {
+        const Pair& src = pairs_[kids[k].pair];
+        const int j = kids[k].j;
+        if (src.count[j] != 0) continue;
+        double e[3];
+        for (int a = 0; a < 3; ++a)
+          e[a] = static_cast<double>(src.hi[a][j]) - static_cast<double>(src.lo[a][j]);
+        const double ar = e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+        if (ar > area) {
+          area = ar;
+          pick = k;
+        }
+      }
+      if (pick < 0) break;
+      const int32_t c = pairs_[kids[pick].pair].ref[kids[pick].j];
+      kids[pick] = {c, 0};
+      kids[slot++] = {c, 1};
+    }
+    FNode f;
+    for (int k = 0; k < kFWidth; ++k) {
+      f.ref[k] = ~0;
+      f.aux[k] = 0;
+      for (int a = 0; a < 3; ++a) {
+        f.lo[a][k] = std::numeric_limits<float>::infinity();
+        f.hi[a][k] = -std::numeric_limits<float>::infinity();
+      }
+      if (k >= slot) continue;
+      const Pair& src = pairs_[kids[k].pair];
+      const int j = kids[k].j;
+      for (int a = 0; a < 3; ++a) {
+        f.lo[a][k] = relative_bound(src.lo[a][j], fcentre_[a], false);
+        f.hi[a][k] = relative_bound(src.hi[a][j], fcentre_[a], true);
+        const double m = std::max(std::fabs(static_cast<double>(f.lo[a][k])),
+                                  std::fabs(static_cast<double>(f.hi[a][k])));
+        if (!(m <= kLimit)) *ok = false;  // (NaN included)
+      }
+      if (src.count[j] > 127) *ok = false;
+      if (src.count[j] > 0) {
+        f.ref[k] = ~src.ref[j];
+        f.aux[k] = src.count[j];
+      }
+    }
+    (*out)[q] = f;
+    for (int k = 0; k < slot; ++k) {
+      const Pair& src = pairs_[kids[k].pair];
+      const int j = kids[k].j;
+      if (src.count[j] != 0) continue;
+      const int32_t child = make_fnode(src.ref[j], out, ok);
+      (*out)[q].ref[k] = child;
+    }
+    return q;
+  }
+
+  // The QNodes of the FNodes (same indices), or none where a grid does not fit. Per node
+  // and axis the grid: scale the smallest power of two at least 2^-100, the children's
+  // extent / 255 and |lowest bound| 2^-23 (so that base, a multiple of it, is a float);
+  // base the lowest bound rounded down to a multiple of it; each bound to the grid point
+  // below (lo) or above (hi) it, in exact integer arithmetic (double), so the quantised
+  // box contains the float one.
+  void make_qnodes(const std::vector<FNode>& fn) {
+    qnodes_.resize(fn.size());  // cleared again where a grid does not fit
+    QNode* out = qnodes_.data();
+    for (int a = 0; a < 3; ++a) qmax_[a] = 0.0;
+    for (size_t i = 0; i < fn.size(); ++i) {
+      const FNode& f = fn[i];
+      QNode& q = out[i];
+      std::memset(&q, 0, sizeof(q));
+      q.used = 0;
+      for (int k = 0; k < kFWidth; ++k) {
+        q.ref[k] = f.ref[k];
+        q.count[k] = static_cast<int8_t>(f.ref[k] < 0 ? f.aux[k] : 0);
+        if (f.lo[0][k] <= f.hi[0][k]) q.used |= static_cast<uint8_t>(1u << k);
+      }
+      for (int a = 0; a < 3; ++a) {
+        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+        for (int k = 0; k < kFWidth; ++k)
+          if (q.used >> k & 1) {
+            lo = std::min(lo, static_cast<double>(f.lo[a][k]));
+            hi = std::max(hi, static_cast<double>(f.hi[a][k]));
+          }
+        if (q.used == 0) lo = hi = 0.0;
+        double sc = std::max(
+            {(hi - lo) / 255.0, std::fabs(lo) * 1.1920928955078125e-07, 7.888609052210118e-31});
+        int ex = 0;
+        std::frexp(sc, &ex);
+        sc = std::ldexp(1.0, ex);  // a power of two >= sc
+        for (int tries = 0;; ++tries) {
+          const double m = std::floor(lo / sc);
+          bool fits = std::fabs(m) <= 16777216.0;
+          for (int k = 0; k < kFWidth && fits; ++k) {
+            if (!(q.used >> k & 1)) continue;
+            const double ql = std::floor(static_cast<double>(f.lo[a][k]) / sc) - m;
+            const double qh = std::ceil(static_cast<double>(f.hi[a][k]) / sc) - m;
+            fits = ql >= 0.0 && qh <= 255.0 && ql <= qh;
+            if (fits) {
+              q.q[0][a][k] = static_cast<uint8_t>(ql);
+              q.q[1][a][k] = static_cast<uint8_t>(qh);
+            }
+          }
+          if (fits) {
+            q.base[a] = static_cast<float>(m * sc);
+            q.scale[a] = static_cast<float>(sc);
+            if (static_cast<double>(q.base[a]) != m * sc || static_cast<double>(q.scale[a]) != sc) {
+              qnodes_.clear();
+              return;
+            }
+            qmax_[a] = std::max(qmax_[a], std::fabs(m * sc) + 255.0 * sc);
+            break;
+          }
+          if (tries > 4 || !(sc < 1e300)) {
+            qnodes_.clear();
+            return;
+          }
+          sc *= 2.0;
+        }
+        for (int k = 0; k < kFWidth; ++k)
+          if (!(q.used >> k & 1)) {
+            q.q[0][a][k] = 255;
+            q.q[1][a][k] = 0;
+          }
+      }
+      q.base[3] = 0.0f;
+      q.scale[3] = 0.0f;
+    }
+    for (int a = 0; a < 3; ++a)
+      if (!(qmax_[a] <= 1152921504606846976.0)) qnodes_.clear();
+  }
+
+  // A ray for the float test of QNodes, where it is conservative. Per axis, with o the
+  // origin minus fcentre_ and inv the reciprocal direction (both rounded to the nearest
+  // float), the distance of grid point q, q (scale inv) + (base - o) inv - e (near) or + e
+  // (far), computed in float, is within 6 u (Q + |o|) |inv| + 2.1 u e of its exact value
+  // (u = 2^-24, Q = |base| + 255 scale: the roundings of o, inv and four operations; the
+  // product scale inv is exact), plus 2^-100 (|inv| + 1) for results below the normal
+  // range flushed to zero (XLA's threads). With e = 10 u (2 Q + |o|) |inv| (1 + 2^-20) +
+  // 2^-100 (|inv| + 1) that leaves a margin above the float64 test's own rounding (its far
+  // distance grown by 1 + 2 gamma_3, a few 1e-16 relatively), and the quantised boxes
+  // contain the Quads' float boxes: every box the float64 test on the Quads keeps is kept,
+  // each entry distance is at most the float64 one, and so the first hit is the same.
+  // Rays where that bound does not hold, or where e is too wide to prune (over 2^-12 of
+  // the root box's extent, as distance along the axis), are not `ok` and take the float64
+  // test: a zero direction component, |inv| outside [2^-60, 2^60], |o| beyond 2^60.
+  struct FRay {
+    V4f org, inv, grow;  // per axis (lane 3 unused)
+    float tmin;
+    int32_t near[3], far[3];  // byte offsets of the near and far bounds of axis a
+    bool ok;
+  };
+  FRay fray(const Ray& r) const {
+    FRay s;
+    s.org = s.inv = s.grow = v4_splat(0.0f);
+    constexpr double kLimit = 1152921504606846976.0;  // 2^60
+    constexpr double kTiny = 7.888609052210118e-31;   // 2^-100
+    constexpr double kU = 5.9604644775390625e-08;     // 2^-24
+    s.ok = !qnodes_.empty();
+    for (int a = 0; a < 3 && s.ok; ++a) {
+      const double o = r.org[a] - fcentre_[a];
+      const double inv = r.inv[a];
+      const double ai = std::fabs(inv);
+      if (r.flat[a] || !(ai >= 1.0 / kLimit && ai <= kLimit && std::fabs(o) <= kLimit)) {
+        s.ok = false;
+        break;
+      }
+      const double e = 10.0 * kU * (2.0 * qmax_[a] + std::fabs(o)) * ai * (1.0 + 1.0 / 1048576.0) +
+                       kTiny * (ai + 1.0);
+      if (!(e <= fext_ * (1.0 / 4096.0) * ai)) {
+        s.ok = false;
+        break;
+      }
+      s.org[a] = static_cast<float>(o);
+      s.inv[a] = static_cast<float>(inv);
+      s.grow[a] = up_float(e);
+      const bool neg = inv < 0.0;
+      s.near[a] = (neg ? 3 * kFWidth : 0) + kFWidth * a;
+      s.far[a] = (neg ? 0 : 3 * kFWidth) + kFWidth * a;
+    }
+    s.tmin = round_down(r.tmin);
+    return s;
+  }
+  // The entry distances (lower bounds) of the children of a QNode within [tmin, tfar]
+  // (tfar: a float at least the cull distance), and the mask of those met. Per axis the
+  // distance of grid point q is q (scale inv) + (base - o) inv, the first product exact.
+  static int qnode_entries(const FRay& s, const QNode& q, float tfar, float* t) {
+    const V4f base = v4_load(q.base), scale = v4_load(q.scale);
+    const V4f A = scale * s.inv;
+    const V4f B = (base - s.org) * s.inv;
+    const V4f cn = B - s.grow, cf = B + s.grow;
+    const uint8_t* qb = q.q[0][0];
+    V4f t0[2] = {v4_splat(s.tmin), v4_splat(s.tmin)};
+    V4f t1[2] = {v4_splat(tfar), v4_splat(tfar)};
+    for (int a = 0; a < 3; ++a) {
+      V4f qn[2], qf[2];
+      u8x8_to_float(qb + s.near[a], qn);
+      u8x8_to_float(qb + s.far[a], qf);
+      const V4f Aa = v4_splat(A[a]), na = v4_splat(cn[a]), fa = v4_splat(cf[a]);
+      for (int g = 0; g < 2; ++g) {
+        t0[g] = v4_max(qn[g] * Aa + na, t0[g]);
+        t1[g] = v4_min(qf[g] * Aa + fa, t1[g]);
+      }
+    }
+    std::memcpy(t, &t0[0], sizeof(V4f));
+    std::memcpy(t + 4, &t0[1], sizeof(V4f));
+    return (v4_le_mask(t0[0], t1[0]) | v4_le_mask(t0[1], t1[1]) << 4) & q.used;
+  }
+
   // Squared distance from p to child j's box (the Box3::dist2 formula on the float box).
   static double pair_box_dist2(const Pair& pr, int j, const double* p) {
     double s = 0.0;
@@ -531,6 +872,19 @@ class Bvh {
     }
   }
 
+  // prefetch_ref for a QNode's slot (ref < 0: a leaf's ~first triangle).
+  void prefetch_fref(int32_t ref) const {
+    if (ref < 0) {
+      const char* t = reinterpret_cast<const char*>(&tris_[9 * static_cast<size_t>(~ref)]);
+      __builtin_prefetch(t);
+      __builtin_prefetch(t + 64);
+    } else {
+      const char* q = reinterpret_cast<const char*>(&qnodes_[static_cast<size_t>(ref)]);
+      __builtin_prefetch(q);
+      __builtin_prefetch(q + 64);
+    }
+  }
+
   template <typename Rec>
   static double pair_ray_box(const Ray& r, const Rec& pr, int j, double tfar) {
     Box3 b;
@@ -566,8 +920,6 @@ class Bvh {
   }
   template <typename Rec>
   static V2d pair_ray_boxes(const RayPair& s, const Rec& pr, double tfar) {
-    constexpr double kGrow =
-        1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
     V2d t0 = v2_splat(s.tmin), t1 = v2_splat(tfar);
     static_assert(offsetof(Rec, lo) == 0 && offsetof(Rec, hi) == 24, "bounds at 0 and 24");
     const char* base = reinterpret_cast<const char*>(&pr);
@@ -575,7 +927,8 @@ class Bvh {
       const V2d near = v2_load(reinterpret_cast<const float*>(base + s.near[a]));
       const V2d far = v2_load(reinterpret_cast<const float*>(base + s.far[a]));
       const V2d tn = (near - s.org[a]) * s.inv[a];
-      const V2d tf = (far - s.org[a]) * s.inv[a] * kGrow;
+      const V2d f = (far - s.org[a]) * s.inv[a];
+      const V2d tf = f * v2_select(f < 0.0, v2_splat(kShrink), v2_splat(kGrow));
       t0 = v2_max(tn, t0);
       t1 = v2_min(tf, t1);
     }

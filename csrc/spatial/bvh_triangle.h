@@ -17,7 +17,7 @@
 // tie-breaking rule on the edge's sheared 2D direction counts the hit for
 // exactly one of two consistently oriented triangles sharing that edge. Rays in
 // a triangle's plane never hit it. Box tests use the robust slab test with the
-// far distance scaled by 1 + 2 gamma_3 (Ize 2013).
+// far distance scaled by 1 + 2 gamma_3 (Ize 2013; by 1 - 2 gamma_3 where it is negative).
 #pragma once
 
 #include <algorithm>
@@ -277,11 +277,16 @@ inline Ray make_ray(const double* o, const double* d, double tmin, double tmax) 
   return r;
 }
 
+// The robust slab test's factors: a far distance is raised by 2 gamma_3 of its magnitude
+// whatever its sign (scaled by 1 + 2 gamma_3 when positive, by 1 - 2 gamma_3 when negative,
+// so that a box behind the origin, met with tmin < 0, is not lost to rounding either).
+constexpr double kGrow =
+    1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
+constexpr double kShrink = 2.0 - kGrow;
+
 // Robust slab test: the entry distance, or +inf when the box is missed within
 // [tmin, tfar].
 inline double ray_box(const Ray& r, const Box3& b, double tfar) {
-  constexpr double kGrow =
-      1.0 + 2.0 * (3.0 * 1.1102230246251565e-16 / (1.0 - 3.0 * 1.1102230246251565e-16));
   double t0 = r.tmin, t1 = tfar;
   for (int a = 0; a < 3; ++a) {
     if (r.flat[a]) {
@@ -291,7 +296,7 @@ inline double ray_box(const Ray& r, const Box3& b, double tfar) {
     double tn = (b.lo[a] - r.org[a]) * r.inv[a];
     double tf = (b.hi[a] - r.org[a]) * r.inv[a];
     if (tn > tf) std::swap(tn, tf);
-    tf *= kGrow;
+    tf *= tf < 0.0 ? kShrink : kGrow;
     t0 = tn > t0 ? tn : t0;
     t1 = tf < t1 ? tf : t1;
     if (t0 > t1) return std::numeric_limits<double>::infinity();

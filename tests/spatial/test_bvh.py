@@ -217,6 +217,157 @@ def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
             assert first.face[i] == -1 and np.isinf(first.t[i])
 
 
+def float_records(bvh):
+    """The number of the BVH's float records for first hits (0: the float64 test only)."""
+    import ctypes
+
+    from voxax._kernels._loader import library
+
+    fn = library().voxax_bvh_float_records
+    fn.restype, fn.argtypes = ctypes.c_int64, [ctypes.c_void_p]
+    return fn(bvh._handle)
+
+
+def first_of_all_hits(bvh, o, d, **interval):
+    """Each ray's smallest (t, face) hit among all of its hits (the float64 test of every
+    box met, nothing culled), as first_hits' (t, face, barycentric, sign)."""
+    h = bvh.all_hits(o, d, **interval)
+    n = len(o)
+    t, face = np.full(n, np.inf), np.full(n, -1, np.int32)
+    bary, sign = np.zeros((n, 3)), np.zeros(n, np.asarray(h.sign).dtype)
+    hit = np.flatnonzero(h.counts() > 0)
+    first = h.offsets[hit]
+    t[hit], face[hit], bary[hit], sign[hit] = h.t[first], h.face[first], h.barycentric[first], h.sign[first]
+    return t, face, bary, sign
+
+
+def dyadic_squares(rng, n=60):
+    """Axis-aligned unit squares (two triangles each) at multiples of 1/8 in [-2, 2]^3: flat
+    boxes whose bounds are exact grid points of every quantisation, met by rays at their
+    planes' distance exactly."""
+    V, F = [], []
+    for k in range(n):
+        axis = rng.integers(0, 3)
+        c = rng.integers(-16, 9, 3) / 8.0
+        u, w = np.eye(3)[(axis + 1) % 3], np.eye(3)[(axis + 2) % 3]
+        corners = [c, c + u, c + u + w, c + w]
+        V.extend(corners)
+        F.extend([[4 * k, 4 * k + 1, 4 * k + 2], [4 * k, 4 * k + 2, 4 * k + 3]])
+    return np.array(V), np.array(F)
+
+
+def grazing_rays(rng, V, F, n):
+    """Random rays, rays aimed at vertices and edge midpoints (met at t far from round
+    values, so that each bound's distance rounds its own way in float), and rays that start on a
+    vertex's coordinate plane (a box bound) and run along it or nearly so, with direction
+    components of 0, 1e-17 (|1 / d| near 2^57), 1e-19 (beyond 2^60), 5e-324 (its
+    reciprocal infinite) and 1e70 (its reciprocal below 2^-60)."""
+    lo, hi = V.min(0), V.max(0)
+    pad = 0.2 * (hi - lo)
+    o = rng.uniform(lo - pad, hi + pad, (4 * n, 3))
+    d = rng.normal(size=(4 * n, 3))
+    tips = V[rng.integers(0, len(V), n)]
+    d[n : 2 * n] = tips - o[n : 2 * n]
+    e = F[rng.integers(0, len(F), n)]
+    d[2 * n : 3 * n] = 0.5 * (V[e[:, 0]] + V[e[:, 1]]) - o[2 * n : 3 * n]
+    d[n : 3 * n] *= rng.uniform(0.1, 3.0, (2 * n, 1))  # the distance to the target not 1
+    g = slice(3 * n, 4 * n)
+    axis = rng.integers(0, 3, n)
+    o[g][np.arange(n), axis] = V[rng.integers(0, len(V), n), axis]
+    small = rng.choice([0.0, 1e-17, -1e-17, 1e-19, 5e-324, 1e70], n)
+    dg = d[g]
+    dg[np.arange(n), axis] = small * np.where(small == 1e70, 1.0, np.linalg.norm(dg, axis=1))
+    d[g] = dg
+    return o, d
+
+
+@pytest.mark.parametrize(
+    "scale, shift, float_path",
+    [
+        ("squares", 0.0, True),
+        ("squares", 1e6, True),
+        (1.0, 0.0, True),
+        (1.0, 1e6, True),  # far from the origin: bounds relative to the root box's centre
+        (1e-12, 1e3, True),  # tiny against its offset (one float ulp wider than the mesh)
+        (3e-3, -7.5, True),
+        (1e-30, 0.0, True),  # the float widening too wide to prune: each ray falls back
+        (1e20, 0.0, False),  # bounds beyond 2^60: no float records
+    ],
+)
+def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path):
+    # The float records' test is conservative: every first hit (t, face, barycentrics,
+    # sign) is the smallest (t, face) of all hits, bit for bit, for rays that graze box
+    # bounds, aim at vertices and edges, carry zero, tiny, subnormal or huge direction
+    # components, and over limited intervals; vertices at float32 values and their float64
+    # neighbours put box bounds on float rounding boundaries.
+    rng = np.random.default_rng(12)
+    if scale == "squares":
+        V, F = dyadic_squares(rng)
+        V, scale = V + shift, 1.0
+    else:
+        V, F = random_soup(rng, nf=150, degenerate=10)
+        V = V.astype(np.float32).astype(np.float64)
+        bump = rng.integers(-1, 2, V.shape)
+        V = np.where(bump > 0, np.nextafter(V, np.inf), np.where(bump < 0, np.nextafter(V, -np.inf), V))
+        V = V * scale + shift
+    o, d = grazing_rays(rng, V, F, 150)
+    bvh = voxax.BVH(V, F)
+    assert (float_records(bvh) > 0) == float_path
+    size = scale * 2.0
+    for interval in [{}, {"t_min": -0.3 * size, "t_max": 1.5 * size}, {"t_min": 0.1 * size}]:
+        first = bvh.first_hits(o, d, **interval, threads=1)
+        ref = first_of_all_hits(bvh, o, d, **interval)
+        for x, y in zip((first.t, first.face, first.barycentric, first.sign), ref):
+            np.testing.assert_array_equal(np.asarray(x), y)
+        assert np.any(first.face >= 0)
+        again = bvh.first_hits(o, d, **interval, threads=2)
+        for x, y in zip(first, again):
+            assert np.array_equal(x, y)
+    if scale == 1.0 and shift == 0.0 and len(F) == 150:  # generic rays, independent brute force
+        first = bvh.first_hits(o[:150], d[:150])
+        for i, (t, f) in enumerate(brute_hits(o[:150], d[:150], V, F)):
+            assert first.face[i] == (f[0] if len(t) else -1)
+
+
+def test_hits_behind_the_origin_on_a_flat_mesh():
+    # a flat mesh (its boxes flat in z) met behind the origin, with t_min < 0: the slab
+    # test's far distance is negative there, and raising it by its rounding margin must not
+    # shrink it (the boxes were all lost that way)
+    g = np.arange(5.0)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(25)], 1)
+    k = (np.arange(4)[:, None] * 5 + np.arange(4)[None, :]).ravel()
+    F = np.concatenate([np.stack([k, k + 5, k + 6], 1), np.stack([k, k + 6, k + 1], 1)])
+    rng = np.random.default_rng(14)
+    o = np.concatenate([rng.uniform(0.1, 3.9, (200, 2)), rng.uniform(0.5, 2.0, (200, 1))], 1)
+    d = np.concatenate([rng.uniform(-0.05, 0.05, (200, 2)), np.ones((200, 1))], 1)
+    expect = -o[:, 2] / d[:, 2]
+    inside = np.all((o[:, :2] + expect[:, None] * d[:, :2] > 0) & (o[:, :2] + expect[:, None] * d[:, :2] < 4), 1)
+    bvh = voxax.BVH(V, F)
+    first = bvh.first_hits(o, d, t_min=-5.0, t_max=5.0)
+    assert inside.sum() > 150
+    np.testing.assert_allclose(first.t[inside], expect[inside], rtol=1e-12)
+    assert np.all(bvh.any_hits(o, d, t_min=-5.0, t_max=5.0)[inside])
+    assert np.all(bvh.all_hits(o, d, t_min=-5.0, t_max=5.0).counts()[inside] == 1)
+    assert np.all(bvh.first_hits(o, d).face == -1)  # nothing ahead
+
+
+def test_first_hits_of_a_far_mesh_under_jit_match_the_host_path():
+    # XLA's threads flush results below the normal range to zero: the float records' margin
+    # covers that, so the jit path's first hits are the host path's
+    import jax
+
+    rng = np.random.default_rng(13)
+    V, F = random_soup(rng, nf=120)
+    for scale, shift in [(1.0, 1e6), (1e-20, 0.0), (1e-3, 0.0)]:
+        W = V * scale + shift
+        o, d = grazing_rays(rng, W, F, 60)
+        host = voxax.first_hits((W, F), o, d)
+        jit = jax.jit(lambda v, a, b: voxax.first_hits((v, F), a, b))(W, o, d)
+        for x, y in zip(host, jit):
+            np.testing.assert_array_equal(np.asarray(y), x)
+
+
 def test_first_hits_of_a_large_mesh_vs_brute_force():
     # 40k faces: the triangles (over 2 MiB) take the huge-page allocation; 600 rays span
     # three chunks of rays (the last one partial)
