@@ -123,7 +123,7 @@ ENTRIES = [
     ("fc.pieces", "fc.pieces({vertices}, {faces}, G)", {"vertices": (A, "V"), "faces": (IX, "F")}),
     ("cvt.fragments", "cvt.fragments(({vertices}, {faces}), G, iterations={iterations})",
      {"vertices": (A, "V"), "faces": (IX, "F"), "iterations": (K, "30")}),
-    ("esi.depth_map", "esi.depth_map({vertices}, {faces}, esi.frame_for([0.0, 0.0, 1.0]), resolution={resolution})",
+    ("esi.depth_map", "esi.depth_map({vertices}, {faces}, [0.0, 0.0, 1.0], resolution={resolution})",
      {"vertices": (A, "V"), "faces": (IX, "F"), "resolution": (K, "16")}),
     ("metrics.hausdorff", "metrics.hausdorff(({vertices}, {faces}), BALL, n={n})",
      {"vertices": (A, "V"), "faces": (IX, "F"), "n": (K, "500")}),

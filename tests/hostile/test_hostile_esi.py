@@ -120,6 +120,8 @@ CASES = [
      "voxax.esi.energy: `n_samples`"),
     ("nesi.training_data", "2^40 samples", "nesi.training_data(AX, CUBE, n_samples=2**40)", "MemoryError",
      "voxax.nesi.training_data: `n_samples`"),
+    ("esi", "depth_map under jit", "jax.jit(lambda v: voxax.esi.depth_map(v, F, [0.0, 0.0, 1.0]).first)(V)",
+     "TypeError", "voxax.esi.depth_map: computes eagerly on the host"),
 ]
 
 outcomes, test_hostile_input = table(CASES, ESI_SETUP)

@@ -119,6 +119,9 @@ CASES = [
     ("isosurface_fn", "jit grid beyond memory",
      "jax.jit(lambda r: voxax.isosurface_fn(SPH, r, voxax.Grid.cube(100000), capacity=10).vertices)(0.5)",
      "MemoryError", "GiB"),
+    ("isosurface", "traced bool samples under jit (oracle)",
+     "m = jax.jit(lambda s: voxax.isosurface(s, G, 0.5, capacity=(400, 800)))(S > 0); e = voxax.isosurface(S > 0, G, 0.5);"
+     "assert int(m.n_faces) == len(e.faces) > 0", None, ""),
 ]
 
 

@@ -173,6 +173,8 @@ CASES = [
     ("energies", "self_intersection with a list eps", f"{E}.self_intersection({W}, [1e-3, 2.0])", "TypeError",
      "voxax.energies.self_intersection: `eps` must be a scalar"),
     ("fields", "gyroid of period 0", "voxax.fields.gyroid(P, 0)", "ValueError", "voxax.fields.gyroid: `period` must be non-zero"),
+    ("energies", "self_intersection of an empty grid", f"{E}.self_intersection(np.zeros((0, 4, 4)))", "ValueError",
+     "voxax.energies.self_intersection: `W` must not be empty"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

@@ -197,6 +197,9 @@ CASES = [
      "voxax.any_hits: computes eagerly on the host"),
     ("spatial", "a BVH of traced vertices", "jax.jit(lambda v: voxax.BVH(v, F).closest_points(P).distance)(V)",
      "TypeError", "voxax.BVH: the tree is built eagerly on the host"),
+    ("spatial", "a BVH's closest points of traced points",
+     "b = voxax.BVH(V, F); jax.jit(lambda p: b.closest_points(p).distance)(P)", "TypeError",
+     "voxax.BVH.closest_points: `points` is traced"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

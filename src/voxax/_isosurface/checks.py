@@ -43,9 +43,9 @@ def _check_values(values, grid: Grid, name: str):
         values = np.asarray(values)
     dtype = np.dtype(values.dtype)
     if dtype.kind in "iub":
-        values = np.asarray(
-            values, dtype=np.float64 if jax.config.jax_enable_x64 else np.float32
-        )
+        to = np.float64 if jax.config.jax_enable_x64 else np.float32
+        # a traced array stays traced (jnp), a concrete one becomes NumPy
+        values = values.astype(to) if isinstance(values, jax.core.Tracer) else np.asarray(values, dtype=to)
     elif dtype not in (np.float32, np.float64):
         raise TypeError(
             f"voxax.{name}: `values` must be a real float array, got dtype {dtype}"

@@ -54,7 +54,11 @@ def real_vertices(where: str, x):
 
 
 def as_coords(x, name: str, where: str) -> np.ndarray:
-    """Concrete points `(..., 3)` as contiguous float64 (checked by `_validate.coordinates`)."""
+    """Concrete points `(..., 3)` as contiguous float64 (checked by `_validate.coordinates`);
+    a traced array is refused in one line (the BVH's queries are eager)."""
+    if not _validate.is_concrete(x):
+        raise TypeError(f"{where}: `{name}` is traced, but a voxax.BVH answers eagerly on the host: call it "
+                        "outside jax.jit / jax.grad / jax.vmap, or use voxax.closest_points / voxax.first_hits")
     return np.ascontiguousarray(_validate.coordinates(where, name, x), dtype=np.float64)
 
 

@@ -199,6 +199,8 @@ def self_intersection(W, eps: float = 1e-3):
     ```
     """
     W = _grid("voxax.energies.self_intersection", W, rank=0)
+    if W.size == 0:
+        raise ValueError("voxax.energies.self_intersection: `W` must not be empty (the energy is a mean over its cells)")
     return jnp.sum(jnp.where(W > 1.0 + eps, W * W, 0.0)) / W.size
 
 

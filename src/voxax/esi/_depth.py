@@ -91,6 +91,7 @@ def scaled_tree(mesh: Mesh) -> tuple[BVH, float]:
     return (BVH(mesh) if scale == 1.0 else BVH(Mesh(mesh.vertices * scale, mesh.faces))), scale
 
 
+@_validate.host_only("voxax.esi.depth_map")
 def depth_map(vertices, faces=None, direction=None, *, resolution: int = 256, threads=None) -> DepthMap:
     """The first and last hits of a closed mesh along `direction` on an orthographic frame.
 
