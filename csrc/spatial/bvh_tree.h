@@ -521,19 +521,18 @@ class Bvh {
     ranges_.shrink_to_fit();
   }
 
-  // Appends the Quad of Pair p (and those below it, depth first); returns its index. Its
-  // children: p's two, then repeatedly the inner child of largest box area replaced by its
-  // own two, while slots are left.
-  int32_t make_quad(int32_t p) {
-    const int32_t q = static_cast<int32_t>(quads_.size());
-    quads_.emplace_back();
-    struct Child {
-      int32_t pair, j;  // child j of Pair `pair`
-    } kids[kQuadWidth];
+  struct ChildRef {
+    int32_t pair, j;  // child j of Pair `pair`
+  };
+
+  // The children of a wide record over Pair p: p's two, then repeatedly the inner child
+  // of largest box area replaced by its own two, while fewer than `width` are held.
+  // Writes them to kids[0:n] and returns n.
+  int open_children(int32_t p, ChildRef* kids, int width) const {
     int slot = 0;
     kids[slot++] = {p, 0};
     kids[slot++] = {p, 1};
-    while (slot < kQuadWidth) {
+    while (slot < width) {
       int pick = -1;
       double area = -1.0;
       for (int k = 0; k < slot; ++k) {
@@ -554,6 +553,16 @@ class Bvh {
       kids[pick] = {c, 0};
       kids[slot++] = {c, 1};
     }
+    return slot;
+  }
+
+  // Appends the Quad of Pair p (and those below it, depth first); returns its index. Its
+  // children: `open_children`'s.
+  int32_t make_quad(int32_t p) {
+    const int32_t q = static_cast<int32_t>(quads_.size());
+    quads_.emplace_back();
+    ChildRef kids[kQuadWidth];
+    const int slot = open_children(p, kids, kQuadWidth);
     for (int k = 0; k < kQuadWidth; ++k) {
       RayRec& h = quads_[q].half[k / 2];
       const int lane = k % 2;
@@ -603,33 +612,8 @@ class Bvh {
     constexpr double kLimit = 1152921504606846976.0;  // 2^60
     const int32_t q = static_cast<int32_t>(out->size());
     out->emplace_back();
-    struct Child {
-      int32_t pair, j;  // child j of Pair `pair`
-    } kids[kFWidth];
-    int slot = 0;
-    kids[slot++] = {p, 0};
-    kids[slot++] = {p, 1};
-    while (slot < kFWidth) {
-      int pick = -1;
-      double area = -1.0;
-      for (int k = 0; k < slot; ++k) {
-        const Pair& src = pairs_[kids[k].pair];
-        const int j = kids[k].j;
-        if (src.count[j] != 0) continue;
-        double e[3];
-        for (int a = 0; a < 3; ++a)
-          e[a] = static_cast<double>(src.hi[a][j]) - static_cast<double>(src.lo[a][j]);
-        const double ar = e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
-        if (ar > area) {
-          area = ar;
-          pick = k;
-        }
-      }
-      if (pick < 0) break;
-      const int32_t c = pairs_[kids[pick].pair].ref[kids[pick].j];
-      kids[pick] = {c, 0};
-      kids[slot++] = {c, 1};
-    }
+    ChildRef kids[kFWidth];
+    const int slot = open_children(p, kids, kFWidth);
     FNode f;
     for (int k = 0; k < kFWidth; ++k) {
       f.ref[k] = ~0;
