@@ -69,9 +69,8 @@ def holds_tracer(x, depth: int = 0) -> bool:
         return any(holds_tracer(a, depth + 1) for a in x)
     if isinstance(x, dict):
         return any(holds_tracer(a, depth + 1) for a in x.values())
-    if hasattr(x, "vertices") and hasattr(x, "faces") and not isinstance(x, type):
-        return holds_tracer(getattr(x, "vertices", None), depth + 1) or holds_tracer(getattr(x, "faces", None),
-                                                                                       depth + 1)
+    if is_mesh_object(x):
+        return holds_tracer(x.vertices, depth + 1) or holds_tracer(x.faces, depth + 1)
     return False
 
 
@@ -415,6 +414,18 @@ def positive_float(where: str, name: str, value, allow_zero: bool = False) -> fl
     if not (ok and math.isfinite(out)):
         raise ValueError(f"{where}: `{name}` must be {'>= 0' if allow_zero else '> 0'} and finite, got {value}")
     return out
+
+
+def positive_number(where: str, name: str, value, allow_zero: bool = False):
+    """A parameter such as a sharpness or a tolerance, concrete or traced: a concrete one is
+    checked by `positive_float` (and returned as a float); a traced one is returned tied
+    to the value-check kernel (`finite_values`: finite, and `> 0` unless `allow_zero`), so
+    that under `jax.jit` a bad value fails naming the function instead of giving NaN."""
+    if is_concrete(value):
+        return positive_float(where, name, value, allow_zero)
+    import jax.numpy as jnp
+
+    return finite_values(where, name, jnp.asarray(value), positive=not allow_zero)
 
 
 def typed_array(where: str, name: str, value, kinds: str = "fiu", what: str = "a real array"):
@@ -774,10 +785,10 @@ def checked_jit(where: str, static_argnames: tuple = (), positive: tuple = (), s
                     real_value(where, name, value)
                     if (name in positive or name in scalar) and np.ndim(value) != 0:
                         raise TypeError(f"{where}: `{name}` must be a scalar, got shape {np.shape(value)}")
-                    if name in positive and is_concrete(value) and np.ndim(value) == 0:
-                        positive_float(where, name, value)
-                    elif name in positive and not is_concrete(value):  # traced: the kernel's check
-                        bound.arguments[name] = finite_values(where, name, jax.numpy.asarray(value), positive=True)
+                    if name in positive:
+                        checked = positive_number(where, name, value)
+                        if not is_concrete(value):  # traced: the checked copy, tied to the kernel's check
+                            bound.arguments[name] = checked
                     if isinstance(value, (list, tuple)):  # nested numbers: one array, not a pytree of scalars
                         bound.arguments[name] = np.asarray(value)
             return jitted(*bound.args, **bound.kwargs)

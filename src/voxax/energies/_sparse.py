@@ -39,10 +39,8 @@ def sparse_self_intersection(sg: SparseGrid, eps: float = 1e-3):
     A scalar; its gradient flows through the boundary values.
     """
     _check(sg, "voxax.energies.sparse_self_intersection")
-    if _validate.is_concrete(eps):
-        eps = _validate.positive_float("voxax.energies.sparse_self_intersection", "eps", eps, allow_zero=True)
-    else:  # traced: NaN or Inf refused under the trace (a NaN eps would count no cell)
-        eps = _validate.finite_values("voxax.energies.sparse_self_intersection", "eps", jnp.asarray(eps))
+    # traced: NaN or Inf refused under the trace (a NaN eps would count no cell)
+    eps = _validate.positive_number("voxax.energies.sparse_self_intersection", "eps", eps, allow_zero=True)
     b = sg.values
     r = sg.run_values
     e = jnp.sum(jnp.where(b > 1.0 + eps, b * b, 0.0)) + jnp.sum(jnp.where(r > 1.0 + eps, r * r * _lengths(sg), 0.0))
@@ -97,10 +95,8 @@ def sparse_silhouette_z(sg: SparseGrid, w: float = 1000.0):
     `(nx, ny)` float, the mellowmax of every column.
     """
     _check(sg, "voxax.energies.sparse_silhouette_z")
-    if _validate.is_concrete(w):
-        w = _validate.positive_float("voxax.energies.sparse_silhouette_z", "w", w)
-    else:  # traced: the value-check kernel refuses NaN, Inf and w <= 0 under the trace
-        w = _validate.finite_values("voxax.energies.sparse_silhouette_z", "w", jnp.asarray(w), positive=True)
+    # traced: the value-check kernel refuses NaN, Inf and w <= 0 under the trace
+    w = _validate.positive_number("voxax.energies.sparse_silhouette_z", "w", w)
     nx, ny, nz = sg.grid.shape
     dt = sg.values.dtype
     c, r = sg.cells, sg.runs
