@@ -175,6 +175,9 @@ CASES = [
     ("fields", "gyroid of period 0", "voxax.fields.gyroid(P, 0)", "ValueError", "voxax.fields.gyroid: `period` must be non-zero"),
     ("energies", "self_intersection of an empty grid", f"{E}.self_intersection(np.zeros((0, 4, 4)))", "ValueError",
      "voxax.energies.self_intersection: `W` must not be empty"),
+    ("energies", "interpenetration of empty grids (0 / 0)",
+     f"{E}.interpenetration(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)))", "ValueError",
+     "voxax.energies.interpenetration: `W_a` must not be empty"),
 ]
 
 outcomes, test_hostile_input = table(CASES)

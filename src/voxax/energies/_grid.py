@@ -10,10 +10,12 @@ import jax.numpy as jnp
 from .. import _validate
 
 
-def _grid(where: str, W, name: str = "W", rank: int = 3):
+def _grid(where: str, W, name: str = "W", rank: int = 3, mean: bool = False):
     """`W` as a float JAX array of at least `rank` axes, real (bools and integers become
     floats; complex numbers and strings are refused) and finite (checked eagerly, and
-    by the value-check kernel under a trace: `_validate.finite_values`)."""
+    by the value-check kernel under a trace: `_validate.finite_values`). Its last `rank`
+    axes (the grid's) hold at least one cell each; with `mean` (an energy that is a mean
+    over all of `W`'s values) `W` must not be empty at all."""
     W = _validate.typed_array(where, name, W, "fiub")
     W = jnp.asarray(W)
     if not jnp.issubdtype(W.dtype, jnp.floating):
@@ -23,6 +25,8 @@ def _grid(where: str, W, name: str = "W", rank: int = 3):
                          f"{W.shape}")
     if 0 in W.shape[W.ndim - rank:]:
         raise ValueError(f"{where}: `{name}` must have at least one cell along each grid axis, got shape {W.shape}")
+    if mean and W.size == 0:
+        raise ValueError(f"{where}: `{name}` must not be empty (the energy is a mean over its cells)")
     return _validate.finite_values(where, name, W)
 
 
@@ -198,9 +202,7 @@ def self_intersection(W, eps: float = 1e-3):
     True
     ```
     """
-    W = _grid("voxax.energies.self_intersection", W, rank=0)
-    if W.size == 0:
-        raise ValueError("voxax.energies.self_intersection: `W` must not be empty (the energy is a mean over its cells)")
+    W = _grid("voxax.energies.self_intersection", W, rank=0, mean=True)
     return jnp.sum(jnp.where(W > 1.0 + eps, W * W, 0.0)) / W.size
 
 
@@ -354,8 +356,8 @@ def interpenetration(W_a, W_b):
     ```
     """
     where = "voxax.energies.interpenetration"
-    W_a = _grid(where, W_a, "W_a", rank=0)
-    W_b = _grid(where, W_b, "W_b", rank=0)
+    W_a = _grid(where, W_a, "W_a", rank=0, mean=True)
+    W_b = _grid(where, W_b, "W_b", rank=0, mean=True)
     if W_a.shape != W_b.shape:
         raise ValueError(f"{where}: `W_a` and `W_b` must have the same shape, got {W_a.shape} and {W_b.shape}")
     return jnp.sum(jnp.clip(W_a, 0.0, 1.0) * jnp.clip(W_b, 0.0, 1.0)) / W_a.size
