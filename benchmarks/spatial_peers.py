@@ -161,18 +161,24 @@ def first_hits(mesh, n_rays, threads, repeat, rng):
     _row(f"first hits, {n_rays} rays", "embree", r["voxax"][0], r["embree"][0], agree)
 
 
+def _winding_inputs(mesh, n_points, rng, cut=0.0):
+    """The mesh's vertices and faces (the last fraction `cut` of the faces removed, which
+    opens the surface) and `n_points` points uniform in its box grown by 10%."""
+    v = np.ascontiguousarray(mesh.vertices, np.float64)
+    f = np.ascontiguousarray(mesh.faces, np.int64)
+    f = f[: len(f) - int(round(len(f) * cut))]
+    lo, hi = v.min(0), v.max(0)
+    p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(n_points, 3))
+    return v, f, p
+
+
 def winding(mesh, n_points, threads, repeat, rng, open_faces=False):
     try:
         import igl
     except ImportError:
         print("| winding numbers | libigl | (libigl not installed) |")
         return
-    v = np.ascontiguousarray(mesh.vertices, np.float64)
-    f = np.ascontiguousarray(mesh.faces, np.int64)
-    if open_faces:
-        f = f[: len(f) * 9 // 10]
-    lo, hi = v.min(0), v.max(0)
-    p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(n_points, 3))
+    v, f, p = _winding_inputs(mesh, n_points, rng, 0.1 if open_faces else 0.0)
     r = _interleave(
         {
             "voxax": lambda: np.asarray(voxax.winding_number(v, f, p, threads=threads)),
@@ -222,11 +228,7 @@ def winding_accuracy(mesh, n_points, threads, repeat, rng, cut=0.1):
     except ImportError:
         print("| winding numbers at equal accuracy | libigl | (libigl not installed) |")
         return
-    v = np.ascontiguousarray(mesh.vertices, np.float64)
-    f = np.ascontiguousarray(mesh.faces, np.int64)
-    f = f[: len(f) - int(round(len(f) * cut))]
-    lo, hi = v.min(0), v.max(0)
-    p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(n_points, 3))
+    v, f, p = _winding_inputs(mesh, n_points, rng, cut)
     f32 = f.astype(np.int32)
     exact = np.asarray(voxax.winding_number(v, f, p, threads=threads))
     fast = np.asarray(igl.fast_winding_number(v, f32, p))
