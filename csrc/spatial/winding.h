@@ -117,6 +117,116 @@ inline bool faces_closed(const int32_t* F, int64_t nf) {
   return up == down;
 }
 
+// The boundary of faces F: the directed edges (i, j) whose uses from i to j outnumber those
+// from j to i, with the excess as multiplicity, sorted by (i, j); empty where the faces form a
+// cycle (edges {i, i} of degenerate faces cancel themselves). As a 1-chain it is a cycle:
+// every vertex is left as often as it is entered, counted with multiplicity.
+struct BoundaryEdge {
+  int32_t i, j, mult;
+};
+inline std::vector<BoundaryEdge> boundary_edges(const int32_t* F, int64_t nf) {
+  std::vector<uint64_t> keys;  // (lo << 32 | hi) << 1 | (1 where the use runs hi -> lo)
+  keys.reserve(3 * nf);
+  for (int64_t f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t i = static_cast<uint32_t>(F[3 * f + k]);
+      const uint32_t j = static_cast<uint32_t>(F[3 * f + (k + 1) % 3]);
+      if (i == j) continue;
+      const uint64_t lo = std::min(i, j), hi = std::max(i, j);
+      keys.push_back((lo << 32 | hi) << 1 | (i > j ? 1 : 0));
+    }
+  std::sort(keys.begin(), keys.end());
+  std::vector<BoundaryEdge> out;
+  for (size_t a = 0; a < keys.size();) {
+    size_t b = a;
+    int64_t net = 0;
+    while (b < keys.size() && keys[b] >> 1 == keys[a] >> 1) net += (keys[b++] & 1) ? -1 : 1;
+    if (net != 0) {
+      const int32_t lo = static_cast<int32_t>(keys[a] >> 33);
+      const int32_t hi = static_cast<int32_t>((keys[a] >> 1) & 0xffffffff);
+      out.push_back(net > 0 ? BoundaryEdge{lo, hi, static_cast<int32_t>(net)}
+                            : BoundaryEdge{hi, lo, static_cast<int32_t>(-net)});
+    }
+    a = b;
+  }
+  std::sort(out.begin(), out.end(), [](const BoundaryEdge& x, const BoundaryEdge& y) {
+    return x.i < y.i || (x.i == y.i && x.j < y.j);
+  });
+  return out;
+}
+
+// A cap of a boundary (a 1-cycle, as boundary_edges gives it): triangles C, appended to *cap
+// as vertex triples, whose boundary is that cycle (dC = dS for the faces S it came from, so
+// S - C is a closed 2-cycle). The cycle is split into closed walks (from the lowest unused
+// edge, following unused edges, each walk ends where it first returns to its start; a walk
+// may pass through a vertex more than once), and a walk w_0 .. w_{n-1} (w_n = w_0) is
+// triangulated by halving its index range: the range [k, m] (m - k >= 2) gives the triangle
+// (w_k, w_mid, w_m), mid = (k + m) / 2, and the ranges [k, mid] and [mid, m]. By induction the
+// triangles of [k, m] have as boundary the walk from w_k to w_m plus the chord w_m -> w_k
+// (the chords of the halves cancel against the triangle's sides), and the chord of [0, n] is
+// the point w_0, so the walk's triangles have the walk as boundary. Triangles with a repeated
+// vertex (a degenerate chord) have a zero boundary and zero solid angle and are left out.
+// Unlike a fan from one vertex, the triangles are about as wide as their index range is long
+// (small along the rim, few large ones inside), which suits the far-field hierarchy. Returns
+// false (a walk that cannot close: not a cycle) or true.
+inline bool boundary_cap(const std::vector<BoundaryEdge>& edges, std::vector<int32_t>* cap) {
+  const size_t ne = edges.size();
+  std::vector<int32_t> left(ne);  // the uses left of each edge
+  int64_t uses = 0;
+  for (size_t e = 0; e < ne; ++e) {
+    left[e] = edges[e].mult;
+    uses += edges[e].mult;
+  }
+  std::vector<size_t> next(ne);  // per edge: the first edge from its vertex i still unused
+  for (size_t e = 0; e < ne; ++e) next[e] = e;
+  std::vector<int32_t> walk;
+  std::vector<std::array<int64_t, 2>> ranges;
+  // the first edge from vertex v with uses left, or ne
+  auto from = [&](int32_t v) -> size_t {
+    size_t a = std::lower_bound(edges.begin(), edges.end(), v,
+                                [](const BoundaryEdge& x, int32_t u) { return x.i < u; }) -
+               edges.begin();
+    if (a == ne || edges[a].i != v) return ne;
+    size_t b = next[a];
+    while (b < ne && edges[b].i == v && left[b] == 0) ++b;
+    next[a] = b;
+    return b < ne && edges[b].i == v ? b : ne;
+  };
+  for (size_t s = 0; s < ne; ++s) {
+    while (left[s] > 0) {
+      walk.clear();
+      const int32_t start = edges[s].i;
+      size_t e = s;
+      while (true) {
+        --left[e];
+        walk.push_back(edges[e].i);
+        const int32_t v = edges[e].j;
+        if (v == start) break;
+        e = from(v);
+        if (e == ne || static_cast<int64_t>(walk.size()) > uses) return false;
+      }
+      const int64_t n = static_cast<int64_t>(walk.size());
+      ranges.clear();
+      ranges.push_back({0, n});
+      while (!ranges.empty()) {
+        const auto r = ranges.back();
+        ranges.pop_back();
+        if (r[1] - r[0] < 2) continue;
+        const int64_t mid = r[0] + (r[1] - r[0]) / 2;
+        const int32_t a = walk[r[0]], b = walk[mid], c = walk[r[1] % n];
+        if (a != b && b != c && c != a) {
+          cap->push_back(a);
+          cap->push_back(b);
+          cap->push_back(c);
+        }
+        ranges.push_back({mid, r[1]});
+        ranges.push_back({r[0], mid});
+      }
+    }
+  }
+  return true;
+}
+
 // A hierarchy for the winding numbers of any mesh (open, or a soup), exact up to rounding
 // (Jacobson et al. 2013): each node keeps the boundary of its triangles (the edges whose
 // uses in the two directions do not cancel, with their net multiplicity). For a point p

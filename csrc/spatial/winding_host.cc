@@ -28,6 +28,9 @@
 namespace {
 
 constexpr int64_t kChunk = 256;  // points per task: fixed, so results do not depend on threads
+// Up to this many points left unclear by their rays take the plain sum (O(faces) each)
+// instead of the hierarchy, whose build costs about as much as a few dozen plain sums.
+constexpr int64_t kPlainPoints = 16;
 
 // The direction of every ray: no component zero and far from any axis or diagonal plane,
 // so that the faces of axis-aligned and lattice meshes are rarely met at an edge.
@@ -60,10 +63,39 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
         !voxax::check_host_coordinates(P, 3 * n, "points", msg))
       return false;
     if (!voxax::check_host_faces(F, nf, nv, msg)) return false;
-    const bool closed = voxax::spatial::faces_closed(F, nf);
-    const bool rays = mode == 0 && closed && nf > 0;
+    const std::vector<voxax::spatial::BoundaryEdge> boundary =
+        voxax::spatial::boundary_edges(F, nf);
+    const bool closed = boundary.empty();
+    // Open meshes with a small boundary: a cap C over it (dC = dS), so that S - C is closed
+    // and w_S = (the crossing count of a ray through S - C) + w_C, the cap's sum only.
+    std::vector<int32_t> cap;
+    bool capped = false;
+    if (mode == 0 && !closed && nf > 0 && static_cast<int64_t>(boundary.size()) * 4 <= nf) {
+      capped = voxax::spatial::boundary_cap(boundary, &cap) &&
+               static_cast<int64_t>(cap.size() / 3) * 4 <= nf;
+      if (!capped) cap.clear();
+    }
+    const int64_t ncap = static_cast<int64_t>(cap.size() / 3);
+    const bool rays = mode == 0 && nf > 0 && (closed || capped);
+    const bool approx = mode == 0 && accuracy > 0.0;
     voxax::spatial::Bvh bvh;
-    if (rays) bvh.build(V, F, nf);
+    voxax::spatial::WindingTree cap_tree;
+    if (rays) {
+      if (capped) {  // S and C reversed
+        std::vector<int32_t> all(F, F + 3 * nf);
+        all.reserve(3 * (nf + ncap));
+        for (int64_t t = 0; t < ncap; ++t) {
+          all.push_back(cap[3 * t]);
+          all.push_back(cap[3 * t + 2]);
+          all.push_back(cap[3 * t + 1]);
+        }
+        bvh.build(V, all.data(), nf + ncap);
+        cap_tree.build(V, cap.data(), ncap);
+        if (approx) cap_tree.build_moments();
+      } else {
+        bvh.build(V, F, nf);
+      }
+    }
     const double extent = bvh.extent();
     // 1: the point still needs the sum (every point, unless a ray decides it)
     std::vector<uint8_t> pending(n, 1);
@@ -79,7 +111,9 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
               voxax::spatial::make_ray(p, kDir, -margin, std::numeric_limits<double>::infinity());
           int64_t sum = 0;
           if (bvh.crossings(ray, margin, &sum)) {
-            out[i] = static_cast<double>(sum);
+            double w = static_cast<double>(sum);
+            if (capped) w += approx ? cap_tree.eval_approx(p, accuracy) : cap_tree.eval(p);
+            out[i] = w;
             pending[i] = 0;
           }
         }
@@ -87,16 +121,17 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     int64_t by_ray = 0;
     for (int64_t i = 0; i < n; ++i) by_ray += pending[i] == 0;
     if (by_ray < n) {
+      // A few points: their plain sums, cheaper than the hierarchy's build.
+      const bool plain = mode == 1 || n - by_ray <= kPlainPoints;
       voxax::spatial::WindingTree tree;
-      if (mode == 0) tree.build(V, F, nf);
-      const bool approx = mode == 0 && accuracy > 0.0;
-      if (approx) tree.build_moments();
+      if (!plain) tree.build(V, F, nf);
+      if (!plain && approx) tree.build_moments();
       voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
         for (int64_t i = b; i < e; ++i)
           if (pending[i])
-            out[i] = approx      ? tree.eval_approx(P + 3 * i, accuracy)
-                     : mode == 0 ? tree.eval(P + 3 * i)
-                                 : voxax::spatial::winding_sum(P + 3 * i, V, F, nf);
+            out[i] = plain    ? voxax::spatial::winding_sum(P + 3 * i, V, F, nf)
+                     : approx ? tree.eval_approx(P + 3 * i, accuracy)
+                              : tree.eval(P + 3 * i);
       });
     }
     if (stats) {
