@@ -20,8 +20,8 @@
 
 #include "common/host_errors.h"
 #include "common/host_pool.h"
-#include "spatial/bvh.h"
 #include "spatial/winding.h"
+#include "spatial/winding_rays.h"
 
 #define VOXAX_EXPORT extern "C" __attribute__((visibility("default")))
 
@@ -78,7 +78,7 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     const int64_t ncap = static_cast<int64_t>(cap.size() / 3);
     const bool rays = mode == 0 && nf > 0 && (closed || capped);
     const bool approx = mode == 0 && accuracy > 0.0;
-    voxax::spatial::Bvh bvh;
+    voxax::spatial::ColumnTree bvh;
     voxax::spatial::WindingTree cap_tree;
     if (rays) {
       if (capped) {  // S and C reversed
@@ -89,11 +89,11 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           all.push_back(cap[3 * t + 2]);
           all.push_back(cap[3 * t + 1]);
         }
-        bvh.build(V, all.data(), nf + ncap);
+        bvh.build(V, all.data(), nf + ncap, kDir);
         cap_tree.build(V, cap.data(), ncap);
         if (approx) cap_tree.build_moments();
       } else {
-        bvh.build(V, F, nf);
+        bvh.build(V, F, nf, kDir);
       }
     }
     const double extent = bvh.extent();
@@ -107,10 +107,8 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           const double scale =
               extent + std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
           const double margin = 1e-9 * scale;
-          const auto ray =
-              voxax::spatial::make_ray(p, kDir, -margin, std::numeric_limits<double>::infinity());
           int64_t sum = 0;
-          if (bvh.crossings(ray, margin, &sum)) {
+          if (bvh.crossings(p, margin, &sum)) {
             double w = static_cast<double>(sum);
             if (capped) w += approx ? cap_tree.eval_approx(p, accuracy) : cap_tree.eval(p);
             out[i] = w;
