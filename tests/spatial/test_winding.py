@@ -283,3 +283,123 @@ def test_tiny_meshes_do_not_underflow():
         np.testing.assert_allclose(w2, want, atol=1e-12)
     v32, q32 = (np.asarray(m.vertices) * 1e-20).astype(np.float32), (p * 1e-20).astype(np.float32)
     np.testing.assert_allclose(jax.jit(lambda v, q: winding_number(v, m.faces, q))(v32, q32), want, atol=1e-5)
+
+
+# --- open meshes with a small boundary: the cap, the ray through S - C and w_C ---------------
+
+
+def _grid(n, origin, u, w, bump=0.0):
+    """An n x n grid of the parallelogram origin + [0, 1] u + [0, 1] w (oriented along u x w),
+    bumped by `bump` along u x w in its middle."""
+    s = np.linspace(0, 1, n + 1)
+    a, b = np.meshgrid(s, s, indexing="ij")
+    nrm = np.cross(u, w)
+    h = bump * np.sin(np.pi * a) * np.sin(np.pi * b)
+    v = np.asarray(origin) + a[..., None] * u + b[..., None] * w + h[..., None] * nrm
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    q = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+    f = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    return v.reshape(-1, 3), f
+
+
+def _merge(parts):
+    """One mesh from (vertices, faces) parts, vertices at equal (rounded) positions merged."""
+    vs, fs, off = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + off)
+        off += len(v)
+    v, f = np.concatenate(vs), np.concatenate(fs)
+    _, first, inv = np.unique(np.round(v, 12), axis=0, return_index=True, return_inverse=True)
+    return v[first], inv.reshape(-1)[f]
+
+
+def _open_cube(n):
+    """The unit cube [0, 1]^3 without its top face (z = 1), outward, n x n grids: its hole's
+    rim is the planar square at z = 1, so its cap lies in that plane."""
+    e = np.eye(3)
+    sides = [
+        ((0, 0, 0), e[1], e[0]), ((0, 0, 0), e[0], e[2]), ((0, 1, 0), e[2], e[0]),
+        ((0, 0, 0), e[2], e[1]), ((1, 0, 0), e[1], e[2]),
+    ]  # fmt: skip
+    return _merge([_grid(n, o, u, w) for o, u, w in sides])
+
+
+def _capped_cases(rng):
+    """Open meshes whose boundary is small (the cap path): name -> (vertices, faces, points)."""
+    cases = {}
+    m = voxax.data.large(2000)
+    v, f = np.asarray(m.vertices, np.float64), np.asarray(m.faces)
+    cent = v[f].mean(1)
+    # several holes: the faces near five vertices removed
+    keep = np.ones(len(f), bool)
+    for c in v[rng.choice(len(v), 5, replace=False)]:
+        keep &= np.linalg.norm(cent - c, axis=1) > 0.08 * np.ptp(v, 0).max()
+    cases["holes"] = (v, f[keep], _points_near_and_far(rng, v, 150))
+    # a non-manifold boundary: fins on interior edges (an edge with a net use left on the
+    # surface), a strip of faces twice (boundary edges of multiplicity 2), the 10% cut
+    g = f[: len(f) * 9 // 10]
+    fin_edges = g[rng.choice(len(g), 6, replace=False)][:, :2]
+    tips = v[fin_edges].mean(1) + 0.05 * rng.normal(size=(6, 3))
+    vf = np.concatenate([v, tips])
+    fins = np.concatenate([fin_edges, len(v) + np.arange(6)[:, None]], axis=1)
+    nm = np.concatenate([g, fins, g[100:130]])
+    cases["non-manifold"] = (vf, nm, np.concatenate([_points_near_and_far(rng, v, 150), tips]))
+    # a bowtie: two bumped grids sharing one corner (a boundary walk through it twice)
+    a = _grid(12, (0, 0, 0), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), bump=0.3)
+    b = _grid(12, (1, 1, 0), np.array([1.0, 0, 0]), np.array([0, 0.7, 0.5]), bump=-0.2)
+    bv, bf = _merge([a, b])
+    q = rng.uniform(-0.2, 2.2, size=(300, 3))
+    cases["bowtie"] = (bv, bf, np.concatenate([q, bv[::7], [[1.0, 1.0, 0.0]]]))
+    # the open cube: points on its cap (the plane z = 1 inside the rim, also on the lattice
+    # of the rim's vertices: on the cap's edges) and a sphere poking through the cap
+    cv, cf = _open_cube(8)
+    sph = voxax.data.icosphere(2)
+    sv = np.asarray(sph.vertices) * 0.3 + [0.5, 0.5, 1.0]
+    pv = np.concatenate([cv, sv])
+    pf = np.concatenate([cf, np.asarray(sph.faces) + len(cv)])
+    on_cap = np.concatenate([rng.uniform(0.05, 0.95, size=(60, 3)), np.full((60, 1), 1.0)], 1)[:, [0, 1, 3]]
+    lattice = np.stack(np.meshgrid(np.arange(9) / 8, np.arange(9) / 8, [1.0], indexing="ij"), -1).reshape(-1, 3)
+    q = np.concatenate([on_cap, lattice, rng.uniform(-0.3, 1.3, size=(200, 3)), lattice + [0, 0, 1e-9]])
+    cases["open cube"] = (cv, cf, q)
+    cases["cap through a sphere"] = (pv, pf, q)
+    return cases
+
+
+def test_open_meshes_with_small_boundaries_match_the_plain_sum(rng):
+    from voxax._kernels import spatial as spk
+
+    for name, (v, f, p) in _capped_cases(rng).items():
+        v, f, p = np.ascontiguousarray(v, np.float64), np.ascontiguousarray(f, np.int32), np.asarray(p, np.float64)
+        exact = _solid_angle_sum(v, f, p)
+        w1, closed, by_ray = spk.winding_number(v, f, p, False, 1)
+        assert not closed and by_ray > len(p) // 3, (name, by_ray)  # the cap path decides many points
+        np.testing.assert_allclose(w1, exact, atol=1e-9, err_msg=name)
+        w2, _, _ = spk.winding_number(v, f, p, False, 2)
+        np.testing.assert_array_equal(w2, w1, err_msg=name)
+        for eps in (1e-2, 1e-5):
+            wa = spk.winding_number(v, f, p, False, 1, eps)[0]
+            assert np.abs(wa - exact).max() <= eps + 1e-11, (name, eps)
+            np.testing.assert_array_equal(spk.winding_number(v, f, p, False, 2, eps)[0], wa, err_msg=name)
+    # the public call at huge and tiny scales
+    v, f, p = _capped_cases(rng)["holes"]
+    exact = _solid_angle_sum(v, f, p)
+    for s in (1e-120, 1e70):
+        np.testing.assert_allclose(winding_number(v * s, f, p * s), exact, atol=1e-9, err_msg=str(s))
+        assert np.abs(np.asarray(winding_number(v * s, f, p * s, accuracy=1e-4)) - exact).max() <= 1e-4 + 1e-11
+
+
+def test_points_on_the_cap_and_its_edges_take_the_exact_sum(rng):
+    from voxax._kernels import spatial as spk
+
+    v, f = _open_cube(8)
+    v, f = np.ascontiguousarray(v, np.float64), np.ascontiguousarray(f, np.int32)
+    on_cap = np.concatenate([rng.uniform(0.05, 0.95, size=(50, 2)), np.ones((50, 1))], 1)
+    _, _, by_ray = spk.winding_number(v, f, on_cap, False, 1)
+    assert by_ray == 0  # every point lies in the plane of the cap: unclear for its ray
+    np.testing.assert_allclose(winding_number(v, f, on_cap), _solid_angle_sum(v, f, on_cap), atol=1e-12)
+    # just inside and just outside the cap: the integer part changes, the sum does not jump
+    below, above = on_cap - [0, 0, 1e-7], on_cap + [0, 0, 1e-7]
+    np.testing.assert_allclose(winding_number(v, f, below), _solid_angle_sum(v, f, below), atol=1e-9)
+    np.testing.assert_allclose(winding_number(v, f, above), _solid_angle_sum(v, f, above), atol=1e-9)
+    assert spk.winding_number(v, f, above, False, 1)[2] == len(above)
