@@ -1812,21 +1812,32 @@ def run_intersections(rng, rounds=60):
 
 
 def run_winding(rng, rounds=40):
-    """Winding numbers (the ray path on closed meshes, the boundary hierarchy on soups, its
-    bounded far-field expansion at a random accuracy) on adversarial soups and closed
-    meshes, against the plain solid-angle sum; hostile raw
+    """Winding numbers (the ray path on closed meshes and, with a cap over the boundary, on
+    open ones with holes and fins, the boundary hierarchy on soups, its bounded far-field
+    expansion at a random accuracy) on adversarial soups, open and closed meshes, against
+    the plain solid-angle sum; hostile raw
     calls of the host entry point and of the jit check kernel."""
     import ctypes
 
     from voxax._kernels import spatial as spk
 
     closed = [voxax.data.box(), voxax.data.icosphere(1), voxax.data.overlapping_cubes()]
-    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed")
+    kinds = ("random", "degenerate", "huge", "tiny", "flat", "grid", "closed", "open")
+    sphere = voxax.data.icosphere(3)
     for i in range(rounds):
         kind = kinds[i % len(kinds)]
         if kind == "closed":
             m = closed[i % len(closed)]
             v, f = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int32)
+            v = v * 10.0 ** float(rng.integers(-20, 20))
+        elif kind == "open":  # holes and fins: a small boundary, the capped ray path
+            v, f = np.asarray(sphere.vertices, np.float64), np.asarray(sphere.faces, np.int32)
+            cent = v[f].mean(1)
+            keep = np.ones(len(f), bool)
+            for c in v[rng.choice(len(v), int(rng.integers(1, 4)), replace=False)]:
+                keep &= np.linalg.norm(cent - c, axis=1) > rng.uniform(0.05, 0.5)
+            fins = np.concatenate([f[rng.choice(len(f), 3)][:, :2], rng.integers(0, len(v), (3, 1))], 1)
+            f = np.ascontiguousarray(np.concatenate([f[keep], fins, f[keep][:10]]), np.int32)
             v = v * 10.0 ** float(rng.integers(-20, 20))
         else:
             v, f = _spatial_soup(rng, kind)
