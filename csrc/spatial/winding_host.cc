@@ -80,6 +80,7 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     const bool approx = mode == 0 && accuracy > 0.0;
     voxax::spatial::ColumnTree bvh;
     voxax::spatial::WindingTree cap_tree;
+    voxax::spatial::CapSum cap_sum;
     if (rays) {
       if (capped) {  // S and C reversed
         std::vector<int32_t> all(F, F + 3 * nf);
@@ -90,8 +91,12 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           all.push_back(cap[3 * t + 1]);
         }
         bvh.build(V, all.data(), nf + ncap, kDir);
-        cap_tree.build(V, cap.data(), ncap);
-        if (approx) cap_tree.build_moments();
+        if (approx) {
+          cap_tree.build(V, cap.data(), ncap);
+          cap_tree.build_moments();
+        } else {
+          cap_sum.build(V, cap);
+        }
       } else {
         bvh.build(V, F, nf, kDir);
       }
@@ -101,6 +106,7 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     std::vector<uint8_t> pending(n, 1);
     if (rays)
       voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+        std::vector<double> work(4 * cap_sum.vertex_count());
         for (int64_t i = b; i < e; ++i) {
           const double* p = P + 3 * i;
           // Hits within this distance of p are unclear: far above the rounding of t.
@@ -110,7 +116,9 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           int64_t sum = 0;
           if (bvh.crossings(p, margin, &sum)) {
             double w = static_cast<double>(sum);
-            if (capped) w += approx ? cap_tree.eval_approx(p, accuracy) : cap_tree.eval(p);
+            if (capped)
+              w += approx ? cap_tree.eval_approx(p, accuracy)
+                          : cap_sum.eval(p, work.data()) / (4.0 * 3.14159265358979323846);
             out[i] = w;
             pending[i] = 0;
           }
