@@ -117,7 +117,9 @@ class ColumnTree {
   bool crossings(const double* p, double margin, int64_t* sum) const {
     *sum = 0;
     if (levels_.empty()) return true;
-    const Ray ray = make_ray(p, proto_.dir, -margin, std::numeric_limits<double>::infinity());
+    Ray ray = proto_;  // make_ray(p, d, -margin, inf): the shear depends on d alone
+    for (int a = 0; a < 3; ++a) ray.org[a] = p[a];
+    ray.tmin = -margin;
     const int kx = ray.kx, ky = ray.ky, kz = ray.kz;
     const double px = p[kx] - ray.sx * p[kz], py = p[ky] - ray.sy * p[kz];
     const double m2 = 2.0 * margin * (1.0 + std::fabs(ray.sx) + std::fabs(ray.sy));
