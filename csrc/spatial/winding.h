@@ -8,10 +8,18 @@
 // Closed meshes: where every edge {i, j} is used as often from i to j as from j to i
 // (the faces form a cycle: closed, or closed up to faces paired with their reverses),
 // the solid-angle sum is the integer signed crossing count of any ray from p. One ray per
-// point, through the BVH, gives it in O(log F); where that ray meets an edge or a vertex
-// exactly, or p lies within rounding of a face it meets, the point falls back to the
-// exact sum, so the result is always the solid-angle sum's value: the integer, or the
-// half-integers of points on the surface.
+// point, through the tree of winding_rays.h (all rays run along one direction), gives it in
+// O(log F); where that ray meets an edge or a vertex exactly, or p lies within rounding of a
+// face it meets, the point falls back to the exact sum, so the result is always the
+// solid-angle sum's value: the integer, or the half-integers of points on the surface.
+//
+// Open meshes with a small boundary: the boundary dS of the faces S (boundary_edges) is a
+// 1-cycle, and a cap C over it (boundary_cap: dC = dS, built from the boundary's vertices)
+// makes S - C a closed 2-cycle, whose solid-angle sum at p is the crossing count of one ray
+// through S and C reversed; w_S(p) = w_{S-C}(p) + w_C(p), the second term the cap's sum
+// (CapSum, exact) or its hierarchy's bounded expansion. C may cross S or itself: S - C is a
+// cycle all the same. Points whose ray is unclear (on S or C, or meeting an edge) take the
+// exact sum over S.
 //
 // Approximate, error-bounded evaluation (WindingTree::eval_approx), after Barill et al.
 // (2018): a node's triangles seen from far away are replaced by the Taylor expansion, to

@@ -10,12 +10,13 @@ any ray direction. Compare `voxax.voxelize`, which averages the +z ray-crossing 
 voxels: both agree for closed surfaces.
 
 Eagerly, for one 3D mesh, the values come from C++ (`csrc/spatial/winding*`): one
-watertight ray per point through a BVH where the faces form a cycle, the exact sum
-elsewhere (a hierarchy of the faces' boundaries, exact up to rounding), or with `accuracy`
-the same hierarchy with error-bounded far-field expansions (Barill et al. 2018, to third
-order, with a rigorous remainder bound; see `csrc/spatial/winding.h`). Traced, batched and
-2D calls run in JAX (differentiable): every point meets
-every face, so the cost is O(points x faces). The points are processed in chunks with
+watertight ray per point where the faces form a cycle; where they do not but their boundary
+is small, one ray through the faces and a cap over the boundary plus the cap's sum;
+elsewhere the exact sum (a hierarchy of the faces' boundaries, exact up to rounding), or
+with `accuracy` the same hierarchies with error-bounded far-field expansions (Barill et al.
+2018, to third order, with a rigorous remainder bound; see `csrc/spatial/winding.h`).
+Traced, batched and 2D calls run in JAX (differentiable): every point meets every face, so
+the cost is O(points x faces). The points are processed in chunks with
 `jax.lax.map`, so the memory is O(chunk_size x faces) for the forward pass and, because
 every chunk is rematerialised (`jax.checkpoint`), for the backward pass too.
 """
@@ -168,34 +169,49 @@ def winding_number(
 
     Two paths compute the same values:
 
-    - **Eager, one 3D mesh** (no argument traced, no batch axes): C++ in float64. Where
-      the faces form a cycle (every edge used as often in each direction: a closed mesh,
-      also a non-manifold one or one with faces paired with their reverses) the sum is the
-      signed crossing count of one watertight ray per point through a BVH, O(log F) per
-      point and exactly the integer; points whose ray meets an edge or a vertex exactly, or
-      that lie within rounding of a face, take the exact sum instead (so points on the
-      surface still get 1/2). Other meshes (open surfaces, soups) and those points use a
-      hierarchy of the faces' boundaries (Jacobson et al. 2013): seen from outside a
-      node's box, a patch has the winding number of the fan over its boundary edges, so a
-      node costs its boundary's edges and only the nodes around the point descend to
-      their triangles; the value is the solid-angle sum's up to rounding (no
-      approximation). With `accuracy = eps > 0` the hierarchy also replaces the nodes
-      far enough from a point by the third-order expansion of their area-weighted
-      normals about their centre (the "fast winding numbers" of Barill et al. 2018), where
-      a rigorous bound on the expansion's remainder allows it: at most
-      `q^6 (5 m4 + q m5 (6 - 5 q) / (1 - q)^2) / (4 pi)` for a node of radius `R` about
-      its centre at distance `rho` from the point, `q = R / rho`, where `m4`, `m5` bound
-      the integrals of `|x - c|^4`, `|x - c|^5` over its triangles in units of `R` (from
-      the Legendre series of the dipole kernel). The point's budget `eps` is shared out
-      over the nodes by area as the traversal goes (a node may spend its area's share of
-      what is left) and the nodes whose bound does not fit take their exact boundary fan
-      or descend, down to the exact triangles, so **every value is within `eps` of the
-      exact solid-angle sum** (plus rounding, as in the exact path). The bound is a worst
-      case: the errors seen are typically 10 to 100 times smaller. It pays on large meshes
-      and for points far from the surface; on small meshes near the surface the exact
-      hierarchy is about as fast. Closed meshes keep the exact ray path (exact, and
-      faster); only the points a ray leaves unclear take the bounded hierarchy. On all cores
-      (`threads`); the result is cast to the input's float dtype.
+    - **Eager, one 3D mesh** (no argument traced, no batch axes): C++ in float64, by
+      one of three paths, chosen from the mesh:
+
+      - *Closed meshes* (every edge used as often in each direction: also non-manifold
+        ones, or ones with faces paired with their reverses): the sum is the signed
+        crossing count of one watertight ray per point, O(log F) per point and exactly
+        the integer. The rays all run along one fixed direction, so they go through a
+        tree over the triangles projected along it (a point query per ray).
+      - *Open meshes with a small boundary* (the edges whose uses do not cancel, at most a
+        quarter as many as the faces: surfaces with holes, a tube cut open): a cap `C`
+        over the boundary (its closed walks, each triangulated by halving its vertex
+        range) has the same boundary as the surface `S`, so `S - C` is closed and
+        `w_S(p) = w_{S-C}(p) + w_C(p)`: the integer crossing count of one ray through `S`
+        and the reversed cap, plus the cap's own solid-angle sum (few triangles). The
+        cap may cross the surface: `S - C` is a cycle all the same.
+      - *Other meshes* (soups, boundaries as large as the mesh): a hierarchy of the faces'
+        boundaries (Jacobson et al. 2013): seen from outside a node's box, a patch has
+        the winding number of the fan over its boundary edges, so a node costs its
+        boundary's edges and only the nodes around the point descend to their triangles.
+
+      On the first two paths the points whose ray meets an edge or a vertex exactly, or
+      that lie within rounding of a face or of the cap, take the exact sum instead (so
+      points on the surface still get 1/2); every value is the solid-angle sum's up to
+      rounding (no approximation). With `accuracy = eps > 0` the hierarchies (the cap's
+      on the second path, the faces' on the third and for the points a ray leaves
+      unclear) also replace the nodes far enough from a point by the third-order
+      expansion of their area-weighted normals about their centre (the "fast winding
+      numbers" of Barill et al. 2018), where a rigorous bound on the expansion's
+      remainder allows it: at most `q^6 (5 m4 + q m5 (6 - 5 q) / (1 - q)^2) / (4 pi)` for
+      a node of radius `R` about its centre at distance `rho` from the point,
+      `q = R / rho`, where `m4`, `m5` bound the integrals of `|x - c|^4`, `|x - c|^5` over
+      its triangles in units of `R` (from the Legendre series of the dipole kernel). The
+      point's budget `eps` is shared out over the nodes by area as the traversal goes (a
+      node may spend its area's share of what is left) and the nodes whose bound does not
+      fit take their exact boundary fan or descend, down to the exact triangles, so
+      **every value is within `eps` of the exact solid-angle sum** (plus rounding, as in
+      the exact path). On a capped mesh only the cap is expanded (its area is small, so
+      the expansions are admissible almost everywhere). The bound is a worst case: the
+      errors seen are typically 10 to 100 times smaller. It pays on large meshes and for
+      points far from the surface; on small meshes near the surface the exact paths are
+      about as fast. Closed meshes keep the exact ray path (exact, and faster); only the
+      points a ray leaves unclear take the bounded hierarchy. On all cores (`threads`),
+      the same bits for any thread count; the result is cast to the input's float dtype.
     - **JAX** (under `jax.jit`, `jax.grad`, `jax.vmap`, for batch axes and for 2D): the
       sum in plain JAX, differentiable in `vertices` and `points` by autodiff (away from
       the surface the gradient of a closed mesh's winding number is zero, up to rounding).
