@@ -4,12 +4,15 @@
 //
 //   voxax_winding_number(V (nv, 3) f64, nv, F (nf, 3) i32, nf, P (n, 3) f64, n, mode,
 //                        accuracy, threads, out (n,) f64, stats (2,) i64, err, errlen)
-//     mode 0: one ray per point where the faces form a cycle, the hierarchy of boundaries
-//     (WindingTree) elsewhere and for the points a ray leaves unclear; mode 1: the plain
-//     solid-angle sum everywhere (face by face). accuracy (finite, >= 0; mode 0 only): 0
-//     for the exact hierarchy, eps > 0 for its error-bounded far-field expansion
-//     (WindingTree::eval_approx: within eps of the solid-angle sum, up to rounding) at the
-//     points that do not take a ray. stats: [faces form a cycle, points decided by a ray].
+//     mode 0: one ray per point where the faces form a cycle; where they do not but their
+//     boundary has at most a quarter as many edges as there are faces, one ray through the
+//     faces and a cap over the boundary, reversed, plus the cap's sum; the hierarchy of
+//     boundaries (WindingTree) elsewhere and for the points a ray leaves unclear (the plain
+//     sum where they are few); mode 1: the plain solid-angle sum everywhere (face by face).
+//     accuracy (finite, >= 0; mode 0 only): 0 for the exact sums, eps > 0 for the
+//     error-bounded far-field expansion (WindingTree::eval_approx: within eps of the
+//     solid-angle sum, up to rounding) of the cap (of more than kExactCap triangles) and
+//     of the hierarchy. stats: [faces form a cycle, points decided by a ray].
 
 #include <algorithm>
 #include <cmath>
@@ -31,6 +34,8 @@ constexpr int64_t kChunk = 256;  // points per task: fixed, so results do not de
 // Up to this many points left unclear by their rays take the plain sum (O(faces) each)
 // instead of the hierarchy, whose build costs about as much as a few dozen plain sums.
 constexpr int64_t kPlainPoints = 16;
+// Caps of at most this many triangles take their exact sum also with `accuracy`.
+constexpr int64_t kExactCap = 48;
 
 // The direction of every ray: no component zero and far from any axis or diagonal plane,
 // so that the faces of axis-aligned and lattice meshes are rarely met at an edge.
@@ -78,7 +83,9 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
     const int64_t ncap = static_cast<int64_t>(cap.size() / 3);
     const bool rays = mode == 0 && nf > 0 && (closed || capped);
     const bool approx = mode == 0 && accuracy > 0.0;
-    voxax::spatial::ColumnTree bvh;
+    // a cap of few triangles: its exact sum is cheaper than its hierarchy (and meets any eps)
+    const bool cap_approx = approx && ncap > kExactCap;
+    voxax::spatial::ColumnTree column;
     voxax::spatial::WindingTree cap_tree;
     voxax::spatial::CapSum cap_sum;
     if (rays) {
@@ -90,18 +97,18 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
           all.push_back(cap[3 * t + 2]);
           all.push_back(cap[3 * t + 1]);
         }
-        bvh.build(V, all.data(), nf + ncap, kDir);
-        if (approx) {
+        column.build(V, all.data(), nf + ncap, kDir);
+        if (cap_approx) {
           cap_tree.build(V, cap.data(), ncap);
           cap_tree.build_moments();
         } else {
           cap_sum.build(V, cap);
         }
       } else {
-        bvh.build(V, F, nf, kDir);
+        column.build(V, F, nf, kDir);
       }
     }
-    const double extent = bvh.extent();
+    const double extent = column.extent();
     // 1: the point still needs the sum (every point, unless a ray decides it)
     std::vector<uint8_t> pending(n, 1);
     if (rays)
@@ -114,11 +121,11 @@ VOXAX_EXPORT int voxax_winding_number(const double* V, int64_t nv, const int32_t
               extent + std::max(std::fabs(p[0]), std::max(std::fabs(p[1]), std::fabs(p[2])));
           const double margin = 1e-9 * scale;
           int64_t sum = 0;
-          if (bvh.crossings(p, margin, &sum)) {
+          if (column.crossings(p, margin, &sum)) {
             double w = static_cast<double>(sum);
             if (capped)
-              w += approx ? cap_tree.eval_approx(p, accuracy)
-                          : cap_sum.eval(p, work.data()) / (4.0 * 3.14159265358979323846);
+              w += cap_approx ? cap_tree.eval_approx(p, accuracy)
+                              : cap_sum.eval(p, work.data()) / (4.0 * 3.14159265358979323846);
             out[i] = w;
             pending[i] = 0;
           }

@@ -369,6 +369,7 @@ def _capped_cases(rng):
 def test_open_meshes_with_small_boundaries_match_the_plain_sum(rng):
     from voxax._kernels import spatial as spk
 
+    loose = []  # the errors at accuracy 1e-2: the caps' expansions are used (not only exact sums)
     for name, (v, f, p) in _capped_cases(rng).items():
         v, f, p = np.ascontiguousarray(v, np.float64), np.ascontiguousarray(f, np.int32), np.asarray(p, np.float64)
         exact = _solid_angle_sum(v, f, p)
@@ -381,6 +382,9 @@ def test_open_meshes_with_small_boundaries_match_the_plain_sum(rng):
             wa = spk.winding_number(v, f, p, False, 1, eps)[0]
             assert np.abs(wa - exact).max() <= eps + 1e-11, (name, eps)
             np.testing.assert_array_equal(spk.winding_number(v, f, p, False, 2, eps)[0], wa, err_msg=name)
+            if eps == 1e-2:
+                loose.append(np.abs(wa - exact).max())
+    assert max(loose) > 1e-6, loose
     # the public call at huge and tiny scales
     v, f, p = _capped_cases(rng)["holes"]
     exact = _solid_angle_sum(v, f, p)
