@@ -6,6 +6,7 @@
 //   voxax_bvh_free(handle)
 //   voxax_bvh_stats(handle, out[2]): node count, face count
 //   voxax_bvh_float_records(handle): the first hits' float records (0: none, float64 only)
+//   voxax_bvh_ray_avx2(handle): 1 where first hits take the AVX2 traversal, else 0
 //   voxax_bvh_closest(handle, P (n, 3), n, max_dist, threads, dist, face, bary (n, 3),
 //   point (n, 3), err, errlen)  (max_dist: inf, or no farther; see Bvh::closest)
 //   voxax_bvh_first_hit(handle, O (n, 3), D (n, 3), n, tmin, tmax, any, threads,
@@ -198,6 +199,11 @@ VOXAX_EXPORT void voxax_bvh_stats(void* handle, int64_t* out) {
 VOXAX_EXPORT int64_t voxax_bvh_float_records(void* handle) {
   const Bvh* bvh = static_cast<const Bvh*>(handle);
   return bvh ? bvh->float_record_count() : 0;
+}
+
+VOXAX_EXPORT int32_t voxax_bvh_ray_avx2(void* handle) {
+  const Bvh* bvh = static_cast<const Bvh*>(handle);
+  return bvh && bvh->ray_avx2() ? 1 : 0;
 }
 
 VOXAX_EXPORT int voxax_bvh_closest(void* handle, const double* P, int64_t n, double max_dist,

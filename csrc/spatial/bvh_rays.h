@@ -16,6 +16,20 @@ namespace voxax {
 namespace spatial {
 
 inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
+#if VOXAX_RAY_AVX2
+  if (ray_avx2_) return first_hit_avx2(ray, any, out);
+#endif
+  return first_hit_path<false>(ray, any, out);
+}
+
+#if VOXAX_RAY_AVX2
+inline bool Bvh::first_hit_avx2(const Ray& ray, bool any, RayHit* out) const {
+  return first_hit_path<true>(ray, any, out);
+}
+#endif
+
+template <bool kAvx2>
+inline bool Bvh::first_hit_path(const Ray& ray, bool any, RayHit* out) const {
   RayHit best;
   best.t = ray.tmax;
   bool found = false;
@@ -76,12 +90,18 @@ inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
       if (use_float) {
         if (sp + kFWidth > kStack) return brute_first(ray, any, out);
         const QNode& fq = qnodes_[eref];
-        alignas(16) float tc[kFWidth];
+        alignas(32) float tc[kFWidth];
         if (cull != cull_seen) {
           cull_seen = cull;
           cull_f = up_float(cull);
         }
-        int mask = qnode_entries(fr, fq, cull_f, tc);  // (cull_f >= cull)
+        int mask;  // (cull_f >= cull)
+#if VOXAX_RAY_AVX2
+        if constexpr (kAvx2)
+          mask = qnode_entries_avx2(fr, fq, cull_f, tc);
+        else
+#endif
+          mask = qnode_entries(fr, fq, cull_f, tc);
         while (mask != 0) {
           const int j = __builtin_ctz(static_cast<unsigned>(mask));
           mask &= mask - 1;

@@ -34,6 +34,16 @@
 #include <sys/mman.h>
 #endif
 
+// The first hits' traversal has a second version for x86-64 CPUs with AVX2, chosen at run
+// time per tree (Bvh::build; `ray_avx2`): the library itself stays compiled for the
+// baseline (SSE2).
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
+#define VOXAX_RAY_AVX2 1
+#include <immintrin.h>
+#else
+#define VOXAX_RAY_AVX2 0
+#endif
+
 #include "spatial/bvh_triangle.h"
 
 namespace voxax {
@@ -178,6 +188,7 @@ class Bvh {
     degenerate_.assign(n, 0);
     tri_boxes_.assign(n, Box3());
     nodes_.clear();
+    ray_avx2_ = choose_ray_avx2();
     std::vector<Box3> boxes(n);
     std::vector<std::array<double, 3>> cent(n);
     std::vector<int32_t> order(n);
@@ -250,6 +261,9 @@ class Bvh {
 
   // mode 0: first hit (smallest t, ties to the lowest face index); mode 1: any hit.
   bool first_hit(const Ray& ray, bool any, RayHit* out) const;
+  // Whether first hits take the AVX2 traversal (the CPU has AVX2 and VOXAX_NO_AVX2 is unset
+  // or 0 when the tree was built): the same results either way.
+  bool ray_avx2() const { return ray_avx2_; }
 
   // Every hit within [tmin, tmax], appended to *out sorted by (t, face).
   void all_hits(const Ray& ray, std::vector<RayHit>* out) const;
@@ -775,6 +789,7 @@ class Bvh {
     s.tmin = round_down(r.tmin);
     return s;
   }
+
   // The entry distances (lower bounds) of the children of a QNode within [tmin, tfar]
   // (tfar: a float at least the cull distance), and the mask of those met. Per axis the
   // distance of grid point q is q (scale inv) + (base - o) inv, the first product exact.
@@ -800,6 +815,38 @@ class Bvh {
     std::memcpy(t + 4, &t0[1], sizeof(V4f));
     return (v4_le_mask(t0[0], t1[0]) | v4_le_mask(t0[1], t1[1]) << 4) & q.used;
   }
+
+#if VOXAX_RAY_AVX2
+  // qnode_entries with the eight children in one 256-bit vector: the same operations on
+  // the same values lane by lane (products and sums rounded apart, no fused multiply-add),
+  // so the same distances and mask bit for bit.
+  __attribute__((target("avx2"))) static int qnode_entries_avx2(const FRay& s, const QNode& q,
+                                                                float tfar, float* t) {
+    const V4f base = v4_load(q.base), scale = v4_load(q.scale);
+    alignas(16) float A[4], cn[4], cf[4];
+    {
+      const V4f a4 = scale * s.inv;
+      const V4f b4 = (base - s.org) * s.inv;
+      const V4f n4 = b4 - s.grow, f4 = b4 + s.grow;
+      std::memcpy(A, &a4, sizeof(A));
+      std::memcpy(cn, &n4, sizeof(cn));
+      std::memcpy(cf, &f4, sizeof(cf));
+    }
+    const uint8_t* qb = q.q[0][0];
+    __m256 t0 = _mm256_set1_ps(s.tmin), t1 = _mm256_set1_ps(tfar);
+    for (int a = 0; a < 3; ++a) {
+      const __m256 qn = _mm256_cvtepi32_ps(
+          _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(qb + s.near[a]))));
+      const __m256 qf = _mm256_cvtepi32_ps(
+          _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(qb + s.far[a]))));
+      const __m256 Aa = _mm256_set1_ps(A[a]);
+      t0 = _mm256_max_ps(_mm256_add_ps(_mm256_mul_ps(qn, Aa), _mm256_set1_ps(cn[a])), t0);
+      t1 = _mm256_min_ps(_mm256_add_ps(_mm256_mul_ps(qf, Aa), _mm256_set1_ps(cf[a])), t1);
+    }
+    _mm256_storeu_ps(t, t0);
+    return _mm256_movemask_ps(_mm256_cmp_ps(t0, t1, _CMP_LE_OQ)) & q.used;
+  }
+#endif
 
   // Squared distance from p to child j's box (the Box3::dist2 formula on the float box).
   static double pair_box_dist2(const Pair& pr, int j, const double* p) {
@@ -996,6 +1043,26 @@ class Bvh {
   ClosestResult brute_closest(const double* p) const;
 
   bool brute_first(const Ray& ray, bool any, RayHit* out) const;
+  // first_hit's traversal, kAvx2 with the QNodes' test in AVX2 (inlined into
+  // first_hit_avx2, compiled for AVX2 as a whole: the rest is the same scalar code, which
+  // rounds the same there, with no fused multiply-add).
+  template <bool kAvx2>
+  bool first_hit_path(const Ray& ray, bool any, RayHit* out) const;
+#if VOXAX_RAY_AVX2
+  __attribute__((target("avx2"), flatten)) bool first_hit_avx2(const Ray& ray, bool any,
+                                                               RayHit* out) const;
+#endif
+  bool ray_avx2_ = false;
+  static bool choose_ray_avx2() {
+#if VOXAX_RAY_AVX2
+    __builtin_cpu_init();
+    if (!__builtin_cpu_supports("avx2")) return false;
+    const char* no = std::getenv("VOXAX_NO_AVX2");
+    return no == nullptr || no[0] == '\0' || std::strcmp(no, "0") == 0;
+#else
+    return false;
+#endif
+  }
 
   // Binned SAH split of order[begin, end). Returns the split position, or -1 for a leaf.
   int32_t split(const std::vector<Box3>& boxes, const std::vector<std::array<double, 3>>& cent,

@@ -192,8 +192,40 @@ def test_rays_random_soup_vs_brute_force():
     np.testing.assert_array_equal(allh.sign, np.sign(np.sum(n * d[allh.ray], 1)))
 
 
+def ray_avx2(bvh):
+    """Whether the BVH's first hits take the AVX2 traversal (else the baseline one)."""
+    import ctypes
+
+    from voxax._kernels._loader import library
+
+    fn = library().voxax_bvh_ray_avx2
+    fn.restype, fn.argtypes = ctypes.c_int32, [ctypes.c_void_p]
+    return bool(fn(bvh._handle))
+
+
+@pytest.fixture(params=["avx2", "baseline"])
+def ray_path(request, monkeypatch):
+    """Each first-hit traversal in turn: the AVX2 one (where the CPU has AVX2) and the
+    baseline (SSE2) one, forced by VOXAX_NO_AVX2=1, which a BVH reads when it is built."""
+    from voxax._kernels.cpu import cpu_features
+
+    if request.param == "baseline":
+        monkeypatch.setenv("VOXAX_NO_AVX2", "1")
+    else:
+        monkeypatch.delenv("VOXAX_NO_AVX2", raising=False)
+        if not cpu_features()["cpu"]["avx2"]:
+            pytest.skip("this CPU has no AVX2")
+    return request.param
+
+
+def path_bvh(ray_path, *mesh):
+    bvh = voxax.BVH(*mesh)
+    assert ray_avx2(bvh) == (ray_path == "avx2")
+    return bvh
+
+
 @pytest.mark.parametrize("nf", [1, 3, 5, 9, 17, 40])
-def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
+def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf, ray_path):
     # small soups give four-wide records with two, three and four children (and a leaf as
     # the root); rays with one or two zero direction components take the scalar box test
     rng = np.random.default_rng(nf)
@@ -205,7 +237,7 @@ def test_first_hits_of_small_trees_and_axis_rays_vs_brute_force(nf):
         keep = rng.integers(0, 3)
         d[i] = 0.0
         d[i, keep] = rng.choice([-1.0, 1.0])
-    bvh = voxax.BVH(V, F)
+    bvh = path_bvh(ray_path, V, F)
     first = bvh.first_hits(o, d)
     anyh = bvh.any_hits(o, d)
     for i, (t, f) in enumerate(brute_hits(o, d, V, F)):
@@ -294,7 +326,7 @@ def grazing_rays(rng, V, F, n):
         (1e20, 0.0, False),  # bounds beyond 2^60: no float records
     ],
 )
-def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path):
+def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path, ray_path):
     # The float records' test is conservative: every first hit (t, face, barycentrics,
     # sign) is the smallest (t, face) of all hits, bit for bit, for rays that graze box
     # bounds, aim at vertices and edges, carry zero, tiny, subnormal or huge direction
@@ -311,7 +343,7 @@ def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path):
         V = np.where(bump > 0, np.nextafter(V, np.inf), np.where(bump < 0, np.nextafter(V, -np.inf), V))
         V = V * scale + shift
     o, d = grazing_rays(rng, V, F, 150)
-    bvh = voxax.BVH(V, F)
+    bvh = path_bvh(ray_path, V, F)
     assert (float_records(bvh) > 0) == float_path
     size = scale * 2.0
     for interval in [{}, {"t_min": -0.3 * size, "t_max": 1.5 * size}, {"t_min": 0.1 * size}]:
@@ -327,6 +359,42 @@ def test_first_hits_equal_the_exhaustive_float64_hits(scale, shift, float_path):
         first = bvh.first_hits(o[:150], d[:150])
         for i, (t, f) in enumerate(brute_hits(o[:150], d[:150], V, F)):
             assert first.face[i] == (f[0] if len(t) else -1)
+
+
+def test_first_hit_traversals_agree_bit_for_bit(monkeypatch):
+    # The AVX2 and the baseline traversals of first hits differ only in how the boxes are
+    # tested: the same hits (t, face, barycentrics, sign) bit for bit, each the smallest of
+    # all hits (the float64 test of every box met), on 20K faces, for rays with zero
+    # direction components, rays starting on faces, and limited intervals.
+    from voxax._kernels.cpu import cpu_features
+
+    if not cpu_features()["cpu"]["avx2"]:
+        pytest.skip("this CPU has no AVX2")
+    mesh = data.large(20_000)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    rng = np.random.default_rng(15)
+    n = 3000
+    o = rng.uniform(V.min(0), V.max(0), (n, 3))
+    d = rng.normal(size=(n, 3))
+    d[: n // 6, 0] = 0.0
+    d[n // 6 : n // 3, 1:] = 0.0
+    f = rng.integers(0, len(F), n // 3)
+    w = rng.dirichlet(np.ones(3), n // 3)
+    o[n // 3 : 2 * n // 3] = np.einsum("rk,rkd->rd", w, V[F[f]])  # on a face
+    o[n // 3 : n // 2] = V[F[f[: n // 6], 0]]  # on a vertex
+    monkeypatch.setenv("VOXAX_NO_AVX2", "1")
+    base = voxax.BVH(V, F)
+    monkeypatch.delenv("VOXAX_NO_AVX2")
+    wide = voxax.BVH(V, F)
+    assert not ray_avx2(base) and ray_avx2(wide) and float_records(wide) > 0
+    for interval in [{}, {"t_min": -0.1, "t_max": 0.5}, {"t_min": 0.05}]:
+        a = wide.first_hits(o, d, **interval, threads=2)
+        b = base.first_hits(o, d, **interval, threads=1)
+        ref = first_of_all_hits(wide, o, d, **interval)
+        for x, y, z in zip((a.t, a.face, a.barycentric, a.sign), (b.t, b.face, b.barycentric, b.sign), ref):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+            np.testing.assert_array_equal(np.asarray(x), z)
+        assert 0.1 * n < np.sum(a.face >= 0) < n
 
 
 def test_hits_behind_the_origin_on_a_flat_mesh():
