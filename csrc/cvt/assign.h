@@ -17,8 +17,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
+#include <string>
 #include <vector>
 
+#include "common/constants.h"
+#include "common/host_errors.h"
+#include "cvt/assign_checks.h"
 #include "spatial/knn.h"
 
 namespace voxax {
@@ -30,11 +35,15 @@ constexpr int kAssignMaxList = 32;  // longer lists fall back to the grid search
 // `parallel(chunks, body)` runs body(c) for c in [0, chunks) (any order, any threads).
 // S (n, 3) seeds, X (m, 3) samples, W (m,) weights, hint (m,) seed indices (out-of-range:
 // none). Outputs: idx (m,), moments (n, 4) = [weight, weighted x, y, z], count (n,),
-// *energy.
+// *energy. The seeds and the counts are checked first (check_assign); the samples' and
+// weights' checks are folded into the passes that read them (one pass over the samples
+// fewer): on bad samples or weights it returns false with the message a check of them
+// first would give (the first bad row), and no nearest-seed search sees a bad sample.
 template <typename Parallel>
-void assign_moments(const double* S, int64_t n, const double* X, const double* W, int64_t m,
+bool assign_moments(const double* S, int64_t n, const double* X, const double* W, int64_t m,
                     const int32_t* hint, int32_t* idx, double* moments, int32_t* count,
-                    double* energy, Parallel&& parallel) {
+                    double* energy, Parallel&& parallel, std::string* msg) {
+  if (!check_assign(S, n, m, msg)) return false;
   spatial::PointGrid grid;
   grid.build(S, n);
   auto d2_of = [](const double* s, const double* q) {
@@ -42,14 +51,26 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
     return dx * dx + dy * dy + dz * dz;
   };
   const int64_t chunks = (m + kAssignChunk - 1) / kAssignChunk;
-  // 1. the squared distance to the hinted seed (-1: no valid hint)
+  // 1. the squared distance to the hinted seed (-1: no valid hint), and whether the
+  // chunk's samples are finite and within the coordinate bound (NaN fails the comparison)
   std::vector<double> d2(static_cast<size_t>(m));
+  std::vector<char> bad_chunk(static_cast<size_t>(chunks), 0);
   parallel(chunks, [&](int64_t c) {
-    for (int64_t q = c * kAssignChunk; q < std::min(m, (c + 1) * kAssignChunk); ++q) {
+    bool ok = true;
+    const int64_t end = std::min(m, (c + 1) * kAssignChunk);
+    for (int64_t q = c * kAssignChunk; q < end; ++q) {
+      const double* x = X + 3 * q;
+      ok &= (std::fabs(x[0]) <= kMaxAbsCoordinate) & (std::fabs(x[1]) <= kMaxAbsCoordinate) &
+            (std::fabs(x[2]) <= kMaxAbsCoordinate);
       const int64_t h = hint[q];
-      d2[q] = (h >= 0 && h < n) ? d2_of(S + 3 * h, X + 3 * q) : -1.0;
+      d2[q] = (h >= 0 && h < n) ? d2_of(S + 3 * h, x) : -1.0;
     }
+    bad_chunk[c] = !ok;
   });
+  if (std::find(bad_chunk.begin(), bad_chunk.end(), 1) != bad_chunk.end()) {
+    check_host_coordinates(X, 3 * m, "samples", msg);  // the first bad row's message
+    return false;
+  }
   // 2. each seed's farthest hinted sample (a max: order-independent)
   std::vector<double> far(static_cast<size_t>(n), -1.0);
   for (int64_t q = 0; q < m; ++q)
@@ -91,7 +112,8 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
       len[a] = static_cast<int32_t>(found.size());
     }
   });
-  // 4. the nearest seed of every sample; d2 becomes its squared distance
+  // 4. the nearest seed of every sample (the distance to the hinted seed recomputed, not
+  // read back: one array fewer in memory traffic)
   parallel(chunks, [&](int64_t c) {
     for (int64_t q = c * kAssignChunk; q < std::min(m, (c + 1) * kAssignChunk); ++q) {
       const double* x = X + 3 * q;
@@ -101,7 +123,6 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
         double d;
         grid.query(x, 1, &i, &d);
         idx[q] = i;
-        d2[q] = d2_of(S + 3 * static_cast<int64_t>(i), x);
         continue;
       }
       double best = d2[q];
@@ -119,25 +140,30 @@ void assign_moments(const double* S, int64_t n, const double* X, const double* W
         }
       }
       idx[q] = bi;
-      d2[q] = best;
     }
   });
-  // 5. moments, counts and energy in sample order
+  // 5. moments, counts and energy in sample order (each squared distance recomputed from
+  // the seed found: the same bits as the search's), and the weights' check
   std::fill(moments, moments + 4 * n, 0.0);
   std::fill(count, count + n, 0);
   double e = 0.0;
+  bool weights_ok = true;
   for (int64_t q = 0; q < m; ++q) {
     const int64_t a = idx[q];
     const double w = W[q];
+    const double* x = X + 3 * q;
+    weights_ok &= (w >= 0.0) & (w <= std::numeric_limits<double>::max());
     double* mo = moments + 4 * a;
     mo[0] += w;
-    mo[1] += w * X[3 * q];
-    mo[2] += w * X[3 * q + 1];
-    mo[3] += w * X[3 * q + 2];
+    mo[1] += w * x[0];
+    mo[2] += w * x[1];
+    mo[3] += w * x[2];
     count[a] += w > 0.0;
-    e += w * d2[q];
+    e += w * d2_of(S + 3 * a, x);
   }
   *energy = e;
+  if (!weights_ok) return check_assign_weights(W, m, msg);
+  return true;
 }
 
 }  // namespace cvt

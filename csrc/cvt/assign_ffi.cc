@@ -38,13 +38,11 @@ ffi::Error CvtAssign(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> seeds,
       return ffi::Error::InvalidArgument(
           "voxax: assignment outputs must have shapes (m,), (n, 4), (n,), (1,)");
     std::string msg;
-    if (!cvt::check_assign(seeds.typed_data(), n, points.typed_data(), weights.typed_data(), m,
-                           &msg))
+    if (!cvt::assign_moments(
+            seeds.typed_data(), n, points.typed_data(), weights.typed_data(), m, hint.typed_data(),
+            idx->typed_data(), moments->typed_data(), count->typed_data(), energy->typed_data(),
+            [&](int64_t chunks, auto&& body) { ParallelFor::run(&pool, chunks, body); }, &msg))
       return ffi::Error::InvalidArgument(msg);
-    cvt::assign_moments(
-        seeds.typed_data(), n, points.typed_data(), weights.typed_data(), m, hint.typed_data(),
-        idx->typed_data(), moments->typed_data(), count->typed_data(), energy->typed_data(),
-        [&](int64_t chunks, auto&& body) { ParallelFor::run(&pool, chunks, body); });
     return ffi::Error::Success();
   });
 }

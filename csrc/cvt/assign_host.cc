@@ -17,12 +17,12 @@ extern "C" __attribute__((visibility("default"))) int voxax_cvt_assign_host(
     int32_t threads, int32_t* idx, double* moments, int32_t* count, double* energy, char* err,
     int64_t errlen) {
   return voxax::host_guarded("the CVT assignment", err, errlen, [&](std::string* msg) {
-    if (!voxax::cvt::check_assign(S, n, X, W, m, msg)) return false;
-    voxax::cvt::assign_moments(
-        S, n, X, W, m, hint, idx, moments, count, energy, [&](int64_t chunks, auto&& body) {
+    return voxax::cvt::assign_moments(
+        S, n, X, W, m, hint, idx, moments, count, energy,
+        [&](int64_t chunks, auto&& body) {
           voxax::spatial::parallel_chunks(chunks, 1, threads,
                                           [&](int64_t c, int64_t, int64_t) { body(c); });
-        });
-    return true;
+        },
+        msg);
   });
 }

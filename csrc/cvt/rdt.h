@@ -132,26 +132,16 @@ class Rdt {
             out.push_back(cand);
           }
       }
+      reduce(&out);  // neighbouring fragments report the same triangles: a chunk's are few
     });
     std::vector<Candidate> all;
+    size_t total = 0;
+    for (const auto& v : per) total += v.size();
+    all.reserve(total);
     for (auto& v : per) all.insert(all.end(), v.begin(), v.end());
     per.clear();
-    std::sort(all.begin(), all.end(), [](const Candidate& a, const Candidate& b) {
-      return a.key < b.key || (a.key == b.key && a.score < b.score);
-    });
-    // Reduce: best score, summed normals (summation in sorted order: deterministic).
-    std::vector<Candidate> uniq;
-    for (size_t i = 0; i < all.size();) {
-      size_t j = i;
-      Candidate c = all[i];
-      c.n[0] = c.n[1] = c.n[2] = 0.0;
-      for (; j < all.size() && all[j].key == c.key; ++j)
-        for (int t = 0; t < 3; ++t) c.n[t] += all[j].n[t];
-      uniq.push_back(c);
-      i = j;
-    }
-    all.clear();
-    all.shrink_to_fit();
+    std::vector<Candidate> uniq = std::move(all);
+    reduce(&uniq);
     stats.candidates = static_cast<int64_t>(uniq.size());
     std::sort(uniq.begin(), uniq.end(), [](const Candidate& a, const Candidate& b) {
       return a.score < b.score || (a.score == b.score && a.key < b.key);
@@ -185,6 +175,24 @@ class Rdt {
   std::unordered_set<uint64_t> used_;
   std::unordered_set<uint64_t> tris_;
   std::vector<std::array<double, 3>> normals_;
+
+  // Sorts candidates by (key, score) and keeps one per triangle: its best score and the
+  // sum of the normals (summed in that order: deterministic, as the chunks are fixed).
+  static void reduce(std::vector<Candidate>* c) {
+    std::sort(c->begin(), c->end(), [](const Candidate& a, const Candidate& b) {
+      return a.key < b.key || (a.key == b.key && a.score < b.score);
+    });
+    size_t out = 0;
+    for (size_t i = 0; i < c->size();) {
+      Candidate r = (*c)[i];
+      size_t j = i + 1;
+      for (; j < c->size() && (*c)[j].key == r.key; ++j)
+        for (int t = 0; t < 3; ++t) r.n[t] += (*c)[j].n[t];
+      (*c)[out++] = r;
+      i = j;
+    }
+    c->resize(out);
+  }
 
   bool try_add(int32_t a, int32_t b, int32_t c) {
     const uint64_t e0 = dir_key(a, b), e1 = dir_key(b, c), e2 = dir_key(c, a);

@@ -227,6 +227,29 @@ def test_lloyd_monotone_and_lbfgs_faster(small):
     assert lb.energy.min() <= lloyd.energy[-1]
 
 
+def test_warm_started_runs_are_the_cold_runs(small):
+    from scipy.spatial import cKDTree
+
+    from voxax.cvt._optimize import run, run_hinted
+
+    fr, s = small
+    lb, hint = run_hinted(fr, s, "lbfgs", 10, True)
+    _, ref = cKDTree(lb.seeds).query(fr.points)  # the returned assignment is that of the seeds returned
+    assert np.array_equal(np.asarray(hint)[: fr.size], ref)
+    cold = run(fr, lb.seeds, "lloyd", 500, True)
+    warm, hint = run_hinted(fr, lb.seeds, "lloyd", 500, True, hint=hint)
+    assert warm.steps == cold.steps < 500  # an exact fixed point
+    assert warm.seeds.tobytes() == cold.seeds.tobytes() and warm.energy.tobytes() == cold.energy.tobytes()
+    _, ref = cKDTree(warm.seeds).query(fr.points)
+    assert np.array_equal(np.asarray(hint)[: fr.size], ref)
+    d = fr.points - warm.seeds[ref]
+    e = np.sum(fr.weights * np.sum(d * d, axis=1))
+    assert abs(warm.energy[-1] - e) <= 1e-12 * e  # the fixed point's energy, not a stale one
+    # a hint of other fragments (another padded size) is not used
+    other, _ = run_hinted(fr, lb.seeds, "lloyd", 3, True, hint=jax.numpy.zeros(7, jax.numpy.int32))
+    assert other.seeds.tobytes() == run(fr, lb.seeds, "lloyd", 3, True).seeds.tobytes()
+
+
 def _brute_nearest(s, x):
     """The nearest seed by (squared distance, index), all pairs in numpy."""
     d2 = np.sum((s[None, :, :] - x[:, None, :]) ** 2, axis=2)

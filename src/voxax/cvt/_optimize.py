@@ -343,17 +343,28 @@ def run(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool,
         step_done=None) -> CVTResult:
     """[`optimize`][voxax.cvt.optimize] on checked arguments; `step_done(energy)` is called
     after every step (a progress bar's hook)."""
+    return run_hinted(frag, s, method, steps, weighted, tol, step_done)[0]
+
+
+def run_hinted(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool, tol: float = 0.0,
+               step_done=None, hint=None) -> tuple[CVTResult, Any]:
+    """`run` warm-started: `hint` is the fragments' assignment (padded, as returned here)
+    from an earlier run on the same fragments, or None. It only speeds the first
+    nearest-seed search (the results are the same bits). **Returns:** `(result, the
+    assignment of the last search)`."""
     import jax.numpy as jnp
 
+    x, w = _padded(frag, weighted)
+    if hint is None or hint.shape != (x.shape[0],):
+        hint = jnp.full(x.shape[0], -1, jnp.int32)
     if method == "lloyd":
         step = _jitted("lloyd", _lloyd_arrays)
         en = _jitted("energy", _energy_arrays)
-        x, w = _padded(frag, weighted)
         one = jnp.asarray(1.0)
-        hint = jnp.full(x.shape[0], -1, jnp.int32)
         hist = []
         moved = 0
         taken = 0
+        fixed = False
         for _ in range(steps):
             new, count, e, hint = step(jnp.asarray(s), x, w, hint)
             hist.append(float(e))
@@ -369,18 +380,21 @@ def run(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool,
                 step_done(hist[-1])
             if fixed:  # an exact fixed point: every further step would return these seeds
                 break
-        hist.append(float(en(jnp.asarray(s), (x, w, one, hint))[0]))
-        return CVTResult(s, np.array(hist), taken, moved, "lloyd")
+        if fixed:  # the last step started from these seeds: its energy is theirs
+            hist.append(hist[-1])
+        else:
+            e, hint = en(jnp.asarray(s), (x, w, one, hint))
+            hist.append(float(e))
+        return CVTResult(s, np.array(hist), taken, moved, "lloyd"), hint
     if method == "lbfgs":
-        x, w = _padded(frag, weighted)
-        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))), jnp.full(x.shape[0], -1, jnp.int32))
+        args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))), hint)
         scale = float(args[2])
         e0, hint = _jitted("energy", _energy_arrays)(jnp.asarray(s), args)
         e0 = float(e0) / scale
         y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12), step_done)
         y = np.asarray(y, np.float64)
-        _, count, _, _ = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
+        _, count, _, hint = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
         y, moved = _respawn(y, frag, count)
         hist = np.concatenate([[e0], np.asarray(hist) / scale])
-        return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason)
+        return CVTResult(y, hist, len(hist) - 1, moved, "lbfgs", info=reason), hint
     raise AssertionError(method)  # checked above

@@ -30,7 +30,7 @@ from ._fragments import (
     union_all,
 )
 from ._manifold import Balls, problem_edges
-from ._optimize import init_seeds, run
+from ._optimize import init_seeds, run, run_hinted
 from ._rdt import RdtReport, rdt
 
 __all__ = ["RemeshResult", "line_faults", "open_lines", "remesh", "topology_seeds"]
@@ -373,21 +373,23 @@ def _optimized_seeds(frag, n_seeds, key, components, method, steps, polish, weig
     and polished by Lloyd steps after L-BFGS."""
     seeds0 = init_seeds(frag, n_seeds, key)
     seeds0, covered = cover_components(frag, seeds0, threads) if components else (seeds0, 0)
-    res = run(frag, np.asarray(seeds0, np.float64), method, steps, weighted, step_done=bar.step)
+    res, hint = run_hinted(frag, np.asarray(seeds0, np.float64), method, steps, weighted, step_done=bar.step)
     seeds = res.seeds
     polish = polish if method == "lbfgs" else 0
     energy = float(res.energy[-1])
     polish_steps = 0
     if polish:
-        pol = run(frag, seeds, "lloyd", polish, weighted, step_done=bar.step)
+        pol, hint = run_hinted(frag, seeds, "lloyd", polish, weighted, step_done=bar.step, hint=hint)
         seeds, energy, polish_steps = pol.seeds, float(pol.energy[-1]), pol.steps
-    return dict(seeds=seeds, result=res, polish=polish, polish_steps=polish_steps, energy=energy, covered=covered)
+    return dict(seeds=seeds, result=res, polish=polish, polish_steps=polish_steps, energy=energy, covered=covered,
+                hint=hint)
 
 
-def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads, bar) -> dict:
+def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads, bar, hint=None) -> dict:
     """The restricted Delaunay triangulation, with rounds of Lloyd steps (and, from the
     second round on, regularisation balls on the defective edges) while it is not a
-    2-manifold, at most `max_rounds`."""
+    2-manifold, at most `max_rounds`. `hint`: the seeds' assignment on `frag` (only speeds
+    the first round's search)."""
     faces, rep = rdt(frag, seeds, threads=threads)
     rounds = 0
     balls = Balls()
@@ -396,13 +398,18 @@ def _manifold_rounds(frag, seeds, max_rounds, round_steps, weighted, threads, ba
         bad = problem_edges(faces, len(seeds))
         if len(bad) == 0:
             break
+        same = rounds == 0  # the fragments of the triangulation
         if rounds > 0:  # the first round only optimises further: most defects are unconverged seeds
             balls.add(seeds, bad, frag.spacing)
             frag = union_all([base, ball_fragments(balls.center, balls.radius, base.grid)])
+            hint = None  # other fragments
         bar.extend(round_steps)
-        seeds = run(frag, seeds, "lloyd", round_steps, weighted, step_done=bar.step).seeds
-        faces, rep = rdt(frag, seeds, threads=threads)
+        moved, hint = run_hinted(frag, seeds, "lloyd", round_steps, weighted, step_done=bar.step, hint=hint)
         rounds += 1
+        if same and np.array_equal(moved.seeds, seeds):
+            continue  # at a fixed point of the same fragments already: the same triangulation
+        seeds = moved.seeds
+        faces, rep = rdt(frag, seeds, threads=threads)
     return dict(frag=frag, seeds=seeds, faces=faces, rdt=rep, rounds=rounds, balls=len(balls),
                 topology_rounds=0, topology_seeds=0)
 
@@ -509,7 +516,8 @@ def _pipeline(source, grid, a: dict, o: dict) -> RemeshResult:
                                       a["polish"], o["weighted"], o["threads"], bar)
         with _timed(times, cpu, "rdt"):
             rounds = a["max_rounds"] if o["orient"] else 0
-            tri = _manifold_rounds(frag, seeded["seeds"], rounds, a["round_steps"], o["weighted"], o["threads"], bar)
+            tri = _manifold_rounds(frag, seeded["seeds"], rounds, a["round_steps"], o["weighted"], o["threads"], bar,
+                                   seeded["hint"])
             tri = _topology_rounds(frag, tri, expected, a["topology_rounds"], rounds, a["round_steps"], o["weighted"],
                                    o["threads"], bar)
     finally:
