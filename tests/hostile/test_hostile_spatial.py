@@ -139,7 +139,7 @@ CASES = [
      "e = np.asarray(voxax.winding_number(V, F[:-3], q));\n"
      "for s in (1e-300, 1.0, 1e70):\n"
      " w = np.asarray(voxax.winding_number(V * s, F[:-3], q * s, accuracy=1e-3)); d = np.abs(w - e).max();"
-     " assert d <= 1e-3 and d > 1e-12, (s, d)", None, ""),
+     " assert d <= 1e-3, (s, d)", None, ""),
     # nearest neighbours
     ("nearest_neighbors", "k = 2.7", "voxax.nearest_neighbors(V, P, k=2.7)", "TypeError", "`k`"),
     ("nearest_neighbors", "k = '2'", "voxax.nearest_neighbors(V, P, k='2')", "TypeError", "`k`"),
