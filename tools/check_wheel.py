@@ -5,7 +5,7 @@
   reports no instruction-set extension enabled throughout the library, and on x86-64 Linux
   the AVX2 clones compiled in (chosen at run time). On x86-64, where objdump is installed,
   the disassembly agrees: AVX instructions (VEX or EVEX encoded, ymm or zmm registers)
-  appear only in the functions' AVX2 clones (`<name>.avx2...`).
+  appear only in the functions' AVX2 clones (`<name>.avx2...`, or functions compiled for AVX2 and named `..._avx2`, chosen at run time).
 
 With `--sdist`: the sdist holds what a build from it needs (CMakeLists.txt, csrc/, the
 package, the metadata's README, LICENSE and CHANGELOG.md) and no build output (compiled
@@ -60,7 +60,7 @@ def avx_outside_clones(library: str) -> dict[str, int] | None:
         match = _FUNCTION.match(line)
         if match:
             function = match.group(1)
-        elif _AVX.search(line) and ".avx2" not in function:
+        elif _AVX.search(line) and ".avx2" not in function and "_avx2" not in function:
             found[function] = found.get(function, 0) + 1
     return found
 
