@@ -143,12 +143,13 @@ ffi::Error FirstHits(ffi::ThreadPool pool, ffi::Buffer<ffi::F64> vertices,
     if (err.failure()) return err;
     const int64_t chunks = (n + kQueryChunk - 1) / kQueryChunk;
     ParallelFor::run(&pool, chunks, [&](int64_t c) {
-      for (int64_t i = c * kQueryChunk; i < std::min(n, (c + 1) * kQueryChunk); ++i) {
-        const auto ray = spatial::make_ray(O + 3 * i, Dd + 3 * i, t_min, t_max);
-        spatial::RayHit h;
-        spatial::store_hit(bvh.first_hit(ray, false, &h), h, i, t->typed_data(), face->typed_data(),
-                           bary->typed_data(), sign->typed_data());
-      }
+      bvh.first_hits(
+          c * kQueryChunk, std::min(n, (c + 1) * kQueryChunk), false,
+          [&](int64_t i) { return spatial::make_ray(O + 3 * i, Dd + 3 * i, t_min, t_max); },
+          [&](int64_t i, bool found, const spatial::RayHit& h) {
+            spatial::store_hit(found, h, i, t->typed_data(), face->typed_data(), bary->typed_data(),
+                               sign->typed_data());
+          });
     });
     return ffi::Error::Success();
   });

@@ -37,7 +37,6 @@ using voxax::spatial::Bvh;
 using voxax::spatial::RayHit;
 
 constexpr int64_t kChunk = 256;  // queries per task: fixed, so results do not depend on threads
-constexpr int64_t kMoveChunk = 1 << 14;  // rays per task of moving rays and results
 
 // The Morton keys of n >= 1 points over their bounding box, `bits` (at most 10) per axis.
 std::vector<uint32_t> morton_keys(const double* X, int64_t n, int bits) {
@@ -97,53 +96,6 @@ std::vector<int64_t> spatial_order(const double* X, int64_t n) {
   }
   return order;
 }
-
-// The rays' places in the order of their origins' cells (a Morton curve over 16^3 cells
-// of their bounding box, rays of a cell in their own order): slot[i] for ray i, from a
-// stable counting sort. Moving the rays to their slots and the results back are two
-// passes in the rays' order that each advance 4096 sequential streams (a few hundred KiB
-// of open cache lines), where tracing the rays in a finer order read each ray and wrote
-// each result at a scattered place; the cells keep consecutive rays close in space.
-// n < 2^31 (a block of rays).
-std::vector<int32_t> cell_slots(const double* X, int64_t n) {
-  constexpr int kBits = 4;
-  const std::vector<uint32_t> key = morton_keys(X, n, kBits);
-  std::vector<int32_t> start(size_t(1) << (3 * kBits), 0);
-  for (int64_t i = 0; i < n; ++i) ++start[key[i]];
-  int32_t at = 0;
-  for (auto& s : start) {
-    const int32_t c = s;
-    s = at;
-    at += c;
-  }
-  std::vector<int32_t> slot(n);
-  for (int64_t i = 0; i < n; ++i) slot[i] = start[key[i]]++;
-  return slot;
-}
-
-// A slot: a ray (origin, direction) until it is traced, then its result, which goes to
-// the output arrays from there (one array for both halves the memory to clear).
-union Slot {
-  double ray[6];
-  struct Hit {
-    double t, bary[3];
-    int32_t face;
-    int8_t sign;
-  } hit;
-};
-
-// An uninitialised array from LargeAlloc (every element is written before it is read).
-template <typename T>
-struct Scratch {
-  explicit Scratch(int64_t n) : size(static_cast<size_t>(n)), p(alloc().allocate(size)) {}
-  ~Scratch() { alloc().deallocate(p, size); }
-  Scratch(const Scratch&) = delete;
-  Scratch& operator=(const Scratch&) = delete;
-  T& operator[](int64_t i) { return p[i]; }
-  static voxax::spatial::LargeAlloc<T> alloc() { return {}; }
-  size_t size;
-  T* p;
-};
 
 struct Hits {
   std::vector<RayHit> hits;
@@ -253,43 +205,16 @@ VOXAX_EXPORT int voxax_bvh_first_hit(void* handle, const double* O, const double
       return false;
     }
     if (!check_rays(O, D, n, tmin, tmax, msg)) return false;
-    // Blocks of at most 2^20 rays bound the memory of the rays and results in slot order.
-    constexpr int64_t kBlock = int64_t(1) << 20;
-    const int64_t cap = std::min(n, kBlock);
-    Scratch<Slot> slots(cap);
-    for (int64_t b0 = 0; b0 < n; b0 += kBlock) {
-      const int64_t m = std::min(kBlock, n - b0);
-      const double* Ob = O + 3 * b0;
-      const double* Db = D + 3 * b0;
-      const std::vector<int32_t> slot = cell_slots(Ob, m);
-      voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-        for (int64_t i = b; i < e; ++i)
-          for (int a = 0; a < 3; ++a) {
-            slots[slot[i]].ray[a] = Ob[3 * i + a];
-            slots[slot[i]].ray[3 + a] = Db[3 * i + a];
-          }
-      });
-      voxax::spatial::parallel_chunks(m, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-        for (int64_t j = b; j < e; ++j) {
-          const double* r = slots[j].ray;
-          const auto ray = voxax::spatial::make_ray(r, r + 3, tmin, tmax);
-          RayHit h;
-          const bool found = bvh->first_hit(ray, any != 0, &h);
-          Slot::Hit o;
-          voxax::spatial::store_hit(found, h, 0, &o.t, &o.face, o.bary, &o.sign);
-          slots[j].hit = o;
-        }
-      });
-      voxax::spatial::parallel_chunks(m, kMoveChunk, threads, [&](int64_t, int64_t b, int64_t e) {
-        for (int64_t i = b; i < e; ++i) {
-          const Slot::Hit& o = slots[slot[i]].hit;
-          t[b0 + i] = o.t;
-          face[b0 + i] = o.face;
-          sign[b0 + i] = o.sign;
-          for (int a = 0; a < 3; ++a) bary[3 * (b0 + i) + a] = o.bary[a];
-        }
-      });
-    }
+    // Rays in their own order, several traced at once (Bvh::first_hits); each result is
+    // written where its ray was read.
+    voxax::spatial::parallel_chunks(n, kChunk, threads, [&](int64_t, int64_t b, int64_t e) {
+      bvh->first_hits(
+          b, e, any != 0,
+          [&](int64_t j) { return voxax::spatial::make_ray(O + 3 * j, D + 3 * j, tmin, tmax); },
+          [&](int64_t j, bool found, const RayHit& h) {
+            voxax::spatial::store_hit(found, h, j, t, face, bary, sign);
+          });
+    });
     return true;
   });
 }

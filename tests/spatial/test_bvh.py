@@ -508,9 +508,9 @@ def test_rays_on_a_closed_mesh_have_matching_crossings():
 
 
 def test_first_hits_over_two_blocks_of_rays():
-    # rays are traced in blocks of 2^20 (each moved to slots by its origins' cells and back):
-    # a ray's answer is the same in a call of 2^20 + 1500 rays as alone in a small one, and
-    # the brute force's
+    # rays are traced several at a time, each thread's chunk of rays interleaved: a ray's
+    # answer is the same in a call of 2^20 + 1500 rays as in a small one, and the brute
+    # force's
     rng = np.random.default_rng(11)
     V, F = random_soup(rng, nf=60, degenerate=5)
     bvh = voxax.BVH(V, F)
@@ -602,3 +602,38 @@ def test_jit_path_matches_the_host_path():
         jax.jit(lambda dd: voxax.first_hits((V, F), jnp.zeros((2, 3)), dd))(
             jnp.array([[1.0, 0, 0], [0, 0, 0]])
         )
+
+
+def test_first_hits_in_large_leaves_vs_brute_force(monkeypatch):
+    # 30 triangles whose boxes are all the cube [-1, 1]^3 (on every axis one corner at -1,
+    # one at 1, the third inside) share one centroid and so one leaf, which the AVX2
+    # traversal tests four triangles at a time (the last group partly filled); next to a
+    # random soup.
+    from voxax._kernels.cpu import cpu_features
+
+    rng = np.random.default_rng(21)
+    cube = np.zeros((30, 3, 3))
+    for k in range(30):
+        for a in range(3):
+            p = rng.permutation(3)
+            cube[k, p, a] = -1.0, 1.0, rng.uniform(-0.9, 0.9)
+    Vs, Fs = random_soup(rng, nf=100, degenerate=10)
+    Vs = 0.5 * Vs + 3.0  # off to one side
+    V = np.concatenate([cube.reshape(-1, 3), Vs])
+    F = np.concatenate([np.arange(90).reshape(30, 3), Fs + 90]).astype(np.int32)
+    n = 2000
+    o = rng.uniform(-4, 4, (n, 3))
+    d = rng.uniform(-0.8, 0.8, (n, 3)) - o  # most towards the cube
+    d[: n // 4] = rng.normal(size=(n // 4, 3))
+    bvh = voxax.BVH(V, F)
+    res = bvh.first_hits(o, d, threads=2)
+    assert np.sum((res.face >= 0) & (res.face < 30)) > n // 2 and np.sum(res.face >= 30) >= 5
+    for i, (t, f) in enumerate(brute_hits(o, d, V, F)):
+        assert res.face[i] == (f[0] if len(t) else -1), i
+        if len(t):
+            np.testing.assert_allclose(res.t[i], t[0], rtol=1e-10)
+    if cpu_features()["cpu"]["avx2"]:
+        monkeypatch.setenv("VOXAX_NO_AVX2", "1")
+        base = voxax.BVH(V, F).first_hits(o, d, threads=1)
+        for x, y in zip(res, base):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
