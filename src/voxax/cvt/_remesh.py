@@ -500,7 +500,8 @@ def _result(out: Mesh, n_seeds, seeded, tri, relax, expected, times, cpu) -> Rem
     return RemeshResult(
         mesh=out, n_fragments=frag.size, n_seeds=n_seeds, n_vertices=out.n_vertices, alpha=frag.size / n_seeds,
         grid=frag.grid, method=res.method, steps=res.steps, polish=seeded["polish"],
-        polish_steps=seeded["polish_steps"], tol=seeded["tol"], polish_tol=seeded["polish_tol"], relax=relax, respawned=res.respawned,
+        polish_steps=seeded["polish_steps"], tol=seeded["tol"], polish_tol=seeded["polish_tol"], relax=relax,
+        respawned=res.respawned,
         component_seeds=seeded["covered"], energy=seeded["energy"], rdt=tri["rdt"], rounds=tri["rounds"],
         balls=tri["balls"], closed=mr.closed, manifold=mr.edge_manifold and mr.vertex_manifold,
         euler_characteristic=mr.euler_characteristic, manifold_report=mr, source_euler_characteristic=expected,
@@ -597,11 +598,12 @@ def remesh(
     - `tol`: L-BFGS stops early once two of its steps in a row each lower the energy by
       less than `tol` of it (relative decrease; counted after a first step that lowered
       it by more, and over the steps that move the seeds). `0` runs all `steps` (unless
-      optimistix's own test ends them). On three 20,000-seed inputs (`benchmarks/
-      remesh_peers.py`) the defaults (with `polish_tol`'s) stopped L-BFGS after 32-34 of
-      the 60 steps and ran 6-10 polish steps instead of 6-7, the quality changing by at
-      most 0.0003 in the mean and not in the minimum (on the Chebyshev octic: 35 steps,
-      0.570 / 0.9083 to 0.565 / 0.9081, minimum / mean). Lloyd steps
+      optimistix's own test ends them). On three 20,000-seed inputs
+      (`benchmarks/remesh_peers.py`) the default `tol` and `polish_tol` stopped L-BFGS
+      after 32-34 of its 60 steps and the polish after 6-10 steps (6-7, to a fixed
+      point, without them), the quality changing by at most 0.0003 in the mean and not
+      in the minimum (on the Chebyshev octic: 35 steps, 0.570 / 0.9083 to 0.565 /
+      0.9081, minimum / mean). Lloyd steps
       (`method="lloyd"`) stop only at an exact fixed point.
     - `polish`, `polish_tol`: Lloyd steps after L-BFGS (L-BFGS lowers the energy fastest
       but stalls at the switches of the assignment; the centroid steps then even out the
@@ -627,7 +629,8 @@ def remesh(
       its quality below 0.2 is undone; vertices of non-manifold or boundary edges stay). The seeds quantise their
       regions' centroids to the fragments, and this evens out the result: on the Chebyshev
       octic at 20,000 seeds two steps lift the quality from 0.50 / 0.864 (minimum / mean)
-      to 0.57 / 0.908. `0` returns the seeds themselves (projected with `project`).
+      to 0.57 / 0.908 (every optimiser step run; the default `tol` and `polish_tol` end
+      at 0.565 / 0.908). `0` returns the seeds themselves (projected with `project`).
     - `relax_on_source`: after manifold rounds with balls, relax onto the source's fragments
       instead of their union with the balls: the vertices the balls pushed out come back
       to the surface, which removes most of the balls' volume (a CSG scene with 1,160
