@@ -367,7 +367,7 @@ def run(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool,
 
 def spacing(frag: Fragments, n: int) -> float:
     """The edge length of `n` seeds spread evenly over the fragments' area (equilateral
-    triangles, two per seed): the scale of `run_hinted`'s `move_tol`."""
+    triangles, two per seed): the scale of `run_hinted`'s `stop_tol` for Lloyd steps."""
     return float(np.sqrt(4.0 * float(np.sum(frag.weights)) / (np.sqrt(3.0) * n)))
 
 
@@ -377,9 +377,9 @@ def run_hinted(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted
     from an earlier run on the same fragments, or None. It only speeds the first
     nearest-seed search (the results are the same bits). `stop_tol` (0: off) stops
     early: L-BFGS after two steps in a row that move the seeds and lower the energy by
-    less than `stop_tol` of it, after a first one that lowered it by more (`_lbfgs`); Lloyd after the first step whose largest seed
-    move is below `stop_tol` times the seeds' `spacing`. **Returns:** `(result, the assignment
-    of the last search)`."""
+    less than `stop_tol` of it, after a first one that lowered it by more (`_lbfgs`);
+    Lloyd after the first step whose largest seed move is below `stop_tol` times the
+    seeds' `spacing`. **Returns:** `(result, the assignment of the last search)`."""
     import jax.numpy as jnp
 
     x, w = _padded(frag, weighted)
