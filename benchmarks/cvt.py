@@ -264,6 +264,8 @@ def main():
     ap.add_argument("--seeds", type=int, default=20000)
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--polish", type=int, default=40, help="Lloyd steps after L-BFGS")
+    ap.add_argument("--tol", type=float, default=1e-4, help="L-BFGS stopping tolerance (0: every step)")
+    ap.add_argument("--polish-tol", type=float, default=0.02, help="polish stopping tolerance (0: to a fixed point)")
     ap.add_argument("--relax", type=int, default=2, help="tangential relaxation steps of the final mesh")
     ap.add_argument("--method", default="lbfgs")
     ap.add_argument("--alpha", type=float, default=50.0, help="fragments per seed")
@@ -335,6 +337,8 @@ def main():
             method=args.method,
             steps=args.steps,
             polish=args.polish,
+            tol=args.tol,
+            polish_tol=args.polish_tol,
             relax=args.relax,
             alpha=args.alpha,
         )

@@ -185,7 +185,8 @@ def main() -> None:
             run = {"source": name, "size": n, "voxax": {**sv, "first_s": first, "times_s": tv, "median_s": mv,
                                                          "stages_s": dict(vrep.time), "cpu_s": dict(vrep.cpu_time),
                                                          "fragments": vrep.n_fragments,
-                                                         "polish_steps": vrep.polish_steps, "rounds": vrep.rounds}}
+                                                         "steps": vrep.steps, "polish_steps": vrep.polish_steps,
+                                                         "rounds": vrep.rounds}}
             rows = [("voxax", sv, f"{first:.2f} s", mv, "")]
             for lib in peers:
                 sp, mp = summary(results[lib], src, diag, args.hausdorff_n), statistics.median(tp[lib])
@@ -199,7 +200,8 @@ def main() -> None:
                       f"{s['hausdorff_pct']:.3f} | {fc} | {med:.2f} s | {ratio} |", flush=True)
             st = {k: round(x, 2) for k, x in vrep.time.items()}
             peer_times = "; ".join(f"{lib} {[round(x, 2) for x in tp[lib]]}" for lib in peers)
-            print(f"  voxax stages (last call) {st}, {vrep.n_fragments} fragments, polish {vrep.polish_steps}, "
+            print(f"  voxax stages (last call) {st}, {vrep.n_fragments} fragments, L-BFGS {vrep.steps}, "
+                  f"polish {vrep.polish_steps}, "
                   f"rounds {vrep.rounds}; times voxax {[round(x, 2) for x in tv]}; {peer_times}; "
                   f"load {os.getloadavg()}", flush=True)
     out["load_end"] = os.getloadavg()

@@ -250,6 +250,56 @@ def test_warm_started_runs_are_the_cold_runs(small):
     assert other.seeds.tobytes() == run(fr, lb.seeds, "lloyd", 3, True).seeds.tobytes()
 
 
+def test_stopping_tolerances_truncate_the_runs(small):
+    from voxax.cvt._optimize import run_hinted, spacing
+
+    fr, s = small
+    # L-BFGS: the stop ends the run before the cap; a run capped at the steps it took,
+    # without the stop, gives the same bits (the stop only truncates)
+    full, _ = run_hinted(fr, s, "lbfgs", 60, True)
+    assert full.steps == 60 and full.info == "max_steps"
+    for tol in (1e-4, 1e-3):
+        early, _ = run_hinted(fr, s, "lbfgs", 60, True, stop_tol=tol)
+        assert early.info == "tol" and 3 <= early.steps < 60
+        capped, _ = run_hinted(fr, s, "lbfgs", early.steps, True)
+        assert capped.seeds.tobytes() == early.seeds.tobytes()
+        assert np.array_equal(capped.energy, full.energy[: early.steps + 1])
+        # the last two steps moved the seeds and each lowered the energy by less than tol
+        e = early.energy
+        assert np.all((e[-3:-1] - e[-2:]) < tol * e[-3:-1]) and np.all(e[-2:] < e[-3:-1])
+    # Lloyd: the stop ends at the first step whose largest move is below tol edges
+    lb, hint = run_hinted(fr, s, "lbfgs", 20, True)
+    fixed, _ = run_hinted(fr, lb.seeds, "lloyd", 500, True, hint=hint)
+    assert fixed.info == "fixed point"
+    early, _ = run_hinted(fr, lb.seeds, "lloyd", 500, True, hint=hint, stop_tol=0.02)
+    assert early.info == "tol" and 1 <= early.steps < fixed.steps
+    reach = 0.02 * spacing(fr, len(s))
+    y, moves = lb.seeds, []
+    for _ in range(early.steps):
+        step, _ = run_hinted(fr, y, "lloyd", 1, True)
+        moves.append(np.linalg.norm(step.seeds - y, axis=1).max())
+        y = step.seeds
+    assert moves[-1] < reach and all(m >= reach for m in moves[:-1])
+    assert y.tobytes() == early.seeds.tobytes()
+
+
+def test_remesh_stops_early_and_tol_0_runs_every_step():
+    mesh = voxax.data.icosphere(3)
+    kw = dict(progress=False, threads=2)
+    off = cvt.remesh(mesh, 300, tol=0, polish_tol=0, **kw)
+    assert off.steps == 60 and off.tol == 0 and off.polish_tol == 0
+    on = cvt.remesh(mesh, 300, **kw)
+    assert on.steps < 60 and on.polish_steps <= 40 and on.tol == 1e-4 and on.polish_tol == 0.02
+    assert on.closed and on.euler_characteristic == 2
+    assert on.quality_mean > off.quality_mean - 0.005
+    # the stops only truncate: the caps set to the steps that ran give the same mesh
+    again = cvt.remesh(mesh, 300, steps=on.steps, polish=on.polish_steps, tol=0, polish_tol=0, **kw)
+    assert again.mesh == on.mesh and again.steps == on.steps and again.polish_steps == on.polish_steps
+    # Lloyd as the optimiser ignores `tol`
+    kl = dict(method="lloyd", steps=5, relax=0, **kw)
+    assert cvt.remesh(mesh, 80, tol=0.5, **kl).mesh == cvt.remesh(mesh, 80, tol=0, **kl).mesh
+
+
 def _brute_nearest(s, x):
     """The nearest seed by (squared distance, index), all pairs in numpy."""
     d2 = np.sum((s[None, :, :] - x[:, None, :]) ** 2, axis=2)
@@ -609,6 +659,12 @@ def test_remesh_result_is_typed_and_unpacks():
     (dict(threads=0), ValueError, "`threads` must be >= 1"),
     (dict(method="newton"), ValueError, "`method`"),
     (dict(steps=-1), ValueError, "`steps`"),
+    (dict(tol=-1e-4), ValueError, "`tol` must be >= 0 and finite"),
+    (dict(tol=float("nan")), ValueError, "`tol` must be >= 0 and finite"),
+    (dict(tol="small"), TypeError, "`tol` must be a number"),
+    (dict(polish_tol=-0.02), ValueError, "`polish_tol` must be >= 0 and finite"),
+    (dict(polish_tol=float("nan")), ValueError, "`polish_tol` must be >= 0 and finite"),
+    (dict(polish_tol=float("inf")), ValueError, "`polish_tol` must be >= 0 and finite"),
     (dict(grid=voxax.Grid((-1.0, -1.0), (1.0, 1.0), (4, 4))), ValueError, "`grid` must be 3D"),
 ])
 def test_remesh_bad_arguments(kwargs, error, match):

@@ -210,10 +210,17 @@ def _lbfgs_step(solver, y, state, args):
     return y_new, state, state.f_info.f, state.aux, done, result
 
 
-def _lbfgs(y, args, steps: int, rtol: float, step_done=None):
+def _lbfgs(y, args, steps: int, rtol: float, step_done=None, ftol: float = 0.0):
     """optimistix L-BFGS driven step by step from Python (one energy evaluation per step), with its
     init and step compiled once per problem shape (the solver and the energy are static,
-    the seeds and fragments arguments)."""
+    the seeds and fragments arguments). With `ftol > 0` it also stops after two accepted
+    steps in a row that each lower the energy by less than `ftol` of it (relative
+    decrease), once a step has lowered it by `ftol` or more: the first steps that move
+    the seeds are gradient steps of the solver's initial length (no curvature pairs yet,
+    and tiny: the energy is scaled by the total weight), whose decrease is small far from
+    convergence. Steps that leave the energy as it was (the first, which evaluates the
+    start, and those whose line search rejects the point tried: the iterate stays) are
+    not counted."""
     import equinox as eqx
     import optimistix as optx
 
@@ -223,6 +230,8 @@ def _lbfgs(y, args, steps: int, rtol: float, step_done=None):
     state = init(solver, y, args)
     hist = []
     reason = "max_steps"
+    armed = False  # a step has lowered the energy by ftol or more
+    small = 0  # accepted steps in a row below ftol since
     for _ in range(steps):
         y_new, state, e, hint, done, result = step(solver, y, state, args)
         args = (*args[:3], hint)
@@ -230,12 +239,20 @@ def _lbfgs(y, args, steps: int, rtol: float, step_done=None):
         if not np.isfinite(e):
             reason = "nonfinite"
             break
+        # the relative decrease of an accepted step (the iterate moved: the energy changed)
+        if ftol > 0 and len(hist) > 0 and e != hist[-1]:
+            below = hist[-1] - e < ftol * abs(hist[-1])
+            armed = armed or not below
+            small = small + 1 if below and armed else 0
         hist.append(e)
         y = y_new
         if step_done is not None:
             step_done(e)
         if bool(done):
             reason = "converged" if result == optx.RESULTS.successful else f"failed: {optx.RESULTS[result]}"
+            break
+        if small >= 2:
+            reason = "tol"
             break
     return y, hist, reason
 
@@ -292,6 +309,8 @@ class CVTResult:
     - `steps`: int, steps taken.
     - `respawned`: int, seeds moved out of empty regions.
     - `method`: `"lloyd"` or `"lbfgs"`.
+    - `info`: why the steps ended: `"max_steps"`, `"tol"`, `"fixed point"` (Lloyd),
+      `"converged"` or `"failed: ..."` (L-BFGS, optimistix's own test) or `"nonfinite"`.
     """
 
     seeds: np.ndarray
@@ -346,12 +365,21 @@ def run(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool,
     return run_hinted(frag, s, method, steps, weighted, tol, step_done)[0]
 
 
+def spacing(frag: Fragments, n: int) -> float:
+    """The edge length of `n` seeds spread evenly over the fragments' area (equilateral
+    triangles, two per seed): the scale of `run_hinted`'s `stop_tol` for Lloyd steps."""
+    return float(np.sqrt(4.0 * float(np.sum(frag.weights)) / (np.sqrt(3.0) * n)))
+
+
 def run_hinted(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted: bool, tol: float = 0.0,
-               step_done=None, hint=None) -> tuple[CVTResult, Any]:
+               step_done=None, hint=None, stop_tol: float = 0.0) -> tuple[CVTResult, Any]:
     """`run` warm-started: `hint` is the fragments' assignment (padded, as returned here)
     from an earlier run on the same fragments, or None. It only speeds the first
-    nearest-seed search (the results are the same bits). **Returns:** `(result, the
-    assignment of the last search)`."""
+    nearest-seed search (the results are the same bits). `stop_tol` (0: off) stops
+    early: L-BFGS after two steps in a row that move the seeds and lower the energy by
+    less than `stop_tol` of it, after a first one that lowered it by more (`_lbfgs`);
+    Lloyd after the first step whose largest seed move is below `stop_tol` times the
+    seeds' `spacing`. **Returns:** `(result, the assignment of the last search)`."""
     import jax.numpy as jnp
 
     x, w = _padded(frag, weighted)
@@ -365,33 +393,41 @@ def run_hinted(frag: Fragments, s: np.ndarray, method: str, steps: int, weighted
         moved = 0
         taken = 0
         fixed = False
+        reach = stop_tol * spacing(frag, len(s)) if stop_tol > 0 else 0.0
+        reason = "max_steps"
         for _ in range(steps):
             new, count, e, hint = step(jnp.asarray(s), x, w, hint)
             hist.append(float(e))
             if tol > 0 and len(hist) > 1 and hist[-2] - hist[-1] <= tol * abs(hist[-2]):
                 hist.pop()
+                reason = "tol"
                 break
             new, m = _respawn(np.array(new, np.float64), frag, count)
             moved += m
             fixed = m == 0 and np.array_equal(new, s)
+            small = reach > 0 and float(np.max(np.sqrt(np.sum((new - s) ** 2, axis=1)))) < reach
             s = new
             taken += 1
             if step_done is not None:
                 step_done(hist[-1])
             if fixed:  # an exact fixed point: every further step would return these seeds
+                reason = "fixed point"
+                break
+            if small:
+                reason = "tol"
                 break
         if fixed:  # the last step started from these seeds: its energy is theirs
             hist.append(hist[-1])
         else:
             e, hint = en(jnp.asarray(s), (x, w, one, hint))
             hist.append(float(e))
-        return CVTResult(s, np.array(hist), taken, moved, "lloyd"), hint
+        return CVTResult(s, np.array(hist), taken, moved, "lloyd", info=reason), hint
     if method == "lbfgs":
         args = (x, w, jnp.asarray(1.0 / float(jnp.sum(w))), hint)
         scale = float(args[2])
         e0, hint = _jitted("energy", _energy_arrays)(jnp.asarray(s), args)
         e0 = float(e0) / scale
-        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12), step_done)
+        y, hist, reason = _lbfgs(jnp.asarray(s), (*args[:3], hint), steps, max(tol, 1e-12), step_done, stop_tol)
         y = np.asarray(y, np.float64)
         _, count, _, hint = _jitted("lloyd", _lloyd_arrays)(jnp.asarray(y), x, w, hint)
         y, moved = _respawn(y, frag, count)
