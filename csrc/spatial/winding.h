@@ -56,20 +56,30 @@
 namespace voxax {
 namespace spatial {
 
+// Van Oosterom and Strackee's terms of the solid angle 2 atan2(num, den) of the triangle
+// with corners p + a, p + b, p + c at p: num = a . (b x c), and den from the corners'
+// lengths la, lb, lc. Every evaluation of the solid angle goes through these two, so all
+// round the same.
+inline double solid_angle_num(const double* a, const double* b, const double* c) {
+  const double bc[3] = {b[1] * c[2] - b[2] * c[1], b[2] * c[0] - b[0] * c[2],
+                        b[0] * c[1] - b[1] * c[0]};
+  return a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2];
+}
+inline double solid_angle_den(const double* a, const double* b, const double* c, double la,
+                              double lb, double lc) {
+  return la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
+         (a[0] * c[0] + a[1] * c[1] + a[2] * c[2]) * lb +
+         (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la;
+}
+
 // The signed solid angle of the triangle with corners p + a, p + b, p + c at p.
 inline double solid_angle_of(const double* a, const double* b, const double* c) {
   const double la = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
   const double lb = std::sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
   const double lc = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-  const double bc[3] = {b[1] * c[2] - b[2] * c[1], b[2] * c[0] - b[0] * c[2],
-                        b[0] * c[1] - b[1] * c[0]};
-  const double num = a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2];
+  const double num = solid_angle_num(a, b, c);
   if (num == 0.0) return 0.0;
-  const double ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-  const double ac = a[0] * c[0] + a[1] * c[1] + a[2] * c[2];
-  const double bcd = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
-  const double den = la * lb * lc + ab * lc + ac * lb + bcd * la;
-  return 2.0 * std::atan2(num, den);
+  return 2.0 * std::atan2(num, solid_angle_den(a, b, c, la, lb, lc));
 }
 
 // The signed solid angle of triangle (A, B, C) at p, in [-2 pi, 2 pi]. Where the corners
@@ -284,13 +294,9 @@ class CapSum {
         s += solid_angle(p, x_.data() + 3 * i, x_.data() + 3 * j, x_.data() + 3 * k);
         continue;
       }
-      const double bc[3] = {b[1] * c[2] - b[2] * c[1], b[2] * c[0] - b[0] * c[2],
-                            b[0] * c[1] - b[1] * c[0]};
-      const double num = a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2];
+      const double num = solid_angle_num(a, b, c);
       if (num == 0.0) continue;
-      const double den = la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
-                         (a[0] * c[0] + a[1] * c[1] + a[2] * c[2]) * lb +
-                         (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la;
+      const double den = solid_angle_den(a, b, c, la, lb, lc);
       if (!(den > 0.0)) {
         s += 2.0 * std::atan2(num, den);
         continue;
@@ -622,13 +628,9 @@ class WindingTree {
       const double w[3] = {C[0] - p[0], C[1] - p[1], C[2] - p[2]};
       const double lb = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
       const double lc = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-      const double uw[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2],
-                            u[0] * w[1] - u[1] * w[0]};
-      const double num = a[0] * uw[0] + a[1] * uw[1] + a[2] * uw[2];
+      const double num = solid_angle_num(a, u, w);
       if (num == 0.0) continue;
-      const double den = la * lb * lc + (a[0] * u[0] + a[1] * u[1] + a[2] * u[2]) * lc +
-                         (a[0] * w[0] + a[1] * w[1] + a[2] * w[2]) * lb +
-                         (u[0] * w[0] + u[1] * w[1] + u[2] * w[2]) * la;
+      const double den = solid_angle_den(a, u, w, la, lb, lc);
       if (!(den > 0.0) || ed.mult != 1) {
         s += ed.mult * 2.0 * std::atan2(num, den);
         continue;
