@@ -192,14 +192,14 @@ class Bvh {
     tri_boxes_.assign(n, Box3());
     nodes_.clear();
     ray_avx2_ = choose_ray_avx2();
-    std::vector<Box3> boxes(n);
-    std::vector<std::array<double, 3>> cent(n);
-    std::vector<int32_t> order(n);
+    // the faces' boxes and centroids, kept in tree order as the splits partition them (each
+    // node's scans read its range in sequence)
+    std::vector<BuildItem> items(n);
     for (int32_t f = 0; f < n; ++f) {
-      order[f] = f;
-      for (int k = 0; k < 3; ++k)
-        boxes[f].grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
-      for (int a = 0; a < 3; ++a) cent[f][a] = 0.5 * (boxes[f].lo[a] + boxes[f].hi[a]);
+      BuildItem& it = items[f];
+      it.face = f;
+      for (int k = 0; k < 3; ++k) it.box.grow(V + 3 * static_cast<int64_t>(F[3 * int64_t(f) + k]));
+      for (int a = 0; a < 3; ++a) it.cent[a] = 0.5 * (it.box.lo[a] + it.box.hi[a]);
     }
     if (n == 0) return;
     nodes_.reserve(2 * static_cast<size_t>(n / kMaxLeaf + 1));
@@ -215,12 +215,12 @@ class Bvh {
       Node& node = nodes_[task.node];
       Box3 cb;
       for (int32_t i = task.begin; i < task.end; ++i) {
-        node.box.grow(boxes[order[i]]);
-        cb.grow(cent[order[i]].data());
+        node.box.grow(items[i].box);
+        cb.grow(items[i].cent);
       }
       const int32_t count = task.end - task.begin;
       int32_t mid = -1;
-      if (count > kMaxLeaf) mid = split(boxes, cent, order, task.begin, task.end, node.box, cb);
+      if (count > kMaxLeaf) mid = split(items, task.begin, task.end, node.box, cb);
       ranges_[task.node] = {task.begin, task.end};
       if (mid < 0) {
         nodes_[task.node].first = task.begin;
@@ -236,7 +236,7 @@ class Bvh {
       stack.push_back({left, task.begin, mid});
     }
     for (int32_t i = 0; i < n; ++i) {
-      const int32_t f = order[i];
+      const int32_t f = items[i].face;
       ids_[i] = f;
       for (int k = 0; k < 3; ++k)
         for (int a = 0; a < 3; ++a)
@@ -244,7 +244,7 @@ class Bvh {
               V[3 * static_cast<int64_t>(F[3 * int64_t(f) + k]) + a];
       const double* t = &tris_[9 * static_cast<size_t>(i)];
       degenerate_[i] = triangle_degenerate(t, t + 3, t + 6) ? 1 : 0;
-      tri_boxes_[i] = boxes[f];
+      tri_boxes_[i] = items[i].box;
     }
     build_pairs();
   }
@@ -525,6 +525,9 @@ class Bvh {
       for (int j = 0; j < 2; ++j) grow_cmax(&pr.c[0][j], 2, pr.r[j], pr.h[j]);
     for (const FSlab& ts : tri_slabs_) grow_cmax(ts.c, 1, ts.r, ts.h);
     quads_.clear();
+    // at most one Quad per Pair: no reallocation (the pages of the capacity not used are
+    // never touched)
+    quads_.reserve(pairs_.size());
     if (root_count_ == 0) make_quad(root_ref_);
     qnodes_.clear();
     if (root_count_ == 0) {
@@ -1086,9 +1089,14 @@ class Bvh {
 #endif
   }
 
-  // Binned SAH split of order[begin, end). Returns the split position, or -1 for a leaf.
-  int32_t split(const std::vector<Box3>& boxes, const std::vector<std::array<double, 3>>& cent,
-                std::vector<int32_t>& order, int32_t begin, int32_t end, const Box3& nb,
+  // A face during the build: its box and the box's centre.
+  struct BuildItem {
+    Box3 box;
+    double cent[3];
+    int32_t face;
+  };
+  // Binned SAH split of items[begin, end). Returns the split position, or -1 for a leaf.
+  int32_t split(std::vector<BuildItem>& items, int32_t begin, int32_t end, const Box3& nb,
                 const Box3& cb) {
     const int32_t count = end - begin;
     double best_cost = std::numeric_limits<double>::infinity();
@@ -1100,11 +1108,10 @@ class Bvh {
       Box3 bb[kBins];
       int32_t bn[kBins] = {0};
       for (int32_t i = begin; i < end; ++i) {
-        const int32_t f = order[i];
-        int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
+        int k = static_cast<int>((items[i].cent[a] - cb.lo[a]) * scale);
         k = std::min(kBins - 1, std::max(0, k));
         bn[k]++;
-        bb[k].grow(boxes[f]);
+        bb[k].grow(items[i].box);
       }
       double right_area[kBins];
       int32_t right_n[kBins];
@@ -1142,12 +1149,13 @@ class Bvh {
     const int a = best_axis;
     const double extent = cb.hi[a] - cb.lo[a];
     const double scale = kBins / extent;
-    auto mid_it = std::partition(order.begin() + begin, order.begin() + end, [&](int32_t f) {
-      int k = static_cast<int>((cent[f][a] - cb.lo[a]) * scale);
-      k = std::min(kBins - 1, std::max(0, k));
-      return k < best_bin;
-    });
-    const int32_t mid = static_cast<int32_t>(mid_it - order.begin());
+    auto mid_it =
+        std::partition(items.begin() + begin, items.begin() + end, [&](const BuildItem& it) {
+          int k = static_cast<int>((it.cent[a] - cb.lo[a]) * scale);
+          k = std::min(kBins - 1, std::max(0, k));
+          return k < best_bin;
+        });
+    const int32_t mid = static_cast<int32_t>(mid_it - items.begin());
     if (mid == begin || mid == end) return begin + count / 2;
     return mid;
   }
