@@ -120,7 +120,10 @@ inline bool Bvh::walk_start(HitWalk* w, const Ray& ray, bool any) const {
 
 inline bool Bvh::walk_result(const HitWalk& w, RayHit* out) const {
   if (w.overflow) return brute_first(w.ray, w.any, out);
-  if (w.found) *out = w.best;
+  if (w.found) {
+    *out = w.best;
+    out->face = ids_[w.best.face];
+  }
   return w.found;
 }
 
@@ -143,9 +146,10 @@ inline bool Bvh::walk_step(HitWalk* w) const {
     // filter four at a time)
     auto test = [&](int32_t i) {
       if (ray_triangle(ray, &tris_[9 * static_cast<size_t>(i)], w->best.t, &h)) {
-        if (!w->found || h.t < w->best.t || (h.t == w->best.t && ids_[i] < w->best.face)) {
+        if (!w->found || h.t < w->best.t || (h.t == w->best.t && ids_[i] < ids_[w->best.face])) {
           w->best = h;
-          w->best.face = ids_[i];
+          w->best.face = i;  // its place in tree order until the walk ends
+          __builtin_prefetch(&ids_[i]);
           w->found = true;
           if (w->any) return false;
           w->cull = w->best.t + 1e-9 * std::fabs(w->best.t);
