@@ -262,22 +262,6 @@ inline bool Bvh::walk_step(HitWalk* w) const {
   return true;
 }
 
-inline bool Bvh::first_hit(const Ray& ray, bool any, RayHit* out) const {
-#if VOXAX_RAY_AVX2
-  if (ray_avx2_) return first_hit_avx2(ray, any, out);
-#endif
-  return first_hit_path<false>(ray, any, out);
-}
-
-template <bool kAvx2>
-inline bool Bvh::first_hit_path(const Ray& ray, bool any, RayHit* out) const {
-  HitWalk w;
-  if (walk_start(&w, ray, any))
-    while (walk_step<kAvx2>(&w)) {
-    }
-  return walk_result(w, out);
-}
-
 template <class Make, class Store>
 inline void Bvh::first_hits(int64_t b, int64_t e, bool any, Make&& make, Store&& store) const {
 #if VOXAX_RAY_AVX2
@@ -329,10 +313,6 @@ inline void Bvh::first_hits_lanes(int64_t b, int64_t e, bool any, Make& make, St
 }
 
 #if VOXAX_RAY_AVX2
-inline bool Bvh::first_hit_avx2(const Ray& ray, bool any, RayHit* out) const {
-  return first_hit_path<true>(ray, any, out);
-}
-
 template <class Make, class Store>
 inline void Bvh::first_hits_avx2(int64_t b, int64_t e, bool any, Make& make, Store& store) const {
   first_hits_lanes<true>(b, e, any, make, store);

@@ -262,11 +262,10 @@ class Bvh {
   ClosestResult closest(const double* p, int32_t hint = -1,
                         double cap2 = std::numeric_limits<double>::infinity()) const;
 
-  // mode 0: first hit (smallest t, ties to the lowest face index); mode 1: any hit.
-  bool first_hit(const Ray& ray, bool any, RayHit* out) const;
-  // first_hit of rays b..e-1, several traced at once (see first_hits_lanes): make(j) gives
-  // ray j, then store(j, found, hit) takes its result (in no particular order of j). Each
-  // ray's result is first_hit's, bit for bit.
+  // The first hits (smallest t, ties to the lowest face index; with `any`, any hit) of rays
+  // b..e-1, several traced at once (see first_hits_lanes): make(j) gives ray j, then
+  // store(j, found, hit) takes its result (in no particular order of j). Each ray's result
+  // does not depend on the others.
   template <class Make, class Store>
   void first_hits(int64_t b, int64_t e, bool any, Make&& make, Store&& store) const;
   // Whether first hits take the AVX2 traversal (the CPU has AVX2 and VOXAX_NO_AVX2 is unset
@@ -1056,8 +1055,8 @@ class Bvh {
   bool brute_first(const Ray& ray, bool any, RayHit* out) const;
   // A first- (or any-) hit traversal as a sequence of steps, each the visit of one QNode,
   // Quad or leaf (bvh_rays.h): walk_start, then walk_step until it returns false, then
-  // walk_result. One ray at a time (first_hit) or several interleaved (first_hits), the
-  // same steps on the same values.
+  // walk_result. Several rays' walks are interleaved (first_hits_lanes), each taking the
+  // same steps as it would alone.
   struct HitWalk;
   bool walk_start(HitWalk* w, const Ray& ray, bool any) const;
   template <bool kAvx2>
@@ -1066,13 +1065,9 @@ class Bvh {
   // The traversals, kAvx2 with the QNodes' test in AVX2 (inlined into the *_avx2 functions,
   // compiled for AVX2 as a whole: the rest is the same scalar code, which rounds the same
   // there, with no fused multiply-add).
-  template <bool kAvx2>
-  bool first_hit_path(const Ray& ray, bool any, RayHit* out) const;
   template <bool kAvx2, class Make, class Store>
   void first_hits_lanes(int64_t b, int64_t e, bool any, Make& make, Store& store) const;
 #if VOXAX_RAY_AVX2
-  __attribute__((target("avx2"), flatten)) bool first_hit_avx2(const Ray& ray, bool any,
-                                                               RayHit* out) const;
   template <class Make, class Store>
   __attribute__((target("avx2"), flatten)) void first_hits_avx2(int64_t b, int64_t e, bool any,
                                                                 Make& make, Store& store) const;
