@@ -140,6 +140,26 @@ inline bool Bvh::walk_step(HitWalk* w) const {
   uint64_t* stack_rc = w->stack_rc;
   int sp = w->sp;
   const int32_t eref = w->eref, ecount = w->ecount;
+  // a child met, inserted above the entries of this record at or before it (so the stack
+  // holds them in order of decreasing t, ties in the order met)
+  auto push = [&](int base, double t, uint64_t rc) {
+    int at = sp++;
+    while (at > base && stack_t[at - 1] <= t) {
+      stack_t[at] = stack_t[at - 1];
+      stack_rc[at] = stack_rc[at - 1];
+      --at;
+    }
+    stack_t[at] = t;
+    stack_rc[at] = rc;
+  };
+  // the entry at the top of the stack visited next
+  auto visit_top = [&]() {
+    const uint64_t erc = stack_rc[--sp];
+    w->eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
+    w->ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
+    w->sp = sp;
+    return true;
+  };
   if (ecount > 0) {
     RayHit h;
     // the triangles in order, each where ray_triangle may hit it (all, or by the AVX2
@@ -205,15 +225,7 @@ inline bool Bvh::walk_step(HitWalk* w) const {
         const double tj = tc[j];
         const int32_t rj = fq.ref[j];
         prefetch_fref(rj);
-        const uint64_t rc = rj < 0 ? pack(~rj, fq.count[j]) : pack(rj, 0);
-        int at = sp++;
-        while (at > base && stack_t[at - 1] <= tj) {
-          stack_t[at] = stack_t[at - 1];
-          stack_rc[at] = stack_rc[at - 1];
-          --at;
-        }
-        stack_t[at] = tj;
-        stack_rc[at] = rc;
+        push(base, tj, rj < 0 ? pack(~rj, fq.count[j]) : pack(rj, 0));
       }
     } else {
       if (sp + kQuadWidth > kStack) {
@@ -229,37 +241,16 @@ inline bool Bvh::walk_step(HitWalk* w) const {
           if (pr.count[j] >= 0 && t2[j] != inf) {
             // the records or triangles start loading now (a hint: no effect on results)
             prefetch_ref(pr.ref[j], pr.count[j]);
-            int at = sp++;
-            while (at > base && stack_t[at - 1] <= t2[j]) {
-              stack_t[at] = stack_t[at - 1];
-              stack_rc[at] = stack_rc[at - 1];
-              --at;
-            }
-            stack_t[at] = t2[j];
-            stack_rc[at] = pack(pr.ref[j], pr.count[j]);
+            push(base, t2[j], pack(pr.ref[j], pr.count[j]));
           }
       }
     }
-    if (sp > base) {  // the nearest child met: within the cull distance, which is unchanged
-      --sp;
-      const uint64_t erc = stack_rc[sp];
-      w->eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
-      w->ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
-      w->sp = sp;
-      return true;
-    }
+    // the nearest child met: within the cull distance, which is unchanged
+    if (sp > base) return visit_top();
   }
   // the next entry of the stack not beyond the cull distance
-  for (;;) {
-    if (sp == 0) return false;
-    --sp;
-    if (!(stack_t[sp] > w->cull)) break;
-  }
-  const uint64_t erc = stack_rc[sp];
-  w->eref = static_cast<int32_t>(static_cast<uint32_t>(erc));
-  w->ecount = static_cast<int32_t>(static_cast<uint32_t>(erc >> 32));
-  w->sp = sp;
-  return true;
+  while (sp > 0 && stack_t[sp - 1] > w->cull) --sp;
+  return sp > 0 && visit_top();
 }
 
 template <class Make, class Store>

@@ -606,9 +606,9 @@ def test_jit_path_matches_the_host_path():
 
 def test_first_hits_in_large_leaves_vs_brute_force(monkeypatch):
     # 30 triangles whose boxes are all the cube [-1, 1]^3 (on every axis one corner at -1,
-    # one at 1, the third inside) share one centroid and so one leaf, which the AVX2
-    # traversal tests four triangles at a time (the last group partly filled); next to a
-    # random soup.
+    # one at 1, the third inside) share one centroid, which no split separates: they end
+    # in leaves of 7 or 8 (halved by position), which the AVX2 traversal tests four
+    # triangles at a time (the last group partly filled); next to a random soup.
     from voxax._kernels.cpu import cpu_features
 
     rng = np.random.default_rng(21)
